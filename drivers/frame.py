@@ -1,0 +1,66 @@
+"""The typed frame that crosses every boundary from the drivers up to the viewer."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.camera import Intrinsics
+
+MOD_FREQS_MHZ = (40.0, 30.0, 21.0, 20.0, 19.0)
+"""MOD_FREQ register index -> modulation frequency in MHz (SR3000)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Registers:
+    """Camera register settings a frame was taken with (SR3000 register map)."""
+
+    int_time_code: int = 30  # INT_TIME 0x01: (code + 1) * 0.2 ms
+    mod_freq_index: int = 3  # MOD_FREQ 0x02: index into MOD_FREQS_MHZ
+    acq_mode: int = 0x05  # ACQ_MODE 0x03, opaque
+    data_source: int = 0  # DATA_SOURCE 0x04: 0 scene, 1 test pattern
+    amp_threshold: int = 0  # AMP_THR_LO/HI 0x05/0x06, opaque
+
+    @property
+    def integration_time_s(self) -> float:
+        return (self.int_time_code + 1) * 0.2e-3
+
+    @property
+    def mod_freq_hz(self) -> float:
+        return MOD_FREQS_MHZ[self.mod_freq_index] * 1e6
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceInfo:
+    """Identity of the source of a frame."""
+
+    serial: str  # 8 upper-case hex digits for USB devices
+    firmware: str = ""  # e.g. "1.0"
+    backend: str = "usb"  # "usb", "emulated" or "replay"
+    model: str = "SR3000"
+
+
+@dataclass(frozen=True, slots=True)
+class GroundTruth:
+    """Labelled nose tip of a frame, when the source knows it (emulator, labelled recordings)."""
+
+    nose_px: tuple[float, float]  # (u, v) = (column, row) in pixels
+    visible: bool = True
+    nose_xyz_m: tuple[float, float, float] | None = None  # camera frame, metres
+
+
+@dataclass(slots=True)
+class Frame:
+    """One TOF frame: radial range in metres (NaN invalid) and amplitude, with timing and provenance."""
+
+    range_m: np.ndarray  # (H, W) float32, metres along each pixel's ray, NaN where invalid
+    amplitude: np.ndarray  # (H, W) float32, sensor units
+    frame_counter: int
+    timestamp_us: int  # device clock, microseconds, end of exposure
+    host_monotonic_s: float  # time.monotonic() when the host received the frame
+    host_wall_s: float  # time.time() when the host received the frame
+    intrinsics: Intrinsics = field(default_factory=Intrinsics)
+    device: DeviceInfo = field(default_factory=lambda: DeviceInfo(serial="00000000"))
+    registers: Registers = field(default_factory=Registers)
+    ground_truth: GroundTruth | None = None

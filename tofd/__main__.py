@@ -1,0 +1,5 @@
+import sys
+
+from tofd.cli import main
+
+sys.exit(main())

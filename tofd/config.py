@@ -1,0 +1,128 @@
+"""Typed service configuration, loaded from TOML; a wrong key or value names itself in a one-line error."""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from drivers.camera import Intrinsics
+
+DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "config" / "tofd.toml"
+
+
+class ConfigError(ValueError):
+    """A config file that cannot be used; the message names the offending key."""
+
+
+@dataclass(frozen=True, slots=True)
+class CameraConfig:
+    """Which camera to attach to and the registers to apply."""
+
+    serial: str = ""  # 8 hex digits; empty = first camera found
+    int_time_code: int = 30  # INT_TIME register: (code + 1) * 0.2 ms
+    mod_freq_index: int = 3  # MOD_FREQ register: index into [40, 30, 21, 20, 19] MHz
+
+
+@dataclass(frozen=True, slots=True)
+class SegmentationConfig:
+    """Foreground segmentation: adaptive amplitude threshold, then a range percentile."""
+
+    amplitude_method: str = "otsu"
+    range_percentile: float = 20.0
+
+
+@dataclass(frozen=True, slots=True)
+class FeatureConfig:
+    """Generalized-eccentricity features (FFT and NFFT paths)."""
+
+    equivalence_range_m: float = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class Config:
+    """The whole service configuration; every section has documented defaults (config/tofd.toml)."""
+
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    intrinsics: Intrinsics = field(default_factory=Intrinsics)
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+
+
+def _convert(value: object, tp: object, key: str) -> object:
+    """Check (and widen int -> float) one TOML value against a dataclass field type."""
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a table, got {type(value).__name__}")
+        return _build(tp, value, key)
+    if origin in (types.UnionType, typing.Union):
+        errors = []
+        for arg in typing.get_args(tp):
+            if arg is type(None):
+                continue
+            try:
+                return _convert(value, arg, key)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        raise ConfigError(errors[0] if errors else f"{key}: bad value {value!r}")
+    if origin in (list, tuple):
+        (item_tp, *_) = typing.get_args(tp) or (object,)
+        if not isinstance(value, list):
+            raise ConfigError(f"{key}: expected a list, got {type(value).__name__}")
+        items = [_convert(v, item_tp, f"{key}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if origin is typing.Literal:
+        if value not in typing.get_args(tp):
+            choices = ", ".join(repr(a) for a in typing.get_args(tp))
+            raise ConfigError(f"{key}: {value!r} is not one of {choices}")
+        return value
+    if tp is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if tp is object or (isinstance(tp, type) and isinstance(value, tp) and not (tp is int and isinstance(value, bool))):
+        return value
+    name = getattr(tp, "__name__", str(tp))
+    raise ConfigError(f"{key}: expected {name}, got {type(value).__name__} {value!r}")
+
+
+def _build(cls: type, table: dict, prefix: str) -> object:
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key in table:
+        if key not in names:
+            where = f"{prefix}.{key}" if prefix else key
+            raise ConfigError(f"unknown config key {where!r} (known: {', '.join(sorted(names))})")
+    kwargs = {k: _convert(v, hints[k], f"{prefix}.{k}" if prefix else k) for k, v in table.items()}
+    try:
+        obj = cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{prefix or 'config'}: {exc}") from None
+    validate = getattr(obj, "validate", None)
+    if validate is not None:
+        try:
+            validate()
+        except ValueError as exc:
+            raise ConfigError(f"{prefix}.{exc}") from None
+    return obj
+
+
+def config_from_dict(table: dict) -> Config:
+    """Build a Config from a parsed TOML table, rejecting unknown keys and wrong types."""
+    return typing.cast(Config, _build(Config, table, ""))
+
+
+def load_config(path: str | Path | None = None) -> Config:
+    """Load the config file at `path` (the bundled config/tofd.toml if None)."""
+    path = Path(path) if path is not None else DEFAULT_CONFIG_PATH
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"cannot read config {path}: {exc.strerror}") from None
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    return config_from_dict(table)
