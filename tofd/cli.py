@@ -8,9 +8,7 @@ import pkgutil
 import sys
 
 import tofd.commands
-
 from tofd.config import ConfigError
-
 
 
 def build_parser() -> argparse.ArgumentParser:
