@@ -1,0 +1,118 @@
+"""The box learner, box distance, detection on maps, and the model file."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from tofd.config import FeatureConfig, SegmentationConfig
+from tofd.detect import (
+    VARIANTS,
+    Box,
+    ModelError,
+    ModelMismatch,
+    NoseModel,
+    VariantModel,
+    detect,
+    learn_box,
+    load_model,
+    save_model,
+    stack_features,
+)
+
+
+def test_box_of_uniform_cloud_matches_its_quantiles():
+    rng = np.random.default_rng(0)
+    lo, hi = np.array([-3.0, 1.0]), np.array([-1.0, 5.0])
+    samples = lo + (hi - lo) * rng.random((200_000, 2))
+    box = learn_box(samples, ("a", "b"), quantile=0.1)
+    # quantiles 0.1 / 0.9 of U(lo, hi): lo + 0.1 (hi - lo), hi - 0.1 (hi - lo)
+    np.testing.assert_allclose(box.centre, (lo + hi) / 2, atol=0.01)
+    np.testing.assert_allclose(box.half_width, 0.4 * (hi - lo), atol=0.01)
+
+
+def test_box_ignores_outliers_and_nan():
+    rng = np.random.default_rng(1)
+    samples = rng.normal([0.0, 10.0], [1.0, 0.1], size=(10_000, 2))
+    samples[:20] = 1e6  # 0.2 % gross outliers
+    samples[20:40, 0] = np.nan
+    box = learn_box(samples, ("a", "b"), quantile=0.05)
+    np.testing.assert_allclose(box.centre, [0.0, 10.0], atol=0.05)
+    np.testing.assert_allclose(box.half_width, [1.645, 0.1645], rtol=0.05)
+
+
+def test_box_distance_is_normalised_chebyshev():
+    box = Box(("a", "b"), np.array([0.0, 0.0]), np.array([1.0, 2.0]))
+    x = np.array([[0.5, 0.0], [0.0, 3.0], [2.0, 2.0], [np.nan, 0.0]])
+    np.testing.assert_allclose(box.distance(x), [0.5, 1.5, 2.0, np.inf])
+
+
+def test_learner_separates_two_clouds_of_a_known_layout():
+    rng = np.random.default_rng(2)
+    nose = rng.normal([1.0, -1.0], 0.1, size=(5000, 2))
+    other = rng.normal([0.0, 0.0], 0.1, size=(5000, 2))
+    box = learn_box(nose, ("a", "b"), quantile=0.01)
+    assert np.mean(box.distance(nose) <= 1) == pytest.approx(0.98**2, abs=0.01)  # 98 % per feature
+    assert np.mean(box.distance(other) <= 1) == 0.0
+
+
+def test_detect_finds_the_pixel_in_the_box():
+    h, w = 6, 8
+    maps = {n: np.full((h, w), 1e-3, np.float32) for n in VARIANTS["nfft_range"]}
+    maps["range_nfft_eps0"][2, 5] = 1.0  # the only pixel near the box centre (log10 0, -3)
+    maps["range_nfft_eps0"][0, 0] = np.nan
+    box = Box(VARIANTS["nfft_range"], np.array([0.0, -3.0]), np.array([0.5, 0.5]))
+    points = np.arange(h * w * 3, dtype=float).reshape(h, w, 3)
+    det = detect(maps, points, box, scale=1.0)
+    assert det.accepted and det.nose_px == (5, 2) and det.score == pytest.approx(0.0, abs=1e-6)
+    assert det.nose_xyz_m == tuple(points[2, 5])
+    maps["range_nfft_eps0"][2, 5] = 10.0  # log10 = 1: distance 2 > scale 1
+    det = detect(maps, points, box, scale=1.0)
+    assert not det.accepted and det.nose_px is None and det.score == pytest.approx(2.0)
+
+
+def test_stack_features_names_missing_map():
+    with pytest.raises(KeyError, match="amp_fft_eps0"):
+        stack_features({"range_fft_eps0": np.ones(3)}, ("range_fft_eps0", "amp_fft_eps0"))
+
+
+def _model() -> NoseModel:
+    boxes = {v: VariantModel(v, Box(names, np.linspace(-2, 1, len(names)), np.full(len(names), 0.25)), 1.3, 0.05)
+             for v, names in VARIANTS.items()}
+    return NoseModel(boxes, dataclasses.asdict(FeatureConfig()), dataclasses.asdict(SegmentationConfig()),
+                     quantile=0.05, positive_radius_mm=5.0, training={"frames": 3})
+
+
+def test_model_round_trips_through_json(tmp_path):
+    model = _model()
+    path = save_model(model, tmp_path / "m.json")
+    loaded = load_model(path)
+    assert loaded.variants.keys() == model.variants.keys()
+    for name, vm in model.variants.items():
+        got = loaded.variant(name)
+        assert got.box.features == vm.box.features and got.operating_scale == vm.operating_scale
+        np.testing.assert_allclose(got.box.centre, vm.box.centre, atol=1e-6)
+        np.testing.assert_allclose(got.box.half_width, vm.box.half_width, atol=1e-6)
+    assert loaded.feature_config == model.feature_config and loaded.training == {"frames": 3}
+    loaded.check_compatible(FeatureConfig(), SegmentationConfig())
+
+
+def test_model_mismatch_names_the_setting():
+    model = _model()
+    with pytest.raises(ModelMismatch, match="features.equivalence_range_m"):
+        model.check_compatible(FeatureConfig(equivalence_range_m=0.7), SegmentationConfig())
+
+
+def test_bad_model_file_names_the_key(tmp_path):
+    d = _model().to_dict()
+    d["variants"]["nfft_range"]["box"]["half_width_log10"] = [0.1, -1.0]
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(ModelError, match="variants.nfft_range.box"):
+        load_model(tmp_path / "bad.json")
+    del d["feature_config"]
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(ModelError, match="feature_config"):
+        load_model(tmp_path / "bad.json")
+    with pytest.raises(ModelError, match="cannot read model"):
+        load_model(tmp_path / "absent.json")

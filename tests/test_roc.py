@@ -1,0 +1,53 @@
+"""ROC and equal error rate of the per-image box detector on constructed cases with known answers."""
+
+import numpy as np
+import pytest
+
+from tofd.roc import equal_error_rate, roc_from_min_distances
+
+
+def test_perfect_separation_has_zero_eer():
+    true_min = np.array([0.1, 0.2, 0.3, 0.4])
+    false_min = np.array([0.5, 0.6, 0.7, 0.8])
+    roc = roc_from_min_distances(true_min, false_min)
+    assert roc.eer == 0.0
+    assert 0.4 <= roc.eer_scale <= 0.5
+    assert roc.detection_rate[-1] == 1.0 and roc.false_positive_rate[-1] == 1.0
+
+
+def test_identical_distributions_cross_at_one_half():
+    d = np.arange(1, 11) / 10.0
+    roc = roc_from_min_distances(d, d.copy())
+    assert roc.eer == pytest.approx(0.5)
+
+
+def test_interpolated_crossing_known_value():
+    # 4 images. Scales: 1 -> DR .25 FPR 0 ; 2 -> DR .25 FPR .5 ; 3 -> DR 1 FPR .5 ...
+    # Points (fpr, miss): (0, .75) at 1, (.5, .75) at 2 (gap -.25), (.5, 0) at 3 (gap +.5):
+    # crossing at lambda = 1/3 between scales 2 and 3 -> fpr = .5, miss = .75 - .75/3 = .5.
+    true_min = np.array([1.0, 3.0, 3.0, 3.0])
+    false_min = np.array([2.0, 2.0, 4.0, 4.0])
+    roc = roc_from_min_distances(true_min, false_min)
+    assert roc.eer == pytest.approx(0.5)
+    assert roc.eer_scale == pytest.approx(2 + 1 / 3)
+
+
+def test_eer_linear_interpolation_between_points():
+    # Two ROC points straddling the diagonal: (fpr .1, miss .3) and (fpr .3, miss .1): crossing at .2.
+    eer, scale = equal_error_rate(np.array([1.0, 2.0]), np.array([0.7, 0.9]), np.array([0.1, 0.3]))
+    assert eer == pytest.approx(0.2) and scale == pytest.approx(1.5)
+
+
+def test_frames_without_nose_count_only_for_false_positives():
+    true_min = np.array([0.1, np.inf, np.inf])
+    false_min = np.array([np.inf, 0.2, np.inf])
+    roc = roc_from_min_distances(true_min, false_min, has_nose=np.array([True, False, False]))
+    assert roc.n_with_nose == 1
+    assert roc.eer == 0.0
+    # at the largest scale every nose image is detected and one of three images has a false positive
+    assert roc.detection_rate[-1] == 1.0 and roc.false_positive_rate[-1] == pytest.approx(1 / 3)
+
+
+def test_shape_mismatch_is_rejected():
+    with pytest.raises(ValueError, match="true_min"):
+        roc_from_min_distances(np.zeros(3), np.zeros(4))

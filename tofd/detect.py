@@ -1,0 +1,246 @@
+"""The paper's nose detector: a pixel is the nose tip iff its feature vector lies in an axis-aligned box.
+
+Features are the generalised eccentricities eps0, eps2 of the range image (FFT or NFFT path) and, for the
+"+amplitude" variants, eps0, eps2 of the amplitude image (FFT path). The box lives in log10 feature space
+(eccentricities span decades; a box there is still an axis-aligned box in the raw features).
+
+Learning (`learn_box`): per feature, the `quantile` and 1 - `quantile` quantiles of the training pixels near the
+true nose tip give the box at scale 1; the box at scale s has the same centre and s times the half-widths.
+A pixel's *box distance* is max_k |x_k - centre_k| / half_width_k: the pixel is inside the box at scale s iff
+its box distance <= s. The detector reports the foreground pixel of smallest box distance (its score) and
+accepts it iff score <= the operating scale, so sweeping the scale traces the ROC (tofd.roc).
+
+Model file (`save_model` / `load_model`): small JSON, one box per variant plus the feature and segmentation
+settings it was trained with, so features computed with other settings are refused (ModelMismatch).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+MODEL_FORMAT = "tofd-nose-model"
+MODEL_VERSION = 1
+
+RANGE_FAMILIES = ("fft", "nfft")
+VARIANTS: dict[str, tuple[str, ...]] = {
+    "fft_range": ("range_fft_eps0", "range_fft_eps2"),
+    "fft_range_amp": ("range_fft_eps0", "range_fft_eps2", "amp_fft_eps0", "amp_fft_eps2"),
+    "nfft_range": ("range_nfft_eps0", "range_nfft_eps2"),
+    "nfft_range_amp": ("range_nfft_eps0", "range_nfft_eps2", "amp_fft_eps0", "amp_fft_eps2"),
+}
+"""Variant name -> the feature maps (names as produced by tofd.feature_maps) its box is learned on."""
+
+LOG_FLOOR = 1e-30  # eccentricities below this are clipped before log10
+
+
+class ModelError(ValueError):
+    """A model file that cannot be used; the message names the file and the key."""
+
+
+class ModelMismatch(ModelError):
+    """Features computed with settings other than the model's (the message names the differing keys)."""
+
+
+def to_log_features(values: np.ndarray) -> np.ndarray:
+    """log10 of eccentricities (clipped at LOG_FLOOR); NaN stays NaN."""
+    return np.log10(np.maximum(values, LOG_FLOOR))
+
+
+def stack_features(maps: dict[str, np.ndarray], names: tuple[str, ...]) -> np.ndarray:
+    """(..., k) log10 feature vectors from named eccentricity maps (each (...)); NaN where any is missing."""
+    missing = [n for n in names if n not in maps]
+    if missing:
+        raise KeyError(f"feature map(s) {', '.join(missing)} not computed")
+    return to_log_features(np.stack([np.asarray(maps[n], dtype=np.float64) for n in names], axis=-1))
+
+
+@dataclass(frozen=True, slots=True)
+class Box:
+    """An axis-aligned box in log10 feature space at scale 1: centre +- half_width."""
+
+    features: tuple[str, ...]
+    centre: np.ndarray  # (k,) log10 units
+    half_width: np.ndarray  # (k,) log10 units, > 0
+
+    def distance(self, x: np.ndarray) -> np.ndarray:
+        """(...) box distance of log10 feature vectors (..., k): the smallest scale whose box holds them.
+
+        +inf where a feature is NaN (not foreground / not computed).
+        """
+        d = np.max(np.abs(x - self.centre) / self.half_width, axis=-1)
+        return np.where(np.isnan(d), np.inf, d)
+
+    def to_dict(self) -> dict:
+        return {
+            "features": list(self.features),
+            "centre_log10": [round(float(c), 6) for c in self.centre],
+            "half_width_log10": [round(float(h), 6) for h in self.half_width],
+            "low": [float(f"{v:.6g}") for v in 10 ** (self.centre - self.half_width)],
+            "high": [float(f"{v:.6g}") for v in 10 ** (self.centre + self.half_width)],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Box:
+        features = tuple(d["features"])
+        centre = np.asarray(d["centre_log10"], dtype=np.float64)
+        half = np.asarray(d["half_width_log10"], dtype=np.float64)
+        if not (len(features) == len(centre) == len(half)):
+            raise ValueError("features, centre_log10 and half_width_log10 must have the same length")
+        if np.any(~np.isfinite(centre)) or np.any(~(half > 0)):
+            raise ValueError("centre_log10 must be finite and half_width_log10 positive")
+        return cls(features, centre, half)
+
+
+MIN_HALF_WIDTH = 1e-3  # log10 units; keeps a box of identical samples usable
+
+
+def learn_box(samples: np.ndarray, features: tuple[str, ...], quantile: float = 0.05) -> Box:
+    """The box of the [quantile, 1 - quantile] range of each feature over positive samples (N, k), log10 units.
+
+    Quantiles instead of min/max make the box robust to a few mislabelled or noisy pixels.
+    """
+    samples = np.asarray(samples, dtype=np.float64)
+    if samples.ndim != 2 or samples.shape[1] != len(features):
+        raise ValueError(f"samples must be (N, {len(features)}), got {samples.shape}")
+    if not 0 <= quantile < 0.5:
+        raise ValueError(f"quantile must be in [0, 0.5), got {quantile}")
+    samples = samples[np.all(np.isfinite(samples), axis=1)]
+    if len(samples) == 0:
+        raise ValueError("no finite positive samples to learn a box from")
+    lo, hi = np.quantile(samples, [quantile, 1 - quantile], axis=0)
+    return Box(features, (lo + hi) / 2, np.maximum((hi - lo) / 2, MIN_HALF_WIDTH))
+
+
+@dataclass(frozen=True, slots=True)
+class VariantModel:
+    """The learned box of one variant and its operating scale (the training-set equal-error scale)."""
+
+    variant: str
+    box: Box
+    operating_scale: float = 1.0
+    train_eer: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class NoseModel:
+    """Boxes for one or more variants and the settings their features were computed with."""
+
+    variants: dict[str, VariantModel]
+    feature_config: dict  # dataclasses.asdict(FeatureConfig) at training time
+    segmentation_config: dict  # dataclasses.asdict(SegmentationConfig) at training time
+    quantile: float = 0.05
+    positive_radius_mm: float = 5.0
+    training: dict = dataclasses.field(default_factory=dict)  # provenance: data, frames, pixels
+
+    def variant(self, name: str) -> VariantModel:
+        if name not in self.variants:
+            raise ModelError(f"model has no variant {name!r} (has: {', '.join(self.variants)})")
+        return self.variants[name]
+
+    def check_compatible(self, feature_config: object, segmentation_config: object) -> None:
+        """Raise ModelMismatch naming every setting that differs from the model's."""
+        diffs = _diff("features", self.feature_config, dataclasses.asdict(feature_config)) + _diff(
+            "segmentation", self.segmentation_config, dataclasses.asdict(segmentation_config))
+        if diffs:
+            raise ModelMismatch("model was trained with other feature settings: " + "; ".join(diffs))
+
+    def to_dict(self) -> dict:
+        return {
+            "format": MODEL_FORMAT,
+            "version": MODEL_VERSION,
+            "about": "tofd nose detector (Haker et al. 2008): a pixel is the nose tip iff its log10 feature "
+            "vector x satisfies max_k |x_k - centre_log10_k| / half_width_log10_k <= scale. low/high: the "
+            "box in raw eccentricity units at scale 1. operating_scale: scale used by the pipeline.",
+            "quantile": self.quantile,
+            "positive_radius_mm": self.positive_radius_mm,
+            "feature_config": self.feature_config,
+            "segmentation_config": self.segmentation_config,
+            "training": self.training,
+            "variants": {
+                name: {"box": vm.box.to_dict(), "operating_scale": vm.operating_scale, "train_eer": vm.train_eer}
+                for name, vm in self.variants.items()
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "model") -> NoseModel:
+        if d.get("format") != MODEL_FORMAT:
+            raise ModelError(f"{where}: key 'format' is {d.get('format')!r}, expected {MODEL_FORMAT!r}")
+        if d.get("version") != MODEL_VERSION:
+            raise ModelError(f"{where}: key 'version' is {d.get('version')!r}, expected {MODEL_VERSION}")
+        for key in ("variants", "feature_config", "segmentation_config"):
+            if not isinstance(d.get(key), dict):
+                raise ModelError(f"{where}: key {key!r} missing or not a table")
+        variants = {}
+        for name, v in d["variants"].items():
+            if name not in VARIANTS:
+                raise ModelError(f"{where}: key 'variants.{name}': unknown variant (known: {', '.join(VARIANTS)})")
+            try:
+                box = Box.from_dict(v["box"])
+                scale = float(v.get("operating_scale", 1.0))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ModelError(f"{where}: key 'variants.{name}.box': {exc}") from None
+            if box.features != VARIANTS[name]:
+                raise ModelError(f"{where}: key 'variants.{name}.box.features' is {list(box.features)}, "
+                                 f"expected {list(VARIANTS[name])}")
+            variants[name] = VariantModel(name, box, scale, v.get("train_eer"))
+        return cls(variants, d["feature_config"], d["segmentation_config"], float(d.get("quantile", 0.05)),
+                   float(d.get("positive_radius_mm", 5.0)), dict(d.get("training", {})))
+
+
+def _diff(section: str, saved: dict, current: dict) -> list[str]:
+    keys = sorted(set(saved) | set(current))
+    return [f"{section}.{k}: model {saved.get(k)!r} != current {current.get(k)!r}"
+            for k in keys if saved.get(k) != current.get(k)]
+
+
+def save_model(model: NoseModel, path: str | Path) -> Path:
+    """Write the model as indented JSON."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(model.to_dict(), indent=2) + "\n")
+    return path
+
+
+def load_model(path: str | Path) -> NoseModel:
+    """Read a model JSON; ModelError names the file and the bad key."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except OSError as exc:
+        raise ModelError(f"cannot read model {path}: {exc.strerror}") from None
+    except json.JSONDecodeError as exc:
+        raise ModelError(f"{path}: invalid JSON: {exc}") from None
+    if not isinstance(d, dict):
+        raise ModelError(f"{path}: expected a JSON object")
+    return NoseModel.from_dict(d, str(path))
+
+
+@dataclass(frozen=True, slots=True)
+class Detection:
+    """The detector's answer for one frame: the best pixel, its 3-D point, and whether it is in the box."""
+
+    nose_px: tuple[int, int] | None  # (u, v) = (column, row) of the accepted pixel, None if none accepted
+    nose_xyz_m: tuple[float, float, float] | None  # camera frame, metres
+    score: float  # box distance of the best foreground pixel (lower is better; inf if no foreground)
+    accepted: bool  # score <= scale
+
+
+def detect(maps: dict[str, np.ndarray], points: np.ndarray, box: Box, scale: float) -> Detection:
+    """Detect the nose in one frame from its feature maps ((H, W), NaN outside the foreground).
+
+    points: (H, W, 3) camera-frame points in metres (Intrinsics.backproject of the range map).
+    """
+    dist = box.distance(stack_features(maps, box.features))
+    flat = int(np.argmin(dist))
+    score = float(dist.flat[flat])
+    if not score <= scale:
+        return Detection(None, None, score, False)
+    row, col = np.unravel_index(flat, dist.shape)
+    xyz = tuple(float(c) for c in points[row, col])
+    return Detection((int(col), int(row)), xyz, score, True)
