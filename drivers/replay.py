@@ -328,7 +328,7 @@ class ReplaySource(FrameSource):
                         return
                     yielded = True
                     yield entry.frame()
-                if not self.loop or (not yielded and not (first and self.seek is not None)):
+                if self.closed or not self.loop or (not yielded and not (first and self.seek is not None)):
                     return
                 first = False
                 self.counters["replay_loops"] += 1
