@@ -20,11 +20,33 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class CameraConfig:
-    """Which camera to attach to and the registers to apply."""
+    """Which camera to attach to, the registers to apply, and how to ride out faults (drivers.usb_camera).
+
+    Field names match drivers.usb_camera.UsbCamera's keywords: UsbCamera(**dataclasses.asdict(cfg)).
+    """
 
     serial: str = ""  # 8 hex digits; empty = first camera found
     int_time_code: int = 30  # INT_TIME register: (code + 1) * 0.2 ms
     mod_freq_index: int = 3  # MOD_FREQ register: index into [40, 30, 21, 20, 19] MHz
+    read_timeout_s: float = 0.5  # seconds: timeout of one bulk frame read (then retried)
+    stall_report_s: float = 2.0  # seconds without a frame before a stall is reported
+    reconnect_initial_s: float = 0.1  # seconds: first wait before reopening an unplugged camera
+    reconnect_max_s: float = 5.0  # seconds: the wait doubles after each failed attempt up to this
+
+    def validate(self) -> None:
+        if self.serial and (len(self.serial) != 8 or any(c not in "0123456789abcdefABCDEF" for c in self.serial)):
+            raise ValueError(f"serial: {self.serial!r} is not 8 hex digits (or \"\" for the first camera)")
+        if not 0 <= self.int_time_code <= 255:
+            raise ValueError(f"int_time_code: {self.int_time_code} is not in 0..255")
+        if not 0 <= self.mod_freq_index <= 4:
+            raise ValueError(f"mod_freq_index: {self.mod_freq_index} is not in 0..4")
+        if not self.read_timeout_s >= 0.001:
+            raise ValueError(f"read_timeout_s: {self.read_timeout_s} must be >= 0.001")
+        if not self.stall_report_s > 0:
+            raise ValueError(f"stall_report_s: {self.stall_report_s} must be > 0")
+        if not 0 < self.reconnect_initial_s <= self.reconnect_max_s:
+            raise ValueError(f"reconnect_initial_s: {self.reconnect_initial_s} must be > 0 and <= "
+                             f"reconnect_max_s ({self.reconnect_max_s})")
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,0 +1,87 @@
+"""The USB backend's exceptions and the one place that turns pyusb errors into them."""
+
+from __future__ import annotations
+
+import errno
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import usb.core
+
+from drivers.source import DriverError
+
+UDEV_RULE = Path(__file__).resolve().parent.parent / "config" / "99-tofd-sr3000.rules"
+
+# libusb-1.0 error codes, for backends that leave errno unset
+_LIBUSB_CODES = {-3: errno.EACCES, -4: errno.ENODEV, -6: errno.EBUSY, -7: errno.ETIMEDOUT, -8: errno.EOVERFLOW,
+                 -9: errno.EPIPE}
+
+
+class UsbCameraError(DriverError):
+    """A USB camera problem; `where` says which operation failed."""
+
+
+class DeviceNotFound(UsbCameraError):
+    """No SR3000-style camera (0852:0074) attached, or none with the requested serial."""
+
+
+class AccessDenied(UsbCameraError):
+    """The OS refused to open the device (no udev rule installed)."""
+
+
+class DeviceBusy(UsbCameraError):
+    """Another program holds the device's interface."""
+
+
+class DeviceGone(UsbCameraError):
+    """The device was unplugged (no such device)."""
+
+
+class TransferTimeout(UsbCameraError):
+    """A transfer did not complete in time."""
+
+
+class EndpointStalled(UsbCameraError):
+    """The device answered with a STALL (pipe error): a refused request or a halted endpoint."""
+
+
+class TransferOverflow(UsbCameraError):
+    """The device sent more data than the buffer holds."""
+
+
+def access_denied_hint() -> str:
+    """How to let a normal user open the camera."""
+    return (f"install the udev rule {UDEV_RULE} (sudo cp {UDEV_RULE} /etc/udev/rules.d/ && "
+            "sudo udevadm control --reload-rules && sudo udevadm trigger), make sure you are in group "
+            "plugdev, then replug the camera")
+
+
+_KINDS: dict[int, type[UsbCameraError]] = {
+    errno.EACCES: AccessDenied, errno.EPERM: AccessDenied, errno.ENODEV: DeviceGone, errno.EBUSY: DeviceBusy,
+    errno.ETIMEDOUT: TransferTimeout, errno.EPIPE: EndpointStalled, errno.EOVERFLOW: TransferOverflow,
+}
+
+
+def translate(exc: usb.core.USBError, where: str) -> UsbCameraError:
+    """The package's exception for a pyusb error raised during `where`."""
+    code = exc.errno if exc.errno is not None else _LIBUSB_CODES.get(exc.backend_error_code or 0)
+    if isinstance(exc, usb.core.USBTimeoutError):
+        code = errno.ETIMEDOUT
+    kind = _KINDS.get(abs(code) if code is not None else 0, UsbCameraError)
+    message = f"{where}: {exc.strerror or exc}"
+    if kind is AccessDenied:
+        message += f"; {access_denied_hint()}"
+    return kind(message)
+
+
+@contextmanager
+def usb_errors(where: str) -> Iterator[None]:
+    """Re-raise pyusb errors inside the block as UsbCameraError subclasses (the single translation point)."""
+    try:
+        yield
+    except usb.core.USBError as exc:
+        raise translate(exc, where) from exc
+    except usb.core.NoBackendError as exc:
+        raise UsbCameraError(f"{where}: no USB backend available; install libusb-1.0 "
+                             "(Debian/Ubuntu: sudo apt install libusb-1.0-0)") from exc
