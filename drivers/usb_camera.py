@@ -144,7 +144,8 @@ class UsbCamera(FrameSource):
         self._dropped_before = 0  # device drops of earlier sessions
         self._tally = _DropTally(0)
         self._gap_kind: str | None = None
-        self._gap_since = time.monotonic()
+        self._last_frame_s = time.monotonic()  # host time of the last good frame (or of the first start)
+        self._silent_since = self._last_frame_s  # start of the current run of timeouts
         self._stall_reported = False
         self._device = open_device(serial, backend)
         self.serial = self._device.serial
@@ -189,7 +190,7 @@ class UsbCamera(FrameSource):
         self._dropped_before += self._tally.total
         self._tally = _DropTally(self._device.get_status().frames_dropped)
         self._acquiring = True
-        self._gap_since = time.monotonic()
+        self._silent_since = time.monotonic()
 
     def __iter__(self) -> Iterator[Frame]:
         while not self.closed:
@@ -270,7 +271,7 @@ class UsbCamera(FrameSource):
     # ------------------------------------------------------------------------------------ faults
     def _timed_out(self) -> None:
         self.counters["timeout"] += 1
-        silent_s = time.monotonic() - self._gap_since
+        silent_s = time.monotonic() - self._silent_since
         if silent_s >= self.stall_report_s and not self._stall_reported:
             self._stall_reported = True
             self.counters["stall"] += 1
@@ -291,13 +292,13 @@ class UsbCamera(FrameSource):
         """Report the gap that the frame with this counter ends, if there was one."""
         if self._gap_kind is not None:
             last = self.last_header.frame_counter if self.last_header is not None else None
-            gap = FrameGap(self._gap_kind, self._gap_since, now_mono, last, counter)
+            gap = FrameGap(self._gap_kind, self._last_frame_s, now_mono, last, counter)
             self.gaps.append(gap)
             if self.on_gap is not None:
                 self.on_gap(gap)
         self._gap_kind = None
         self._stall_reported = False
-        self._gap_since = now_mono
+        self._last_frame_s = self._silent_since = now_mono
 
     def _reconnect(self) -> None:
         """Close, then reopen the same serial with exponential backoff; restore registers, restart acquisition."""

@@ -65,6 +65,88 @@ class FeatureConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class PipelineConfig:
+    """Threads, worker processes and queue policies of the pipeline (tofd.pipeline)."""
+
+    workers: int = 2  # feature worker processes (segmentation + FFT + NFFT per frame)
+    tasks_per_worker: int = 2  # frames in flight per worker (shared-memory slots = workers * this)
+    input_queue: int = 4  # lossless policy: frames waiting for a worker (the live policy keeps only the newest)
+    sink_queue: int = 8  # frames waiting for the sink thread (live: the oldest is dropped when full)
+    policy: str = "auto"  # "auto" (live sources: latest-wins, replay: lossless), "latest" or "lossless"
+    worker_timeout_s: float = 10.0  # seconds: a worker holding a frame longer is killed and restarted
+    worker_start_timeout_s: float = 60.0  # seconds allowed for the workers to build their plans at start
+    max_worker_failures: int = 5  # consecutive worker deaths without a processed frame before giving up
+    drain_timeout_s: float = 10.0  # seconds to drain the queues on shutdown before dropping the rest
+    stats_window: int = 600  # frames in the rolling timing/fps window
+    model_path: str = ""  # nose detector model JSON (tofd.detect); "" = no detection
+    model_variant: str = "nfft_range_amp"  # detector variant: fft_range, fft_range_amp, nfft_range, nfft_range_amp
+
+    def validate(self) -> None:
+        for key in ("workers", "tasks_per_worker", "input_queue", "sink_queue", "max_worker_failures",
+                    "stats_window"):
+            if getattr(self, key) < 1:
+                raise ValueError(f"{key}: {getattr(self, key)} must be >= 1")
+        for key in ("worker_timeout_s", "worker_start_timeout_s", "drain_timeout_s"):
+            if not getattr(self, key) > 0:
+                raise ValueError(f"{key}: {getattr(self, key)} must be > 0")
+        if self.policy not in ("auto", "latest", "lossless"):
+            raise ValueError(f"policy: {self.policy!r} is not one of 'auto', 'latest', 'lossless'")
+
+
+@dataclass(frozen=True, slots=True)
+class RerunConfig:
+    """Where the Rerun stream goes (tofd.viewer); anything served listens on `bind`."""
+
+    sink: str = "none"  # "none", "save" (file `path`), "web" (web viewer), "connect" (to `url`), "spawn"
+    path: str = "tofd.rrd"  # .rrd file of the "save" sink
+    url: str = "rerun+http://127.0.0.1:9876/proxy"  # gRPC address of a running viewer ("connect" sink)
+    bind: str = "127.0.0.1"  # address the "web"/"spawn" viewer child listens on
+    grpc_port: int = 9876  # gRPC port of the "web"/"spawn" viewer child
+    web_port: int = 9090  # HTTP port of the web viewer ("web" sink)
+    memory_limit: str = "500MB"  # viewer child's memory budget (oldest data is dropped beyond it)
+    point_cloud: bool = True  # log the foreground as a 3-D point cloud coloured by NFFT eps0
+
+    def validate(self) -> None:
+        if self.sink not in ("none", "save", "web", "connect", "spawn"):
+            raise ValueError(f"sink: {self.sink!r} is not one of 'none', 'save', 'web', 'connect', 'spawn'")
+        for key in ("grpc_port", "web_port"):
+            if not 0 < getattr(self, key) < 65536:
+                raise ValueError(f"{key}: {getattr(self, key)} is not a TCP port")
+
+
+@dataclass(frozen=True, slots=True)
+class HealthConfig:
+    """The /healthz and /metrics HTTP endpoint (tofd.health) and the systemd watchdog."""
+
+    enabled: bool = True  # serve /healthz and /metrics
+    bind: str = "127.0.0.1"  # listen address
+    port: int = 9464  # TCP port (0 = any free port)
+    stale_after_s: float = 5.0  # seconds without a delivered frame before /healthz reports unhealthy
+
+    def validate(self) -> None:
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"port: {self.port} is not a TCP port")
+        if not self.stale_after_s > 0:
+            raise ValueError(f"stale_after_s: {self.stale_after_s} must be > 0")
+
+
+@dataclass(frozen=True, slots=True)
+class DetectorConfig:
+    """Nose detector (tofd.detect): the model file, which of its variants to use, and the box scale."""
+
+    model_path: str = "nose_model.json"  # JSON model; a relative path not found from the cwd is looked up in config/
+    variant: str = "nfft_range_amp"  # fft_range, fft_range_amp, nfft_range or nfft_range_amp
+    box_scale: float = 0.0  # box half-widths times this (> 0); 0 = the model's operating scale (training EER)
+
+    def validate(self) -> None:
+        variants = ("fft_range", "fft_range_amp", "nfft_range", "nfft_range_amp")
+        if self.variant not in variants:
+            raise ValueError(f"variant: {self.variant!r} is not one of {', '.join(variants)}")
+        if not self.box_scale >= 0:
+            raise ValueError(f"box_scale: {self.box_scale} must be >= 0 (0 = the model's operating scale)")
+
+
+@dataclass(frozen=True, slots=True)
 class Config:
     """The whole service configuration; every section has documented defaults (config/tofd.toml)."""
 
@@ -72,6 +154,9 @@ class Config:
     intrinsics: Intrinsics = field(default_factory=Intrinsics)
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
+    pipeline: PipelineConfig = field(default_factory=PipelineConfig)
+    rerun: RerunConfig = field(default_factory=RerunConfig)
+    health: HealthConfig = field(default_factory=HealthConfig)
 
 
 def _convert(value: object, tp: object, key: str) -> object:
