@@ -51,17 +51,47 @@ class CameraConfig:
 
 @dataclass(frozen=True, slots=True)
 class SegmentationConfig:
-    """Foreground segmentation: adaptive amplitude threshold, then a range percentile."""
+    """Foreground segmentation: adaptive amplitude threshold, then a range percentile (tofd.segmentation)."""
 
-    amplitude_method: str = "otsu"
-    range_percentile: float = 20.0
+    amplitude_method: str = "otsu"  # the only method: Otsu's threshold on the finite amplitudes
+    range_percentile: float = 20.0  # keep pixels at most this percentile of range (the nearest 20 %)
+    largest_component: bool = True  # keep only the largest 8-connected foreground region
+
+    def validate(self) -> None:
+        if self.amplitude_method != "otsu":
+            raise ValueError(f"amplitude_method: {self.amplitude_method!r} is not one of 'otsu'")
+        if not 0.0 < self.range_percentile <= 100.0:
+            raise ValueError(f"range_percentile: {self.range_percentile} is not in (0, 100]")
 
 
 @dataclass(frozen=True, slots=True)
 class FeatureConfig:
-    """Generalized-eccentricity features (FFT and NFFT paths)."""
+    """Generalized-eccentricity features (FFT and NFFT paths, tofd.features); frequencies in cycles/metre."""
 
-    equivalence_range_m: float = 0.5
+    equivalence_range_m: float = 0.5  # e: the NFFT features equal the FFT features of an object at e
+    tuning_frequency_per_m: float = 20.0  # rho0: peak of the radial tuning A(rho), cycles/m
+    lowpass_sigma_per_m: float = 50.0  # Gaussian low-pass width, cycles/m (anti-aliasing for the NFFT grid)
+    fft_padding_px: int = 16  # FFT path: background margin per side against wrap-around, pixels
+    grid_size: int = 64  # NFFT path: N, frequency grid N x N (even)
+    damping: float = 0.01  # NFFT path: lambda = damping * number of points, in (A^H A + lambda I) f = A^H z
+    cg_tolerance: float = 1e-3  # NFFT path: stop CG at this relative residual
+    cg_max_iterations: int = 100  # NFFT path: CG iteration cap
+    nufft_eps: float = 1e-6  # NFFT path: finufft requested relative precision
+
+    def validate(self) -> None:
+        positive = ("equivalence_range_m", "tuning_frequency_per_m", "lowpass_sigma_per_m", "damping",
+                    "cg_tolerance", "nufft_eps")
+        for key in positive:
+            if not getattr(self, key) > 0:
+                raise ValueError(f"{key}: {getattr(self, key)} must be > 0")
+        if self.grid_size < 8 or self.grid_size % 2:
+            raise ValueError(f"grid_size: {self.grid_size} must be even and >= 8")
+        if self.fft_padding_px < 0:
+            raise ValueError(f"fft_padding_px: {self.fft_padding_px} must be >= 0")
+        if self.cg_max_iterations < 1:
+            raise ValueError(f"cg_max_iterations: {self.cg_max_iterations} must be >= 1")
+        if not 1e-14 <= self.nufft_eps < 1e-1:
+            raise ValueError(f"nufft_eps: {self.nufft_eps} is not in [1e-14, 0.1)")
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,8 +108,6 @@ class PipelineConfig:
     max_worker_failures: int = 5  # consecutive worker deaths without a processed frame before giving up
     drain_timeout_s: float = 10.0  # seconds to drain the queues on shutdown before dropping the rest
     stats_window: int = 600  # frames in the rolling timing/fps window
-    model_path: str = ""  # nose detector model JSON (tofd.detect); "" = no detection
-    model_variant: str = "nfft_range_amp"  # detector variant: fft_range, fft_range_amp, nfft_range, nfft_range_amp
 
     def validate(self) -> None:
         for key in ("workers", "tasks_per_worker", "input_queue", "sink_queue", "max_worker_failures",
@@ -157,6 +185,7 @@ class Config:
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     rerun: RerunConfig = field(default_factory=RerunConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
 
 
 def _convert(value: object, tp: object, key: str) -> object:

@@ -1,0 +1,160 @@
+"""NFFT path (paper section 2.2): scale-invariant generalized eccentricities of the back-projected foreground.
+
+Per frame:
+1. back-project the foreground pixels (radial range) to camera-frame points x, y, z (metres);
+2. scale x, y by the field of view at the equivalence range e (width W e / fx, height H e / fy), so that
+   the field of view at e maps onto [-1/2, 1/2)^2; shift the centroid to 0; drop points outside (their
+   features are NaN); offset z so its maximum is 0;
+3. solve for Fourier coefficients f on the N x N frequency grid with z_j ~ sum_k f_k exp(2 pi i k.x_j);
+4. multiply by the transfer functions (transfer.py, mode k <-> k / L cycles per metre) and evaluate the
+   filtered fields c0, c2, s2 back at the points with a forward NUFFT; eps0 = c0^2, eps2 = c2^2 + s2^2.
+
+Regularisation (step 3). The paper's minimum-norm inverse is ill-posed on a face patch (the modes living
+outside the patch are undetermined; see design/nfft_notes.md). We solve the damped normal equations
+    (A^H A + lambda I) f = A^H z,   lambda = damping * M   (M = number of points, damping = 0.01),
+which has a unique solution, pulls the field towards 0 (= max z, like the FFT path's background) where
+there are no points, and scales with the point density, so the bias it introduces (~damping x area of the
+patch in the unit square) does not depend on the distance of the object.
+
+Solver. A^H A is Toeplitz, (A^H A f)_k = sum_l K_{k-l} f_l with K_m = sum_j exp(-2 pi i m.x_j). One
+finufft type-1 per frame gives K on the 2N x 2N grid (and A^H z with it: n_trans=2); then every CG
+iteration is a circulant convolution, i.e. one real FFT pair of size 2N x 2N. The unpaired Nyquist row and
+column (k = -N/2) are held at zero, so the unknowns, kernel and fields are Hermitian/real: CG works on the
+half spectrum (kx >= 0) with real FFTs. A forward type-2 NUFFT (n_trans=2) evaluates c0 + i c2 and s2.
+finufft plans are made once (nthreads=1) and only get new points per frame.
+"""
+
+from __future__ import annotations
+
+import finufft
+import numpy as np
+import scipy.fft as sfft
+
+from drivers.camera import Intrinsics
+from tofd.config import FeatureConfig
+from tofd.features.fft import check_frame
+from tofd.features.maps import FeatureMaps
+from tofd.features.transfer import transfer_functions, unit_square_m
+
+
+def _upsampfac(eps: float) -> float:
+    """finufft's small oversampling (much faster here) where it reaches the requested precision."""
+    return 1.25 if eps >= 1e-9 else 2.0
+
+
+class NFFTFeatures:
+    """Plans, transfer grids and buffers for one camera geometry and config; call per frame."""
+
+    def __init__(self, intrinsics: Intrinsics, cfg: FeatureConfig):
+        self.intrinsics, self.cfg = intrinsics, cfg
+        n = cfg.grid_size
+        self._n, self._h = n, n // 2
+        self._rays = intrinsics.unit_rays()
+        self._square = unit_square_m(intrinsics, cfg.equivalence_range_m)
+        k = sfft.fftfreq(n, 1.0 / n)  # integer modes in FFT order (finufft modeord=1)
+        c0, c2, s2 = transfer_functions(k[None, :] / self._square[0], k[:, None] / self._square[1], cfg)
+        self._filters = np.stack([c0 + 1j * c2, s2 + 0j])  # (2, N, N) rows ky, columns kx
+        self._padded = np.zeros((2 * n, n + 1), np.complex128)  # half spectrum of the 2N circulant
+        self._neg_rows = (-np.arange(n)) % n
+        self._neg_cols_src = n - np.arange(n - self._h + 1, n)
+        opts = dict(eps=cfg.nufft_eps, modeord=1, nthreads=1, upsampfac=_upsampfac(cfg.nufft_eps))
+        self._type1 = finufft.Plan(1, (2 * n, 2 * n), n_trans=2, isign=-1, **opts)
+        self._type2 = finufft.Plan(2, (n, n), n_trans=2, isign=1, **opts)
+
+    def unit_square_points(self, range_m: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Steps 1-2: (x, y, z, pixel index) of the kept points; x, y in [-1/2, 1/2), max z = 0."""
+        flat = np.flatnonzero(mask)
+        pts = self._rays.reshape(-1, 3)[flat] * range_m.reshape(-1)[flat, None].astype(np.float64)
+        x = pts[:, 0] / self._square[0]
+        y = pts[:, 1] / self._square[1]
+        x -= x.mean()
+        y -= y.mean()
+        keep = (x >= -0.5) & (x < 0.5) & (y >= -0.5) & (y < 0.5)
+        z = pts[keep, 2]
+        return x[keep], y[keep], z - z.max(), flat[keep]
+
+    def range_features(self, range_m: np.ndarray, mask: np.ndarray) -> FeatureMaps:
+        """eps0, eps2 (metres^2) per foreground pixel of a radial range map; NaN elsewhere."""
+        check_frame(range_m, mask, self.intrinsics, "range_m")
+        shape = self.intrinsics.shape
+        if not mask.any():
+            return FeatureMaps.empty(shape)
+        x, y, z, index = self.unit_square_points(range_m, mask)
+        if index.size == 0:
+            return FeatureMaps.empty(shape)
+        c0, c2, s2, iterations, residual = self.fields(x, y, z)
+        eps0 = np.full(shape, np.nan, np.float32)
+        eps2 = np.full(shape, np.nan, np.float32)
+        eps0.reshape(-1)[index] = c0 * c0
+        eps2.reshape(-1)[index] = c2 * c2 + s2 * s2
+        return FeatureMaps(eps0, eps2, iterations, residual)
+
+    def fields(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                           int, float]:
+        """Steps 3-4 on points in [-1/2, 1/2)^2: fields c0, c2, s2 at the points, CG iterations, residual."""
+        n, h = self._n, self._h
+        ty, tx = 2 * np.pi * y, 2 * np.pi * x
+        self._type1.setpts(ty, tx)
+        strengths = np.ones((2, x.size), np.complex128)
+        strengths[1] = z
+        kernel_and_rhs = self._type1.execute(strengths)
+        kernel = kernel_and_rhs[0, :, : n + 1].copy()
+        kernel[n, :] = 0
+        kernel[:, n] = 0
+        circulant = sfft.irfft2(kernel, s=(2 * n, 2 * n), workers=1) * float(4 * n * n)
+        rhs = np.concatenate((kernel_and_rhs[1, :h, :h], kernel_and_rhs[1, 2 * n - h + 1:, :h]))
+        coeffs, iterations, residual = self._solve(circulant, rhs, self.cfg.damping * x.size)
+        self._type2.setpts(ty, tx)
+        out = self._type2.execute(self._filters * self._hermitian_full(coeffs))
+        return out[0].real, out[0].imag, out[1].real, iterations, residual
+
+    def _normal(self, circulant: np.ndarray, v: np.ndarray, lam: float, out: np.ndarray) -> np.ndarray:
+        """out = (A^H A + lam I) v on the compact half spectrum, via the 2N circulant (one real FFT pair)."""
+        n, h = self._n, self._h
+        padded = self._padded
+        padded[:h, :h] = v[:h]
+        padded[2 * n - h + 1:, :h] = v[h:]
+        grid = sfft.irfft2(padded, s=(2 * n, 2 * n), workers=1)
+        grid *= circulant
+        spec = sfft.rfft2(grid, workers=1)
+        out[:h] = spec[:h, :h]
+        out[h:] = spec[2 * n - h + 1:, :h]
+        out += lam * v
+        return out
+
+    @staticmethod
+    def _dot(a: np.ndarray, b: np.ndarray) -> float:
+        """Re <a, b> of the full Hermitian spectra, from their halves (kx > 0 counted twice)."""
+        return 2.0 * np.vdot(a, b).real - np.vdot(a[:, 0], b[:, 0]).real
+
+    def _solve(self, circulant: np.ndarray, rhs: np.ndarray, lam: float) -> tuple[np.ndarray, int, float]:
+        """Conjugate gradients on the damped normal equations; returns (f, iterations, relative residual)."""
+        x = np.zeros_like(rhs)
+        r = rhs.copy()
+        p = r.copy()
+        q = np.empty_like(rhs)
+        rr = self._dot(r, r)
+        b_norm = np.sqrt(rr)
+        if b_norm == 0:
+            return x, 0, 0.0
+        tol2 = (self.cfg.cg_tolerance * b_norm) ** 2
+        iterations = 0
+        while iterations < self.cfg.cg_max_iterations and rr > tol2:
+            self._normal(circulant, p, lam, q)
+            alpha = rr / self._dot(p, q)
+            x += alpha * p
+            r -= alpha * q
+            rr, rr_old = self._dot(r, r), rr
+            p *= rr / rr_old
+            p += r
+            iterations += 1
+        return x, iterations, float(np.sqrt(rr) / b_norm)
+
+    def _hermitian_full(self, half: np.ndarray) -> np.ndarray:
+        """(N, N) FFT-ordered spectrum from the compact half (kx >= 0) by Hermitian symmetry."""
+        n, h = self._n, self._h
+        full = np.zeros((n, n), np.complex128)
+        full[:h, :h] = half[:h]
+        full[n - h + 1:, :h] = half[h:]
+        full[:, n - h + 1:] = np.conj(full[np.ix_(self._neg_rows, self._neg_cols_src)])
+        return full
