@@ -1,0 +1,139 @@
+"""The drop ledger: every frame that enters the pipeline leaves it exactly once, delivered or dropped.
+
+Frames are tracked by the pipeline's own sequence number (frame counters can repeat after a device
+reconnect) and reported by frame counter. A dropped frame is recorded with the stage that dropped it and
+why; device-side gaps (counter jumps, reconnects) are recorded separately, since those frames never
+reached the host. Invariant, checked by `consistent`: frames_in == frames_out + frames_dropped once nothing
+is pending.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import Counter
+from dataclasses import asdict, dataclass
+
+STAGES = ("capture", "features", "detection", "viewer")
+
+
+@dataclass(frozen=True, slots=True)
+class Drop:
+    """One dropped frame."""
+
+    frame_counter: int
+    seq: int  # pipeline sequence number
+    stage: str  # one of STAGES: the stage whose input or work lost the frame
+    reason: str  # e.g. "superseded", "stale", "worker_died", "queue_full", "shutdown", "error: ..."
+
+
+@dataclass(frozen=True, slots=True)
+class Gap:
+    """Frames the device produced but the host never received (counter jump, reconnect)."""
+
+    after_counter: int  # last frame counter before the gap (-1 = none)
+    next_counter: int  # first frame counter after the gap
+    kind: str  # "counter_gap" or "reconnect"
+
+
+class DropLedger:
+    """Thread-safe bookkeeping of frames in, frames out, drops and device gaps."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._pending: dict[int, tuple[int, str]] = {}  # seq -> (frame_counter, current stage)
+        self.frames_in = 0
+        self.frames_out = 0
+        self.drops: list[Drop] = []
+        self.gaps: list[Gap] = []
+        self._closed = False  # after close(), late reports about frames no longer pending are ignored
+
+    def admit(self, seq: int, frame_counter: int) -> None:
+        """A frame entered the pipeline (capture stage)."""
+        with self._lock:
+            if seq in self._pending:
+                raise RuntimeError(f"frame seq {seq} admitted twice")
+            self._pending[seq] = (frame_counter, "capture")
+            self.frames_in += 1
+
+    def _take(self, seq: int) -> tuple[int, str] | None:
+        """Remove a pending frame (caller holds the lock); unknown seqs are a bug unless the ledger is closed."""
+        if seq not in self._pending and self._closed:
+            return None
+        if seq not in self._pending:
+            raise RuntimeError(f"frame seq {seq} is not in flight (delivered or dropped twice?)")
+        return self._pending.pop(seq)
+
+    def advance(self, seq: int, stage: str) -> None:
+        """The frame is now held by `stage` (used to attribute drops at shutdown)."""
+        with self._lock:
+            if seq in self._pending:
+                self._pending[seq] = (self._pending[seq][0], stage)
+
+    def deliver(self, seq: int) -> None:
+        """The frame left the last stage (all sinks handled it)."""
+        with self._lock:
+            if self._take(seq) is not None:
+                self.frames_out += 1
+
+    def drop(self, seq: int, stage: str, reason: str) -> None:
+        """The frame was dropped by `stage` for `reason`."""
+        if stage not in STAGES:
+            raise ValueError(f"stage: {stage!r} is not one of {STAGES}")
+        with self._lock:
+            taken = self._take(seq)
+            if taken is not None:
+                self.drops.append(Drop(taken[0], seq, stage, reason))
+
+    def drop_pending(self, reason: str) -> int:
+        """Drop every frame still in flight (at a forced shutdown), each at the stage that held it."""
+        with self._lock:
+            pending, self._pending = self._pending, {}
+            for seq, (frame_counter, stage) in sorted(pending.items()):
+                self.drops.append(Drop(frame_counter, seq, stage, reason))
+            return len(pending)
+
+    def close(self) -> None:
+        """No frame is in flight any more (call after drop_pending); late reports are ignored from now on."""
+        with self._lock:
+            self._closed = True
+
+    def mark_gap(self, after_counter: int, next_counter: int, kind: str) -> None:
+        with self._lock:
+            self.gaps.append(Gap(after_counter, next_counter, kind))
+
+    @property
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._pending)
+
+    @property
+    def frames_dropped(self) -> int:
+        with self._lock:
+            return len(self.drops)
+
+    def drops_by(self) -> Counter[tuple[str, str]]:
+        """Number of drops per (stage, reason class), the reason cut at its first ':'."""
+        with self._lock:
+            return Counter((d.stage, d.reason.split(":")[0]) for d in self.drops)
+
+    def consistent(self) -> bool:
+        """frames_in == frames_out + frames_dropped + frames still pending."""
+        with self._lock:
+            return self.frames_in == self.frames_out + len(self.drops) + len(self._pending)
+
+    def summary(self) -> dict:
+        """JSON-ready totals, drops by stage and reason, every drop and gap."""
+        with self._lock:
+            drops, gaps = list(self.drops), list(self.gaps)
+            frames_in, frames_out, pending = self.frames_in, self.frames_out, len(self._pending)
+        by_stage = Counter(d.stage for d in drops)
+        return {
+            "frames_in": frames_in,
+            "frames_out": frames_out,
+            "frames_dropped": len(drops),
+            "frames_pending": pending,
+            "consistent": frames_in == frames_out + len(drops) + pending,
+            "dropped_by_stage": dict(sorted(by_stage.items())),
+            "drops": [asdict(d) for d in drops],
+            "gaps": [asdict(g) for g in gaps],
+        }

@@ -1,0 +1,51 @@
+"""Rolling per-stage timings, end-to-end latency and frame rate of the pipeline (thread-safe)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+TIMED_STAGES = ("capture", "queue", "segmentation", "fft", "nfft", "detection", "logging", "latency")
+"""Per-frame timings in milliseconds; "queue" is the wait for a worker, "latency" is capture -> sink done."""
+
+
+class PipelineStats:
+    """The last `window` timings of every stage and the completion times of the last `window` frames."""
+
+    def __init__(self, window: int = 600) -> None:
+        self._lock = threading.Lock()
+        self._timings = {stage: deque(maxlen=window) for stage in TIMED_STAGES}
+        self._done = deque(maxlen=window)  # monotonic seconds of delivered frames
+        self.started_s = time.monotonic()
+
+    def record(self, timings_ms: dict[str, float]) -> None:
+        """Add one delivered frame's timings (keys from TIMED_STAGES; missing stages are skipped)."""
+        now = time.monotonic()
+        with self._lock:
+            for stage, ms in timings_ms.items():
+                if stage in self._timings:
+                    self._timings[stage].append(ms)
+            self._done.append(now)
+
+    def quantiles_ms(self, q: tuple[float, ...] = (0.5, 0.99)) -> dict[str, tuple[float, ...]]:
+        """Per-stage quantiles in milliseconds over the window (stages with no samples are left out)."""
+        with self._lock:
+            samples = {s: np.fromiter(d, float) for s, d in self._timings.items() if d}
+        return {s: tuple(float(v) for v in np.quantile(x, q)) for s, x in samples.items()}
+
+    def fps(self, horizon_s: float = 5.0) -> float:
+        """Delivered frames per second over the last `horizon_s` seconds (or since start)."""
+        now = time.monotonic()
+        with self._lock:
+            recent = [t for t in self._done if t >= now - horizon_s]
+        span = min(horizon_s, now - self.started_s)
+        return len(recent) / span if span > 0 else 0.0
+
+    def last_delivery_age_s(self) -> float | None:
+        """Seconds since the last delivered frame (None before the first)."""
+        with self._lock:
+            last = self._done[-1] if self._done else None
+        return None if last is None else time.monotonic() - last
