@@ -40,7 +40,6 @@ class _DeviceId:
 class _Handle:
     device: EmulatedSR3000
     generation: int
-    configuration: int = 0
     claimed: set[int] = field(default_factory=set)
 
 
@@ -112,11 +111,11 @@ class EmulatorBackend(usb.backend.IBackend):
         dev_handle.device.check_alive(dev_handle.generation)
         if config_value not in (0, p.CONFIGURATION):
             raise usb_error(errno.EINVAL)
-        dev_handle.configuration = config_value
+        dev_handle.device.configuration = config_value
 
     def get_configuration(self, dev_handle: _Handle) -> int:
         dev_handle.device.check_alive(dev_handle.generation)
-        return dev_handle.configuration
+        return dev_handle.device.configuration
 
     def set_interface_altsetting(self, dev_handle: _Handle, intf: int, altsetting: int) -> None:
         self._check_interface(dev_handle, intf)
@@ -133,7 +132,7 @@ class EmulatorBackend(usb.backend.IBackend):
 
     def _check_interface(self, dev_handle: _Handle, intf: int) -> None:
         dev_handle.device.check_alive(dev_handle.generation)
-        if dev_handle.configuration != p.CONFIGURATION or intf != p.INTERFACE:
+        if dev_handle.device.configuration != p.CONFIGURATION or intf != p.INTERFACE:
             raise usb_error(errno.EINVAL)
 
     # ------------------------------------------------------------------------------ transfers

@@ -105,6 +105,7 @@ class EmulatedSR3000:
         self._fifo: deque[_Produced] = deque()
         self._rest = b""  # the unread tail of a frame read with a short buffer
         self.halted: set[int] = set()
+        self.configuration = p.CONFIGURATION  # configured at enumeration, as the OS does for one configuration
 
     @property
     def scene(self) -> FaceScene:
