@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -14,7 +18,8 @@ from drivers import recording_format as fmt
 from drivers.camera import Intrinsics
 from drivers.frame import Registers
 from drivers.recording import RecordingWriter
-from drivers.replay import iter_frames, read_recording_info
+from drivers.replay import ReplaySource, iter_frames, read_recording_info
+from tofd import cli
 
 
 @pytest.mark.parametrize("quantized", [True, False], ids=["usb-u16", "float32"])
@@ -117,3 +122,80 @@ def test_realistic_face_frames_stay_small(tmp_path):
             frame.amplitude = np.minimum(np.rint(r.amplitude), 65535).astype(np.float32)
             writer.write(frame)
     assert path.stat().st_size / 6 < 100_000
+
+
+@pytest.fixture
+def start_recorder():
+    """Start `tofd record OUT --emulate` as a real process; returned once it has written a few frames.
+    Any recorder still running at the end of the test is killed."""
+    procs: list[subprocess.Popen] = []
+    yield lambda out: _start_recorder(out, procs)
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+
+
+def _start_recorder(out, procs: list[subprocess.Popen]) -> subprocess.Popen:
+    proc = subprocess.Popen([sys.executable, "-m", "tofd", "record", str(out), "--emulate"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    procs.append(proc)
+    deadline = time.monotonic() + 60
+    while not (out.exists() and out.stat().st_size > 500_000):  # a few frames are on disk
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "recorder wrote no frames in 60 s"
+        time.sleep(0.05)
+    return proc
+
+
+def test_kill_9_mid_recording_keeps_every_frame_up_to_1s_before_the_kill(tmp_path, start_recorder):
+    out = tmp_path / "killed.mcap"
+    proc = start_recorder(out)
+    time.sleep(2.0)
+    size = out.stat().st_size
+    while out.stat().st_size == size:  # kill just after a write: the recorder was running, not starved
+        time.sleep(0.002)
+    t_kill = time.time()
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    source = ReplaySource(out)
+    frames = list(source)
+    assert len(frames) >= 10  # ~2 s at 30 fps, less what a busy machine made the device drop
+    assert frames[-1].host_wall_s >= t_kill - 1.0
+    assert source.stopped_reason == "truncated" and source.counters["corrupt_tail"] == 1
+    assert source.last_good_counter == frames[-1].frame_counter
+    assert all(f.ground_truth is not None and f.device.backend == "emulated" for f in frames)
+    counters = [f.frame_counter for f in frames]
+    assert counters == sorted(counters)
+    info = read_recording_info(out)
+    assert info.frame_count is None and info.software_version == tofd.__version__ and info.config is not None
+
+
+def test_sigterm_finishes_the_recording_cleanly(tmp_path, start_recorder):
+    out = tmp_path / "term.mcap"
+    proc = start_recorder(out)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 0, stderr
+    assert "SIGTERM" in stderr and f"wrote {out}" in stdout
+    source = ReplaySource(out)
+    frames = list(source)
+    assert source.stopped_reason == "end"
+    assert read_recording_info(out).frame_count == len(frames) > 0
+
+
+def test_record_command_writes_the_requested_frames_with_ground_truth(tmp_path):
+    out = tmp_path / "n.mcap"
+    assert cli.main(["record", str(out), "--emulate", "--frames", "12"]) == 0
+    frames = list(iter_frames(out))
+    assert len(frames) == 12
+    counters = [f.frame_counter for f in frames]
+    assert counters == sorted(set(counters))  # gaps only if the busy test machine made the device drop some
+    assert all(f.ground_truth is not None and f.ground_truth.visible for f in frames)
+    assert 0.34 < frames[0].ground_truth.nose_xyz_m[2] < 0.40  # the emulated face starts at 0.35 m
+    with open(out, "rb") as f:
+        _, _, message = next(make_reader(f).iter_messages())
+    header, _ = fmt.decode_header(message.data)
+    assert [p["codec"] for p in header["planes"]] == ["u16_shuffled", "u16_shuffled"]  # as the camera sent it
+    assert read_recording_info(out).config["camera"]["int_time_code"] == 30

@@ -1,0 +1,140 @@
+"""Record frames from the camera (or the emulated one) to a crash-safe, self-describing MCAP file.
+
+Stops after --frames or --seconds, or on Ctrl-C / SIGTERM, and then closes the file properly. Even if the
+process is killed, every frame written up to that moment replays (`tofd replay OUT`). Progress goes to
+stderr once a second; a summary with the camera's fault counters is printed at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from drivers.source import FrameSource
+    from tofd.config import Config
+
+PROGRESS_INTERVAL_S = 1.0
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text}")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("out", type=Path, help="recording to write (.mcap; overwritten if it exists)")
+    parser.add_argument("--emulate", action="store_true", help="record the emulated camera (no hardware)")
+    limit = parser.add_mutually_exclusive_group()
+    limit.add_argument("--frames", type=_positive_int, help="stop after this many frames")
+    limit.add_argument("--seconds", type=_positive_float, help="stop after this many seconds of recording")
+    parser.add_argument("--config", type=Path, default=None, help="config file (default: config/tofd.toml)")
+    parser.add_argument("--serial", default=None, help="camera serial (8 hex digits); overrides [camera] serial")
+
+
+def open_camera(config: Config, emulate: bool) -> FrameSource:
+    """The camera the config names (UsbCamera), or with `emulate` the emulated one (same code path)."""
+    kwargs = dataclasses.asdict(config.camera)
+    if emulate:
+        from drivers.emulator import open_emulated_camera
+
+        serial = kwargs.pop("serial")
+        return open_emulated_camera(**({"serial": serial} if serial else {}), intrinsics=config.intrinsics,
+                                    **kwargs)
+    from drivers.usb_camera import UsbCamera
+
+    return UsbCamera(**kwargs, intrinsics=config.intrinsics)
+
+
+class _StopOnSignal:
+    """SIGINT/SIGTERM: set `event` and close the source from a helper thread (its read may be blocked)."""
+
+    def __init__(self, source: FrameSource) -> None:
+        self.event = threading.Event()
+        self._source = source
+        self._previous: dict[int, object] = {}
+
+    def _handle(self, signum: int, _frame: object) -> None:
+        if not self.event.is_set():
+            print(f"\n{signal.Signals(signum).name}: finishing the recording", file=sys.stderr)
+        self.event.set()
+        threading.Thread(target=self._source.close, daemon=True).start()
+
+    def __enter__(self) -> _StopOnSignal:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def _status(frames: int, elapsed_s: float, nbytes: int, counters: dict[str, int]) -> str:
+    faults = ", ".join(f"{k} {v}" for k, v in sorted(counters.items()) if v and k != "frames")
+    fps = frames / elapsed_s if elapsed_s > 0 else 0.0
+    return (f"{frames} frames, {elapsed_s:.1f} s, {nbytes / 1e6:.2f} MB, {fps:.1f} fps"
+            + (f"; {faults}" if faults else ""))
+
+
+def main(args: argparse.Namespace) -> int:
+    from drivers.recording import RecordingWriter
+    from drivers.source import DriverError
+    from tofd.config import load_config
+
+    config = load_config(args.config)
+    if args.serial is not None:
+        camera = dataclasses.replace(config.camera, serial=args.serial)
+        try:
+            camera.validate()
+        except ValueError as exc:
+            print(f"tofd record: --serial: {exc}", file=sys.stderr)
+            return 2
+        config = dataclasses.replace(config, camera=camera)
+    try:
+        source = open_camera(config, args.emulate)
+    except (DriverError, OSError) as exc:
+        print(f"tofd record: {exc}", file=sys.stderr)
+        return 1
+    tty = sys.stderr.isatty()
+    frames = 0
+    t_start = time.monotonic()
+    try:
+        with source, _StopOnSignal(source) as stop, \
+                RecordingWriter(args.out, config=dataclasses.asdict(config)) as writer:
+            print(f"recording to {args.out} (Ctrl-C to stop)", file=sys.stderr)
+            next_report = t_start + PROGRESS_INTERVAL_S
+            for frame in source:
+                writer.write(frame)
+                frames += 1
+                now = time.monotonic()
+                if now >= next_report:
+                    line = _status(frames, now - t_start, writer.bytes_written, source.counters)
+                    print(f"\r{line}" if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
+                    next_report = now + PROGRESS_INTERVAL_S
+                if stop.event.is_set() or (args.frames is not None and frames >= args.frames) or \
+                        (args.seconds is not None and now - t_start >= args.seconds):
+                    break
+    except OSError as exc:
+        print(f"\ntofd record: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    if tty:
+        print(file=sys.stderr)
+    summary = _status(frames, time.monotonic() - t_start, args.out.stat().st_size, source.counters)
+    print(f"wrote {args.out}: {summary}")
+    return 0
