@@ -32,10 +32,16 @@ READOUT_S = 0.0085
 FIFO_DEPTH = 4
 _WAIT_SLICE_S = 0.05  # a blocked read re-checks plugging at least this often
 
-_LIBUSB = {errno.EPIPE: (-9, "Pipe error"), errno.ENODEV: (-4, "No such device (it may have been disconnected)"),
-           errno.ETIMEDOUT: (-7, "Operation timed out"), errno.EACCES: (-3, "Access denied (insufficient "
-           "permissions)"), errno.EBUSY: (-6, "Resource busy"), errno.EOVERFLOW: (-8, "Overflow"),
-           errno.EINVAL: (-2, "Invalid parameter")}
+_LIBUSB = {  # errno -> (libusb-1.0 code, message), as pyusb's libusb1 backend raises them
+    errno.EIO: (-1, "Input/output error"),
+    errno.EINVAL: (-2, "Invalid parameter"),
+    errno.EACCES: (-3, "Access denied (insufficient permissions)"),
+    errno.ENODEV: (-4, "No such device (it may have been disconnected)"),
+    errno.EBUSY: (-6, "Resource busy"),
+    errno.ETIMEDOUT: (-7, "Operation timed out"),
+    errno.EOVERFLOW: (-8, "Overflow"),
+    errno.EPIPE: (-9, "Pipe error"),
+}
 
 
 def usb_error(code: int) -> usb.core.USBError:
@@ -179,6 +185,10 @@ class EmulatedSR3000:
     def inject_stall(self) -> None:
         """The next bulk read STALLs, and endpoint 0x86 stays halted until the host clears it."""
         self._inject("endpoint_stall", 1)
+
+    def inject_io_errors(self, n: int = 1) -> None:
+        """The next n bulk reads fail with an I/O error (what some hosts see while a device is dying)."""
+        self._inject("io_error", n)
 
     def _inject(self, kind: str, n: int) -> None:
         with self._cond:
@@ -345,6 +355,9 @@ class EmulatedSR3000:
                     self._read_faults.popleft()
                     self._cond.wait(max(0.0, deadline - self.clock()) if deadline else _WAIT_SLICE_S)
                     raise usb_error(errno.ETIMEDOUT)
+                if fault == "io_error":
+                    self._read_faults.popleft()
+                    raise usb_error(errno.EIO)
                 if fault == "endpoint_stall":
                     self._read_faults.popleft()
                     self.halted.add(endpoint)

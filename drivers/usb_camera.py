@@ -14,6 +14,7 @@ Faults are counted in `counters` (a collections.Counter) under these keys:
 | device_dropped | frames the device produced but never delivered (counter gaps, dropped_total) | counted |
 | counter_reset | the frame counter went backwards without a reconnect | started counting afresh |
 | unplug | no-such-device | closed, began reconnecting |
+| reopen_after_io_errors | 5 unexplained transfer errors in a row (also counted as io_error) | as for unplug |
 | reconnect_attempt, reconnect | tries to reopen / successful reopen of the same serial | restored registers |
 | frames | frames delivered to the consumer | |
 
@@ -49,6 +50,8 @@ from drivers.usb_errors import (
 __all__ = ["DeviceListing", "FrameGap", "UsbCamera", "list_devices"]
 
 log = logging.getLogger(__name__)
+
+IO_ERRORS_BEFORE_REOPEN = 5
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +150,7 @@ class UsbCamera(FrameSource):
         self._last_frame_s = time.monotonic()  # host time of the last good frame (or of the first start)
         self._silent_since = self._last_frame_s  # start of the current run of timeouts
         self._stall_reported = False
+        self._io_errors_in_a_row = 0
         self._device = open_device(serial, backend)
         self.serial = self._device.serial
         self.device_info = DeviceInfo(self.serial, self._device.info.firmware_str, backend_name)
@@ -187,8 +191,12 @@ class UsbCamera(FrameSource):
     def _start(self) -> None:
         """Start continuous acquisition and a new drop tally (called with the I/O lock held)."""
         self._device.acquire(p.AcquireMode.CONTINUOUS)
+        try:
+            dropped_at_start: int | None = self._device.get_status().frames_dropped
+        except (UsbCameraError, p.ProtocolError):
+            dropped_at_start = None  # then the first frame's dropped_total is the baseline
         self._dropped_before += self._tally.total
-        self._tally = _DropTally(self._device.get_status().frames_dropped)
+        self._tally = _DropTally(dropped_at_start)
         self._acquiring = True
         self._silent_since = time.monotonic()
 
@@ -215,10 +223,10 @@ class UsbCamera(FrameSource):
                 except TransferOverflow:
                     self.counters["overflow"] += 1
                     continue
-                except UsbCameraError as exc:
-                    self.counters["io_error"] += 1
-                    log.warning("camera %s: %s", self.serial, exc)
+                except (UsbCameraError, p.ProtocolError) as exc:
+                    self._io_error(exc)
                     continue
+                self._io_errors_in_a_row = 0
             if frame is not None:
                 self.counters["frames"] += 1
                 yield frame
@@ -285,8 +293,17 @@ class UsbCamera(FrameSource):
         except DeviceGone:
             self._reconnect()
         except UsbCameraError as exc:
-            self.counters["io_error"] += 1
-            log.warning("camera %s: %s", self.serial, exc)
+            self._io_error(exc)
+
+    def _io_error(self, exc: Exception) -> None:
+        """Count an unexpected error; after IO_ERRORS_BEFORE_REOPEN in a row, reopen the device as if unplugged
+        (some hosts report a vanishing device as I/O errors before no-such-device)."""
+        self.counters["io_error"] += 1
+        self._io_errors_in_a_row += 1
+        log.warning("camera %s: %s", self.serial, exc)
+        if self._io_errors_in_a_row >= IO_ERRORS_BEFORE_REOPEN:
+            self._io_errors_in_a_row = 0
+            self._reconnect("reopen_after_io_errors")
 
     def _end_gap(self, counter: int, now_mono: float) -> None:
         """Report the gap that the frame with this counter ends, if there was one."""
@@ -300,11 +317,12 @@ class UsbCamera(FrameSource):
         self._stall_reported = False
         self._last_frame_s = self._silent_since = now_mono
 
-    def _reconnect(self) -> None:
-        """Close, then reopen the same serial with exponential backoff; restore registers, restart acquisition."""
-        self.counters["unplug"] += 1
+    def _reconnect(self, cause: str = "unplug") -> None:
+        """Close, then reopen the same serial with exponential backoff; restore registers, restart acquisition.
+        `cause` is the counter to bump: "unplug" or "reopen_after_io_errors"."""
+        self.counters[cause] += 1
         self._gap_kind = "reconnect"
-        log.warning("camera %s: unplugged; reconnecting", self.serial)
+        log.warning("camera %s: %s; reconnecting", self.serial, cause.replace("_", " "))
         self._device.close()
         self._acquiring = False
         delay = self.reconnect_initial_s

@@ -30,21 +30,31 @@ def registers_from_bank(bank: bytes) -> Registers:
 
 
 class Sr3000Device:
-    """An opened device: configuration 1 set, interface 0 claimed, GET_INFO read. Close with close()."""
+    """An opened device with GET_INFO read; with claim=True also in configuration 1 with interface 0 claimed
+    (needed for frames and bulk writes; control requests alone work without). Close with close()."""
 
-    def __init__(self, dev: usb.core.Device) -> None:
+    def __init__(self, dev: usb.core.Device, claim: bool = True) -> None:
         self.dev = dev
         self.bus: int | None = dev.bus
         self.address: int | None = dev.address
-        where = f"opening the camera at bus {self.bus} address {self.address}"
         try:
-            with usb_errors(where):
-                dev.set_configuration(p.CONFIGURATION)
-                usb.util.claim_interface(dev, p.INTERFACE)
+            if claim:
+                with usb_errors(f"opening the camera at bus {self.bus} address {self.address}"):
+                    self._configure()
+                    usb.util.claim_interface(dev, p.INTERFACE)
             self.info = self.get_info()
         except Exception:
             self.close()
             raise
+
+    def _configure(self) -> None:
+        """Select configuration 1 unless the OS already did (setting it again would reset the device)."""
+        try:
+            active = self.dev.get_active_configuration().bConfigurationValue
+        except (usb.core.USBError, NotImplementedError):
+            active = None
+        if active != p.CONFIGURATION:
+            self.dev.set_configuration(p.CONFIGURATION)
 
     @property
     def serial(self) -> str:
@@ -101,10 +111,10 @@ class Sr3000Device:
             self.dev.clear_halt(endpoint)
 
     def close(self) -> None:
-        """Release the interface and the handle; never raises (the device may be gone)."""
+        """Release the interface and the handle; never raises (the device may be gone or half-dead)."""
         try:
             usb.util.dispose_resources(self.dev)
-        except (usb.core.USBError, ValueError, NotImplementedError):
+        except Exception:  # whatever a dying device or backend raises, the handle is abandoned
             pass
 
 
@@ -125,7 +135,7 @@ def list_devices(backend: object | None = None) -> list[DeviceListing]:
     listings = []
     for dev in find_usb_devices(backend):
         try:
-            device = Sr3000Device(dev)
+            device = Sr3000Device(dev, claim=False)
             try:
                 listings.append(DeviceListing(dev.bus, dev.address, device.serial, device.info.firmware_str,
                                               device.registers()))

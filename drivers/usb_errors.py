@@ -63,12 +63,26 @@ _KINDS: dict[int, type[UsbCameraError]] = {
 }
 
 
+# last resort for backends that raise USBError with neither errno nor a libusb code: the message
+_TEXTS = (("no such device", errno.ENODEV), ("timed out", errno.ETIMEDOUT), ("timeout", errno.ETIMEDOUT),
+          ("pipe", errno.EPIPE), ("stall", errno.EPIPE), ("access", errno.EACCES), ("permission", errno.EACCES),
+          ("overflow", errno.EOVERFLOW), ("busy", errno.EBUSY))
+
+
+def _errno(exc: usb.core.USBError) -> int | None:
+    if isinstance(exc, usb.core.USBTimeoutError):
+        return errno.ETIMEDOUT
+    if exc.errno is not None:
+        return abs(exc.errno)
+    if exc.backend_error_code in _LIBUSB_CODES:
+        return _LIBUSB_CODES[exc.backend_error_code]
+    text = str(exc.strerror or exc).lower()
+    return next((code for needle, code in _TEXTS if needle in text), None)
+
+
 def translate(exc: usb.core.USBError, where: str) -> UsbCameraError:
     """The package's exception for a pyusb error raised during `where`."""
-    code = exc.errno if exc.errno is not None else _LIBUSB_CODES.get(exc.backend_error_code or 0)
-    if isinstance(exc, usb.core.USBTimeoutError):
-        code = errno.ETIMEDOUT
-    kind = _KINDS.get(abs(code) if code is not None else 0, UsbCameraError)
+    kind = _KINDS.get(_errno(exc) or 0, UsbCameraError)
     message = f"{where}: {exc.strerror or exc}"
     if kind is AccessDenied:
         message += f"; {access_denied_hint()}"

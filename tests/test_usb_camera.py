@@ -124,6 +124,15 @@ def test_endpoint_stall_is_cleared(make_emulated_camera):
     assert camera.emulator.halted == set()
 
 
+@pytest.mark.parametrize("n, reopened", [(2, 0), (5, 1)])
+def test_io_errors_are_retried_then_the_device_is_reopened(make_emulated_camera, n, reopened):
+    camera = make_emulated_camera(int_time_code=2)
+    take(camera, 8, after=lambda i: i == 2 and camera.emulator.inject_io_errors(n))
+    assert camera.counters["io_error"] == n
+    assert camera.counters["reopen_after_io_errors"] == camera.counters["reconnect"] == reopened
+    assert camera.counters["unplug"] == 0 and camera.emulator.registers[Register.INT_TIME] == 2
+
+
 @pytest.mark.parametrize("dropped", [True, False])
 def test_counter_gap_counts_device_drops(make_emulated_camera, dropped):
     camera = make_emulated_camera()
