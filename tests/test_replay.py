@@ -8,6 +8,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from mcap.reader import make_reader
 from recording_helpers import FRAME_PERIOD_S, assert_frames_equal, write_recording
 
 from drivers.frame import Frame
-from drivers.replay import ReplaySource
+from drivers.replay import ReplaySource, read_recording_info
 from drivers.source import DriverError
 
 
@@ -237,3 +238,20 @@ def test_truncated_file_loops_over_its_prefix(clip, tmp_path):
     source = ReplaySource(cut_path, loop=True)
     assert counters(collect(source, limit=7)) == [0, 1, 2, 0, 1, 2, 0]
     assert source.counters["corrupt_tail"] == 1
+
+
+def test_bundled_recording_is_a_complete_face_clip_from_035_to_070_m():
+    path = Path(__file__).resolve().parent.parent / "replay_data" / "emulated_face_035_070.mcap"
+    assert path.stat().st_size <= 10_000_000
+    info = read_recording_info(path)
+    assert info.device.backend == "emulated" and info.frame_count >= 100
+    source = ReplaySource(path)
+    frames = collect(source)
+    assert source.stopped_reason == "end" and len(frames) == info.frame_count
+    assert all(f.ground_truth is not None for f in frames)
+    ranges = [float(np.linalg.norm(f.ground_truth.nose_xyz_m)) for f in frames]
+    assert abs(ranges[0] - 0.35) < 0.005 and abs(ranges[-1] - 0.70) < 0.005
+    # the ground-truth nose pixel sees the nose: the measured range there agrees with the nose's range
+    for f, r in zip(frames[::10], ranges[::10], strict=True):
+        u, v = (round(c) for c in f.ground_truth.nose_px)
+        assert abs(f.range_m[v, u] - r) < 0.03
