@@ -61,14 +61,17 @@ class Pipeline:
     """Run frames from a FrameSource through the stages; see the module docstring.
 
     `viewer` is called for every frame on the sink thread (its time is the "logging" stage), then each of
-    `writers`. `detector` (a stages.DetectStage) is optional. Use: start(source), then wait() or stop().
+    `writers`. `detector` (a tofd.detect.NoseDetector) is optional. `live_source`: the frames' host receive
+times are this process's monotonic clock (a camera), so latency counts from there; else (replay) from the
+capture thread's arrival. Use: start(source), then wait() or stop().
     """
 
     def __init__(self, cfg: Config, policy: Policy, intrinsics: Intrinsics | None = None,
-                 viewer: Sink | None = None, writers: tuple[Sink, ...] = (), detector=None):
+                 viewer: Sink | None = None, writers: tuple[Sink, ...] = (), detector=None,
+                 live_source: bool = True):
         pc = cfg.pipeline
         self.cfg, self.policy, self.intrinsics = cfg, policy, intrinsics or cfg.intrinsics
-        self.viewer, self.writers, self.detector = viewer, writers, detector
+        self.viewer, self.writers, self.detector, self.live_source = viewer, writers, detector, live_source
         self.ledger = DropLedger()
         self.stats = PipelineStats(pc.stats_window)
         self.ring = SlotRing.create(pc.workers * pc.tasks_per_worker, self.intrinsics.shape)
@@ -92,11 +95,13 @@ class Pipeline:
         self._abort = threading.Event()
         self._threads: list[threading.Thread] = []
         self._closed = False
+        self._max_frames: int | None = None
 
     # ---------------------------------------------------------------- lifecycle
-    def start(self, source: FrameSource) -> None:
-        """Start the workers (waiting until they are ready), then the threads."""
-        self.source = source
+    def start(self, source: FrameSource, max_frames: int | None = None) -> None:
+        """Start the workers (waiting until they are ready), then the threads; capture stops after
+        `max_frames` frames (None = until the source ends or stop())."""
+        self.source, self._max_frames = source, max_frames
         for w in self.workers:
             w.start()
         self._spawn("collect", self._collect_loop)
@@ -187,10 +192,9 @@ class Pipeline:
         try:
             for frame in source:
                 now = time.monotonic()
-                if self._abort.is_set():
+                if self._abort.is_set() or (self._max_frames is not None and seq >= self._max_frames):
                     break
-                delay = now - frame.host_monotonic_s
-                origin = frame.host_monotonic_s if 0.0 <= delay < 10.0 else now
+                origin = min(frame.host_monotonic_s, now) if self.live_source else now
                 gap = ""
                 if source.counters["reconnect"] != reconnects:
                     reconnects, gap = source.counters["reconnect"], "reconnect"
@@ -319,7 +323,7 @@ class Pipeline:
             self.ledger.advance(seq, "detection")
             t0 = time.perf_counter()
             try:
-                result.detection = self.detector.run(result.frame.range_m, result.features)
+                result.detection = self.detector.detect_maps(result.features, result.frame.range_m)
             except Exception as exc:
                 self._drop(seq, "detection", f"error: {type(exc).__name__}: {exc}")
                 return

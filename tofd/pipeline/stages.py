@@ -1,7 +1,6 @@
-"""The pipeline's compute stages, kept thin: they only adapt the features and detector APIs to slots/results.
+"""The feature stage of a worker process, kept thin: it adapts the features API to shared-memory slots.
 
-`FeatureStage` runs inside a worker process (segmentation, FFT and NFFT features, written into a shared
-memory slot); `DetectStage` runs in the parent on the feature maps.
+(Detection runs in the parent: tofd.detect.NoseDetector.detect_maps on the maps read back from the slot.)
 """
 
 from __future__ import annotations
@@ -50,21 +49,3 @@ class FeatureStage:
             "foreground_px": int(np.count_nonzero(mask)),
         }
 
-
-class DetectStage:
-    """The nose detector (tofd.detect) on one frame's feature maps, with the box of one model variant."""
-
-    def __init__(self, model_path: str, variant: str, cfg: Config, intrinsics: Intrinsics):
-        from tofd.detect import load_model
-
-        model = load_model(model_path)
-        model.check_compatible(cfg.features, cfg.segmentation)
-        chosen = model.variant(variant)
-        self._box, self._scale = chosen.box, chosen.operating_scale
-        self._rays = intrinsics.unit_rays().astype(np.float32)
-
-    def run(self, range_m: np.ndarray, maps: dict[str, np.ndarray]):
-        """tofd.detect.Detection of the frame (nose pixel, 3-D point in metres, score)."""
-        from tofd.detect import detect
-
-        return detect(maps, self._rays * range_m[..., None], self._box, self._scale)
