@@ -261,6 +261,8 @@ class FrameHeader:
             raise CrcError(f"header CRC mismatch in frame claiming counter {counter}")
         if version != PROTOCOL_VERSION or header_len != HEADER_LEN:
             raise BadHeader(f"frame header version {version} / length {header_len}, expected 1 / 64")
+        if freq == 0:
+            raise BadHeader(f"frame {counter}: modulation frequency 0 kHz")
         if (width, height, planes, sample_format) != (WIDTH, HEIGHT, PLANES, SAMPLE_FORMAT_U16LE) \
                 or payload_len != PAYLOAD_LEN:
             raise BadHeader(f"frame geometry {width}x{height}x{planes} format {sample_format} "

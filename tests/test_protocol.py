@@ -59,6 +59,8 @@ def test_bad_magic_geometry_and_short_transfers():
         p.FrameHeader.parse(bad_magic + struct.pack("<I", zlib.crc32(bad_magic)))
     with pytest.raises(p.BadHeader, match="geometry"):
         p.FrameHeader.parse(header(width=160).pack())
+    with pytest.raises(p.BadHeader, match="0 kHz"):
+        p.FrameHeader.parse(header(mod_freq_khz=0).pack())
     with pytest.raises(p.PartialFrame):
         p.FrameHeader.parse(good[:40])
     payload = bytes(p.PAYLOAD_LEN)
