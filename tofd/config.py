@@ -73,8 +73,8 @@ class FeatureConfig:
     lowpass_sigma_per_m: float = 50.0  # Gaussian low-pass width, cycles/m (anti-aliasing for the NFFT grid)
     fft_padding_px: int = 16  # FFT path: background margin per side against wrap-around, pixels
     grid_size: int = 64  # NFFT path: N, frequency grid N x N (even)
-    damping: float = 0.01  # NFFT path: lambda = damping * number of points, in (A^H A + lambda I) f = A^H z
-    cg_tolerance: float = 1e-3  # NFFT path: stop CG at this relative residual
+    damping: float = 0.01  # NFFT path: lambda = damping * points per unit area, (A^H A + lambda I) f = A^H z
+    cg_tolerance: float = 1e-4  # NFFT path: stop CG at this relative band-weighted residual
     cg_max_iterations: int = 100  # NFFT path: CG iteration cap
     nufft_eps: float = 1e-6  # NFFT path: finufft requested relative precision
 

@@ -1,0 +1,100 @@
+import dataclasses
+
+import numpy as np
+import pytest
+
+from drivers.camera import Intrinsics
+from tofd import synthetic
+from tofd.config import FeatureConfig
+from tofd.features import NFFTFeatures
+from tofd.features.transfer import transfer_functions, unit_square_m
+
+INTR = Intrinsics()
+CFG = FeatureConfig()
+
+
+def _reference_points(range_m, mask, cfg):
+    """Paper section 2.2 steps 1-2, written independently of the implementation."""
+    pts = INTR.backproject(range_m)[mask]
+    lx, ly = unit_square_m(INTR, cfg.equivalence_range_m)
+    assert lx == pytest.approx(2 * cfg.equivalence_range_m * np.tan(np.radians(47.5 / 2)))
+    x, y = pts[:, 0] / lx, pts[:, 1] / ly
+    x, y = x - x.mean(), y - y.mean()
+    keep = (x < 0.5) & (x >= -0.5) & (y >= -0.5) & (y < 0.5)
+    z = pts[keep, 2]
+    return x[keep], y[keep], z - z.max(), keep
+
+
+@pytest.mark.parametrize("distance", [0.45, 0.7])
+def test_nfft_matches_dense_ndft_solution(distance):
+    """Small grid, tight CG: eps0/eps2 equal those of the exactly solved damped problem (dense NDFT)."""
+    cfg = dataclasses.replace(CFG, grid_size=16, cg_tolerance=1e-13, cg_max_iterations=5000, nufft_eps=1e-12)
+    nf = NFFTFeatures(INTR, cfg)
+    scene = synthetic.sphere(INTR, distance, 0.08, apex_px=(70.0, 80.0))
+    mask = scene.mask
+    maps = nf.range_features(scene.range_m, mask)
+    x, y, z, keep = _reference_points(scene.range_m, mask, cfg)
+    pts = nf.unit_square_points(scene.range_m, mask)
+    np.testing.assert_allclose(pts.z, z, atol=1e-12)
+    h = cfg.grid_size // 2
+    k = np.arange(-h + 1, h)
+    kx, ky = (g.ravel() for g in np.meshgrid(k, k))
+    a = np.exp(2j * np.pi * (np.outer(x, kx) + np.outer(y, ky)))
+    footprint = np.mean(INTR.backproject(scene.range_m)[mask][keep, 2] ** 2) / (INTR.fx * INTR.fy * np.prod(
+        unit_square_m(INTR, cfg.equivalence_range_m)))
+    lam = cfg.damping / footprint
+    coeffs = np.linalg.solve(a.conj().T @ a + lam * np.eye(k.size**2), a.conj().T @ z)
+    lx, ly = unit_square_m(INTR, cfg.equivalence_range_m)
+    c0, c2, s2 = (a @ (t * coeffs) for t in transfer_functions(kx / lx, ky / ly, cfg))
+    eps0_ref, eps2_ref = np.abs(c0) ** 2, np.abs(c2) ** 2 + np.abs(s2) ** 2
+    eps0 = maps.eps0[mask][keep]
+    eps2 = maps.eps2[mask][keep]
+    assert np.max(np.abs(eps0 - eps0_ref)) <= 1e-4 * np.max(eps0_ref)
+    assert np.median(np.abs(eps0 - eps0_ref) / eps0_ref) <= 1e-4
+    assert np.max(np.abs(eps2 - eps2_ref)) <= 1e-4 * np.max(eps2_ref)
+    assert maps.residual <= 1e-12
+
+
+def test_points_outside_the_square_are_dropped_and_nan():
+    """A wide plane: points beyond +-1/2 after centring get NaN features, the rest finite."""
+    nf = NFFTFeatures(INTR, CFG)
+    p = synthetic.tilted_plane(INTR, 0.9, 0.0, 0.0)  # field of view at 0.9 m: 1.8 x the unit square
+    mask = p.mask
+    pts = nf.unit_square_points(p.range_m, mask)
+    assert 0 < pts.index.size < mask.sum()
+    maps = nf.range_features(p.range_m, mask)
+    assert np.isfinite(maps.eps0.reshape(-1)[pts.index]).all()
+    assert np.count_nonzero(np.isfinite(maps.eps0)) == pts.index.size
+    assert pts.x.min() >= -0.5 and pts.x.max() < 0.5
+
+
+@pytest.mark.parametrize("distance", [0.5, 0.8])
+@pytest.mark.parametrize("tilt", [(0.0, 0.0), (30.0, 0.0), (0.0, 45.0), (60.0, 20.0), (-50.0, -30.0)])
+def test_plane_at_any_tilt_gives_zero_away_from_border(distance, tilt):
+    """eps0, eps2 <= 1 % of the eps0 at a 0.15 m sphere's apex, 6 cm (5 filter widths) inside the border."""
+    nf = NFFTFeatures(INTR, CFG)
+    sphere = synthetic.sphere(INTR, distance, 0.15)
+    reference = nf.range_features(sphere.range_m, sphere.mask).eps0[72, 88]
+    p = synthetic.tilted_plane(INTR, distance, *tilt)
+    pts = INTR.backproject(p.range_m)
+    lateral = np.hypot(pts[..., 0], pts[..., 1])
+    maps = nf.range_features(p.range_m, lateral < 0.12)
+    inner = lateral < 0.06
+    assert np.nanmax(maps.eps0[inner]) <= 0.01 * reference
+    assert np.nanmax(maps.eps2[inner]) <= 0.01 * reference
+
+
+def test_iterations_and_residual_reported():
+    nf = NFFTFeatures(INTR, CFG)
+    s = synthetic.sphere(INTR, 0.5, 0.15)
+    maps = nf.range_features(s.range_m, s.mask)
+    assert 1 <= maps.iterations <= CFG.cg_max_iterations
+    assert maps.residual <= CFG.cg_tolerance
+    capped = NFFTFeatures(INTR, dataclasses.replace(CFG, cg_max_iterations=2)).range_features(s.range_m, s.mask)
+    assert capped.iterations == 2 and capped.residual > CFG.cg_tolerance
+
+
+def test_empty_mask():
+    nf = NFFTFeatures(INTR, CFG)
+    maps = nf.range_features(np.ones(INTR.shape), np.zeros(INTR.shape, bool))
+    assert np.all(np.isnan(maps.eps0)) and maps.iterations == 0
