@@ -175,12 +175,14 @@ def open_emulated_camera(*, serial: str = "30000001", test_pattern: bool = False
     """One emulated camera behind a UsbCamera, ready to iterate.
 
     camera_kwargs go to UsbCamera (int_time_code, mod_freq_index, read_timeout_s, ...). test_pattern
-    selects DATA_SOURCE=1 (written by the host, so it survives reconnects). prerender renders the whole
-    pose cycle before streaming starts (a few seconds; otherwise each pose renders on first use).
+    selects DATA_SOURCE=1 (written by the host, so it survives reconnects). prerender=True renders the
+    whole pose cycle before returning (about 6 s for the default 240 poses), so the device never waits
+    for the renderer; otherwise the cycle renders on a background thread while streaming starts (on a
+    busy machine the first cycle may then overrun the FIFO: counted as device_dropped).
     """
     emulator = EmulatedSR3000(serial, scene, fifo_depth=fifo_depth, readout_s=readout_s)
-    if prerender and not test_pattern:
-        emulator.scene.prerender()
+    if not test_pattern:
+        emulator.scene.prerender() if prerender else emulator.scene.prerender_in_background()
     camera = EmulatedCamera(emulator, **camera_kwargs)
     if test_pattern:
         camera.set_register(p.Register.DATA_SOURCE, 1)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 import zlib
 from dataclasses import dataclass
 
@@ -73,6 +74,13 @@ class FaceScene:
         """Render every pose of the cycle now (about 25 ms each), so streaming never waits for the renderer."""
         for index in range(self.motion.n_poses):
             self._pose(index)
+
+    def prerender_in_background(self) -> threading.Thread:
+        """Render the cycle on a daemon thread that ends when done, staying ahead of a 30 fps stream (a pose
+        asked for before it is ready is rendered on the spot; rendering twice gives the same image)."""
+        thread = threading.Thread(target=self.prerender, name="face-scene-prerender", daemon=True)
+        thread.start()
+        return thread
 
     def payload(self, frame_counter: int, freq_khz: int) -> tuple[bytes, int]:
         """(payload bytes, CRC-32) of the frame at this counter and modulation frequency."""

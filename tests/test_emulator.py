@@ -171,3 +171,16 @@ def test_access_denied_device_still_enumerates():
     with pytest.raises(usb.core.USBError) as info:
         dev.ctrl_transfer(IN, 0x01, 0, 0, 32)
     assert info.value.errno == errno.EACCES
+
+
+def test_scene_is_deterministic_and_prerenders_in_background():
+    from drivers.emulator import FaceScene, Motion
+
+    background = FaceScene(motion=Motion(n_poses=4))
+    background.prerender_in_background().join(timeout=30)
+    fresh = FaceScene(motion=Motion(n_poses=4))
+    for counter in (2, 3, 6):  # counter 6 is pose 2 of the next cycle
+        assert background.payload(counter, 20000) == fresh.payload(counter, 20000)
+        assert background.ground_truth(counter) == fresh.ground_truth(counter)
+    distance = [np.linalg.norm(background.ground_truth(i).nose_xyz_m) for i in range(4)]
+    np.testing.assert_allclose([distance[0], distance[2]], [0.35, 0.70], atol=1e-9)  # near and far ends
