@@ -211,8 +211,9 @@ def decode_header(data: bytes | memoryview) -> tuple[dict, int]:
     return header, end
 
 
-def decode_frame(header: dict, data: bytes | memoryview, planes_offset: int) -> Frame:
-    """The Frame a decoded header and its message bytes describe."""
+def decode_frame(data: bytes | memoryview) -> Frame:
+    """The Frame a frame message holds (FormatError if it does not follow the layout)."""
+    header, planes_offset = decode_header(data)
     try:
         arrays = {}
         offset = planes_offset

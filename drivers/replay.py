@@ -12,7 +12,6 @@ import json
 import logging
 import math
 import struct
-import threading
 import time
 import zlib
 from collections.abc import Iterator
@@ -22,7 +21,6 @@ from pathlib import Path
 from typing import Literal
 
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Message, Metadata
 from mcap.stream_reader import breakup_chunk
@@ -43,26 +41,6 @@ _KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
 
 
 @dataclass(frozen=True, slots=True)
-class FrameEntry:
-    """One frame message read from a recording; the planes are decoded only by frame()."""
-
-    header: dict
-    data: bytes
-    planes_offset: int
-
-    @property
-    def frame_counter(self) -> int:
-        return int(self.header["frame_counter"])
-
-    @property
-    def host_monotonic_s(self) -> float:
-        return float(self.header["host_monotonic_s"])
-
-    def frame(self) -> Frame:
-        return fmt.decode_frame(self.header, self.data, self.planes_offset)
-
-
-@dataclass(frozen=True, slots=True)
 class RecordingInfo:
     """What a recording says about itself (its first records; frame_count only if the file was closed)."""
 
@@ -80,7 +58,7 @@ class RecordingInfo:
 class RecordingReader:
     """Sequential reader of one pass over a recording's records.
 
-    Iterating `entries()` yields the frame messages in file order; metadata and attachments seen on the
+    Iterating `frames()` yields the decoded frames in file order; metadata and attachments seen on the
     way are collected in `metadata` and `attachments`. When iteration ends, `reason`/`detail`/`offset`
     say why and where: "end" (the writer finished), "truncated" (file ends early: killed writer or cut
     file) or "corrupt" (a CRC mismatch or an unparsable record).
@@ -135,19 +113,18 @@ class RecordingReader:
             return None
         return opcode, body
 
-    def _parse(self, opcode: int, body: bytes) -> list[FrameEntry]:
-        """Frame entries of one top-level record (raises on corruption)."""
+    def _parse(self, opcode: int, body: bytes) -> list[Frame]:
+        """Frames of one top-level record (raises on corruption)."""
         stream = ReadDataStream(BytesIO(body))
         if opcode == Opcode.CHUNK:
-            entries = []
+            frames = []
             for rec in breakup_chunk(Chunk.read(stream), validate_crc=True):
                 if isinstance(rec, Channel):
                     if rec.topic == fmt.FRAME_TOPIC and rec.message_encoding == fmt.FRAME_ENCODING:
                         self._frame_channels.add(rec.id)
                 elif isinstance(rec, Message) and rec.channel_id in self._frame_channels:
-                    header, planes_offset = fmt.decode_header(rec.data)
-                    entries.append(FrameEntry(header, rec.data, planes_offset))
-            return entries
+                    frames.append(fmt.decode_frame(rec.data))
+            return frames
         if opcode == Opcode.METADATA:
             meta = Metadata.read(stream)
             self.metadata[meta.name] = meta.metadata
@@ -160,8 +137,8 @@ class RecordingReader:
             raise fmt.FormatError(f"unknown record opcode {opcode:#04x}")
         return []
 
-    def entries(self) -> Iterator[FrameEntry]:
-        """Frame messages in file order, until the end of data or the first bad record."""
+    def frames(self) -> Iterator[Frame]:
+        """Frames in file order, until the end of data or the first bad record."""
         while self.reason is None:
             rec = self._record()
             if rec is None:
@@ -171,14 +148,13 @@ class RecordingReader:
                 self._stop("end", f"end of data at byte {self.offset} of {self.file_size}")
                 return
             try:
-                entries = self._parse(opcode, body)
-            except (McapError, fmt.FormatError, ValueError, struct.error, UnicodeDecodeError, KeyError,
-                    TypeError) as exc:
+                frames = self._parse(opcode, body)
+            except Exception as exc:  # noqa: BLE001 (any failure to parse these bytes is corruption)
                 self._stop("corrupt", f"bad record at byte {self.offset} (opcode {opcode:#04x}): "
                                       f"{type(exc).__name__}: {exc}")
                 return
             self.offset += 9 + len(body)
-            yield from entries
+            yield from frames
 
 
 def _info_from(reader: RecordingReader, frame_count: int | None) -> RecordingInfo:
@@ -211,16 +187,23 @@ def _frame_count(path: Path) -> int | None:
     try:
         with open(path, "rb") as f:
             summary = make_reader(f).get_summary()
-    except (McapError, ValueError, struct.error, OSError):
+    except Exception:  # noqa: BLE001 (a missing or damaged summary only means: count unknown)
         return None
     return None if summary is None or summary.statistics is None else summary.statistics.message_count
 
 
 def read_recording_info(path: str | Path) -> RecordingInfo:
-    """The header of a recording: software version, intrinsics, device, registers, config, frame count."""
+    """The header of a recording: software version, intrinsics, device, registers, config, frame count.
+
+    Raises DriverError if the file is not a tofd recording or its header records are damaged (the frames
+    may still replay: each carries its own intrinsics, device and registers).
+    """
     with RecordingReader(path) as reader:
-        next(reader.entries(), None)  # metadata and attachments precede the first frame
-        return _info_from(reader, _frame_count(reader.path))
+        next(reader.frames(), None)  # metadata and attachments precede the first frame
+        try:
+            return _info_from(reader, _frame_count(reader.path))
+        except (ValueError, TypeError, KeyError) as exc:  # FormatError and JSON errors are ValueErrors
+            raise DriverError(f"{reader.path}: damaged recording header: {exc}") from None
 
 
 def _check_counter(name: str, value: int | None) -> None:
@@ -263,26 +246,25 @@ class ReplaySource(FrameSource):
         self.stop_detail = ""
         self.last_good_counter: int | None = None  # counter of the last frame read intact from the file
         self.frames_read = 0  # intact frames read from the file in the first pass
-        self._lock = threading.Lock()
 
     def _in_range(self, counter: int) -> bool:
         return (self.start is None or counter >= self.start) and (self.stop is None or counter < self.stop)
 
-    def _pass(self, seek: int | None, first: bool) -> Iterator[FrameEntry]:
-        """Frame entries of one pass over the file, within the range, from the first counter >= seek."""
+    def _pass(self, seek: int | None, first: bool) -> Iterator[Frame]:
+        """Frames of one pass over the file, within the range, from the first counter >= seek."""
         seeking = seek is not None
         with RecordingReader(self.path) as reader:
-            for entry in reader.entries():
+            for frame in reader.frames():
                 if first:
                     self.frames_read += 1
-                    self.last_good_counter = entry.frame_counter
+                    self.last_good_counter = frame.frame_counter
                 if self.closed:
                     return
-                if seeking and entry.frame_counter < seek:
+                if seeking and frame.frame_counter < seek:
                     continue
                 seeking = False
-                if self._in_range(entry.frame_counter):
-                    yield entry
+                if self._in_range(frame.frame_counter):
+                    yield frame
             if first:
                 self._report(reader)
 
@@ -293,13 +275,13 @@ class ReplaySource(FrameSource):
             log.warning("%s: replayed the readable prefix (%d frames, last frame counter %s); %s: %s",
                         self.path, self.frames_read, self.last_good_counter, reader.reason, reader.detail)
 
-    def _paced(self, entries: Iterator[FrameEntry]) -> Iterator[FrameEntry]:
-        """Entries at their recorded pace / speed, skipping those overtaken while the consumer was busy."""
+    def _paced(self, frames: Iterator[Frame]) -> Iterator[Frame]:
+        """Frames at their recorded pace / speed, skipping those overtaken while the consumer was busy."""
         t0 = r0 = prev_r = 0.0
-        current = next(entries, None)
+        current = next(frames, None)
         rebase = True
         while current is not None:
-            following = next(entries, None)
+            following = next(frames, None)
             now = time.monotonic()
             r = current.host_monotonic_s
             if rebase or r < prev_r:  # first frame, or recorded time went backwards: restart the clock
@@ -316,22 +298,23 @@ class ReplaySource(FrameSource):
             current = following
 
     def __iter__(self) -> Iterator[Frame]:
-        with self._lock:  # one iteration at a time
-            first = True
-            while not self.closed:
-                entries = self._pass(self.seek if first else self.start, first)
-                if self.mode == "realtime":
-                    entries = self._paced(entries)
-                yielded = False
-                for entry in entries:
-                    if self.closed:
-                        return
-                    yielded = True
-                    yield entry.frame()
-                if self.closed or not self.loop or (not yielded and not (first and self.seek is not None)):
+        """The frames (iterate from one thread at a time; close() may come from any thread)."""
+        first = True
+        while not self.closed:
+            frames = self._pass(self.seek if first else self.start, first)
+            if self.mode == "realtime":
+                frames = self._paced(frames)
+            yielded = False
+            for frame in frames:
+                if self.closed:
                     return
-                first = False
-                self.counters["replay_loops"] += 1
+                yielded = True
+                self.counters["frames"] += 1
+                yield frame
+            if self.closed or not self.loop or (not yielded and not (first and self.seek is not None)):
+                return
+            first = False
+            self.counters["replay_loops"] += 1
 
 
 def iter_frames(path: str | Path, *, start: int | None = None, stop: int | None = None) -> Iterator[Frame]:

@@ -255,3 +255,23 @@ def test_bundled_recording_is_a_complete_face_clip_from_035_to_070_m():
     for f, r in zip(frames[::10], ranges[::10], strict=True):
         u, v = (round(c) for c in f.ground_truth.nose_px)
         assert abs(f.range_m[v, u] - r) < 0.03
+
+
+def test_damaged_header_gives_a_driver_error_or_the_info_never_another_exception(clip, tmp_path):
+    path, _ = clip
+    data = path.read_bytes()
+    first_chunk = chunk_ends(path)[0] - 1000
+    rng = np.random.default_rng(2)
+    outcomes = set()
+    for pos in rng.integers(0, 3000, 150).tolist():  # the header, metadata and config attachment
+        flipped = bytearray(data)
+        flipped[pos] ^= 1 << int(rng.integers(8))
+        flip_path = tmp_path / "hdr.mcap"
+        flip_path.write_bytes(flipped)
+        try:
+            read_recording_info(flip_path)
+            outcomes.add("ok")
+        except DriverError:
+            outcomes.add("error")
+    assert outcomes == {"ok", "error"}
+    assert first_chunk > 3000  # the flips stayed in front of the first frame
