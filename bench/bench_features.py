@@ -1,0 +1,126 @@
+"""Benchmark: FFT and NFFT feature time per frame on a sphere and a rendered face at 0.35, 0.5, 0.7 m.
+
+Times are wall-clock (median, p95) plus the NFFT's CPU time (thread_time), which stays meaningful when
+other processes share the cores. 1 thread: this process, frames one after another. 2 threads: two
+worker processes computing frames at the same time (finufft/scipy with nthreads=1 each; finufft's
+own threading was catastrophic on this 2-core machine, see design/nfft_notes.md), reported as
+per-frame time = wall time / frames of both.
+Prints a table and writes JSON (bench/results/bench_features.json or --out).
+
+    /work/venv/bin/python bench/bench_features.py [--repeats 50] [--out PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import multiprocessing as mp
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from drivers.camera import Intrinsics
+from drivers.render import Pose, load_face, render_face
+from tofd import synthetic
+from tofd.config import FeatureConfig, SegmentationConfig
+from tofd.features import FFTFeatures, NFFTFeatures
+from tofd.segmentation import segment
+
+DISTANCES_M = (0.35, 0.5, 0.7)
+FACE_PERCENTILE = 40.0  # segmentation percentile for the face scenes: a 2000-4000 point face patch
+
+
+def scenes(intrinsics: Intrinsics) -> list[tuple[str, float, np.ndarray, np.ndarray]]:
+    """(name, distance, range_m, mask): an ideal 0.15 m sphere and a rendered, noisy, segmented face."""
+    out = []
+    face = load_face("lee_perry_smith")
+    seg = SegmentationConfig(range_percentile=FACE_PERCENTILE)
+    for d in DISTANCES_M:
+        s = synthetic.sphere(intrinsics, d, 0.15)
+        out.append(("sphere", d, s.range_m.astype(np.float32), s.mask))
+        r = render_face(face, Pose(distance_m=d, yaw_deg=15.0, pitch_deg=5.0), intrinsics, np.random.default_rng(1))
+        out.append(("face", d, r.range_m, segment(r.range_m, r.amplitude, seg)))
+    return out
+
+
+def time_frames(cfg_dict: dict, repeats: int) -> list[dict]:
+    """Per scene: FFT and NFFT range-feature times (ms) over `repeats` frames and NFFT CG iterations."""
+    intrinsics = Intrinsics()
+    cfg = FeatureConfig(**cfg_dict)
+    fft, nfft = FFTFeatures(intrinsics, cfg), NFFTFeatures(intrinsics, cfg)
+    rows = []
+    for name, d, range_m, mask in scenes(intrinsics):
+        fft.range_features(range_m, mask)
+        nfft.range_features(range_m, mask)
+        t_fft, t_nfft, cpu_nfft, its = [], [], [], []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fft.range_features(range_m, mask)
+            t1, c1 = time.perf_counter(), time.thread_time()
+            maps = nfft.range_features(range_m, mask)
+            t2, c2 = time.perf_counter(), time.thread_time()
+            t_fft.append((t1 - t0) * 1e3)
+            t_nfft.append((t2 - t1) * 1e3)
+            cpu_nfft.append((c2 - c1) * 1e3)
+            its.append(maps.iterations)
+        rows.append({"scene": name, "distance_m": d, "points": int(mask.sum()), "fft_ms": t_fft, "nfft_ms": t_nfft,
+                     "nfft_cpu_ms": cpu_nfft, "iterations": int(np.median(its))})
+    return rows
+
+
+def stats(rows: list[dict], threads: int, wall_s: float | None = None) -> list[dict]:
+    out = []
+    for r in rows:
+        fft, nfft = np.array(r["fft_ms"]), np.array(r["nfft_ms"])
+        out.append({"threads": threads, "scene": r["scene"], "distance_m": r["distance_m"], "points": r["points"],
+                    "fft_median_ms": float(np.median(fft)), "fft_p95_ms": float(np.percentile(fft, 95)),
+                    "nfft_median_ms": float(np.median(nfft)), "nfft_p95_ms": float(np.percentile(nfft, 95)),
+                    "nfft_cpu_median_ms": float(np.median(r["nfft_cpu_ms"])),
+                    "cg_iterations": r["iterations"], "nfft_over_fft": float(np.median(nfft) / np.median(fft))})
+    return out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=50, help="frames per scene and path")
+    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_features.json"))
+    args = parser.parse_args()
+    cfg = dataclasses.asdict(FeatureConfig())
+
+    single = stats(time_frames(cfg, args.repeats), 1)
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(2) as pool:
+        pool.starmap(time_frames, [(cfg, 2)] * 2)  # warm up imports and plans
+        t0 = time.perf_counter()
+        both = pool.starmap(time_frames, [(cfg, args.repeats)] * 2)
+        wall = time.perf_counter() - t0
+    dual = stats([dict(a, fft_ms=a["fft_ms"] + b["fft_ms"], nfft_ms=a["nfft_ms"] + b["nfft_ms"],
+                       nfft_cpu_ms=a["nfft_cpu_ms"] + b["nfft_cpu_ms"])
+                  for a, b in zip(*both, strict=True)], 2)
+    frames = 2 * args.repeats * len(both[0])
+    throughput_ms = wall * 1e3 / frames  # per frame (FFT + NFFT) with two processes working
+
+    header = (f"{'thr':>3} {'scene':>6} {'dist':>5} {'points':>6} {'FFT med':>8} {'FFT p95':>8} "
+              f"{'NFFT med':>9} {'NFFT p95':>9} {'NFFT cpu':>9} {'CG it':>6} {'NFFT/FFT':>9}")
+    print(header)
+    for r in single + dual:
+        print(f"{r['threads']:>3} {r['scene']:>6} {r['distance_m']:5.2f} {r['points']:6d} {r['fft_median_ms']:8.2f} "
+              f"{r['fft_p95_ms']:8.2f} {r['nfft_median_ms']:9.2f} {r['nfft_p95_ms']:9.2f} "
+              f"{r['nfft_cpu_median_ms']:9.2f} {r['cg_iterations']:6d} "
+              f"{r['nfft_over_fft']:9.1f}")
+    print(f"2 processes: {throughput_ms:.2f} ms wall per frame (FFT + NFFT range features), "
+          f"{1e3 / throughput_ms:.0f} frames/s")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"machine": platform.platform(), "cpu_count": mp.cpu_count(), "repeats": args.repeats,
+                               "feature_config": cfg, "face_segmentation_percentile": FACE_PERCENTILE,
+                               "rows": single + dual, "two_process_wall_ms_per_frame": throughput_ms}, indent=2))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
