@@ -35,7 +35,8 @@ def open_camera(cfg, emulate: bool):
         from drivers.emulator import open_emulated_camera
 
         serial = camera_kwargs.pop("serial") or "30000001"
-        return open_emulated_camera(serial=serial, intrinsics=cfg.intrinsics, **camera_kwargs)
+        logging.getLogger(__name__).info("rendering the emulated camera's scene (a few seconds)")
+        return open_emulated_camera(serial=serial, prerender=True, intrinsics=cfg.intrinsics, **camera_kwargs)
     from drivers.usb_camera import UsbCamera
 
     return UsbCamera(intrinsics=cfg.intrinsics, **camera_kwargs)

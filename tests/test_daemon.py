@@ -1,0 +1,76 @@
+"""`tofd run` and `tofd replay` as real subprocesses: SIGTERM drains and exits 0, sd_notify, outputs complete."""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from test_rerun_sink import check_rrd
+
+from drivers.replay import read_recording_info
+from tofd.viewer import blueprint as bp
+
+ROOT = Path(__file__).resolve().parent.parent
+CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
+
+
+def tofd(*args, **kwargs):
+    return subprocess.Popen([sys.executable, "-m", "tofd", *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kwargs)
+
+
+def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
+    notify = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(notify))
+    sock.settimeout(60)
+    env = {**os.environ, "NOTIFY_SOCKET": str(notify), "WATCHDOG_USEC": "400000", "RUST_LOG": "error"}
+    rrd, summary_path = tmp_path / "live.rrd", tmp_path / "summary.json"
+    proc = tofd("run", "--emulate", "--rerun", f"save:{rrd}", "--health-port", "0", "--summary", summary_path,
+                env=env)
+    try:
+        messages = []
+        while "READY=1" not in messages:
+            messages.append(sock.recv(100).decode())
+        t_ready = time.monotonic()
+        while "WATCHDOG=1" not in messages or time.monotonic() - t_ready < 2.0:  # ~60 frames at 30 fps
+            messages.append(sock.recv(100).decode())
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+        sock.close()
+    assert proc.returncode == 0, err
+    summary = json.loads(summary_path.read_text())
+    assert summary["consistent"] and summary["frames_pending"] == 0, summary
+    assert summary["frames_in"] == summary["frames_out"] + summary["frames_dropped"]
+    assert summary["frames_out"] >= 10 and summary["error"] is None
+    assert "frames in" in err
+    logged = check_rrd(rrd, None)[bp.RANGE][1].column("frame").to_pylist()
+    assert len(logged) == summary["frames_out"] and logged == sorted(set(logged))
+    assert set(logged).isdisjoint(d["frame_counter"] for d in summary["drops"])
+
+
+def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
+    n = read_recording_info(CLIP).frame_count
+    proc = tofd("replay", CLIP, "--out", tmp_path, env={**os.environ, "RUST_LOG": "error"})
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert "replay [" in err and f"{n}/{n} frames" in err
+    stem = CLIP.name.split(".")[0]
+    lines = [json.loads(x) for x in (tmp_path / f"{stem}.results.jsonl").read_text().splitlines()]
+    counters = [x["frame_counter"] for x in lines]
+    assert len(lines) == n and counters == sorted(counters)
+    summary = json.loads((tmp_path / f"{stem}.summary.json").read_text())
+    assert summary["frames_out"] == n and summary["frames_dropped"] == 0 and summary["consistent"]
+    check_rrd(tmp_path / f"{stem}.rrd", counters)
+
+
+def test_replay_of_a_missing_file_is_a_one_line_error(tmp_path):
+    proc = tofd("replay", tmp_path / "nope.mcap", "--out", tmp_path)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "nope.mcap" in err and len(err.strip().splitlines()) == 1

@@ -1,0 +1,82 @@
+"""/healthz and /metrics scraped over a real socket from a running pipeline; sd_notify over a real socket."""
+
+import json
+import re
+import socket
+import time
+import urllib.error
+import urllib.request
+
+from pipeline_sources import RenderedSource
+
+from tofd.config import Config
+from tofd.health import HealthServer, sd_notify, watchdog_interval_s
+from tofd.pipeline import Pipeline
+
+
+def get(url):
+    try:
+        with urllib.request.urlopen(url, timeout=5) as resp:
+            return resp.status, resp.read().decode()
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read().decode()
+
+
+def metric_values(text, name):
+    """{label string: value} of one metric in Prometheus text format."""
+    return {m.group(1) or "": float(m.group(2)) for m in re.finditer(rf"^{name}(\{{[^}}]*\}})? (\S+)$", text, re.M)}
+
+
+def test_metrics_and_healthz_of_a_live_run():
+    cfg = Config()
+    pipeline = Pipeline(cfg, "latest")
+    server = HealthServer("127.0.0.1", 0, pipeline.snapshot, lambda: pipeline.running, stale_after_s=2.0).start()
+    try:
+        assert server.bind == "127.0.0.1"
+        pipeline.start(RenderedSource(300, fps=30, n_distinct=3))
+        deadline = time.monotonic() + 30
+        while pipeline.ledger.frames_out < 20 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        base = f"http://127.0.0.1:{server.port}"
+        code, body = get(base + "/healthz")
+        assert code == 200 and json.loads(body)["status"] == "ok"
+        code, text = get(base + "/metrics")
+        assert code == 200
+        assert metric_values(text, "tofd_frames_in_total")[""] >= 20
+        assert metric_values(text, "tofd_fps")[""] > 5
+        stages = metric_values(text, "tofd_stage_duration_seconds")
+        for stage in ("segmentation", "fft", "nfft", "latency"):
+            p50, p99 = stages[f'{{stage="{stage}",quantile="0.5"}}'], stages[f'{{stage="{stage}",quantile="0.99"}}']
+            assert 0 < p50 <= p99 < 5
+        assert set(metric_values(text, "tofd_queue_depth")) == {'{queue="dispatch"}', '{queue="workers"}',
+                                                               '{queue="sink"}'}
+        assert metric_values(text, "tofd_workers_alive")[""] == cfg.pipeline.workers
+        assert "# TYPE tofd_frames_dropped_total counter" in text
+        assert get(base + "/nope")[0] == 404
+        pipeline.stop()
+        assert pipeline.wait(30)
+        code, body = get(base + "/healthz")
+        assert code == 503 and "not running" in body
+    finally:
+        pipeline.close()
+        server.close()
+
+
+def test_sd_notify_reaches_a_unix_datagram_socket(tmp_path, monkeypatch):
+    path = tmp_path / "notify.sock"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
+        sock.bind(str(path))
+        sock.settimeout(2)
+        monkeypatch.setenv("NOTIFY_SOCKET", str(path))
+        assert sd_notify("READY=1")
+        assert sock.recv(100) == b"READY=1"
+    monkeypatch.delenv("NOTIFY_SOCKET")
+    assert not sd_notify("READY=1")
+
+
+def test_watchdog_interval_is_half_of_watchdog_usec(monkeypatch):
+    monkeypatch.setenv("WATCHDOG_USEC", "3000000")
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    assert watchdog_interval_s() == 1.5
+    monkeypatch.setenv("WATCHDOG_PID", "1")  # meant for another process
+    assert watchdog_interval_s() is None

@@ -1,0 +1,139 @@
+"""The pipeline on rendered frames: ledger and queue policies, shared-memory workers, ordering, worker death."""
+
+import os
+import signal
+import threading
+import time
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from pipeline_sources import RenderedSource
+
+from tofd.config import Config
+from tofd.feature_maps import FeatureExtractor
+from tofd.pipeline import DropLedger, Pipeline
+from tofd.pipeline.queues import StageQueue
+
+CFG = Config()
+
+
+def test_ledger_counts_every_frame_once():
+    ledger = DropLedger()
+    for seq in range(5):
+        ledger.admit(seq, 100 + seq)
+    ledger.deliver(0)
+    ledger.drop(1, "features", "worker_died")
+    ledger.advance(2, "viewer")
+    assert ledger.consistent() and ledger.pending == 3
+    with pytest.raises(RuntimeError, match="not in flight"):
+        ledger.deliver(1)
+    with pytest.raises(ValueError, match="stage"):
+        ledger.drop(3, "nowhere", "x")
+    assert ledger.drop_pending("shutdown") == 3
+    ledger.close()
+    ledger.deliver(2)  # a late report after shutdown is ignored, not double counted
+    s = ledger.summary()
+    assert (s["frames_in"], s["frames_out"], s["frames_dropped"], s["consistent"]) == (5, 1, 4, True)
+    assert {(d["frame_counter"], d["stage"], d["reason"]) for d in s["drops"]} == {
+        (101, "features", "worker_died"), (102, "viewer", "shutdown"), (103, "capture", "shutdown"),
+        (104, "capture", "shutdown")}
+
+
+def test_latest_queue_drops_oldest_and_lossless_blocks():
+    never = threading.Event()
+    latest = StageQueue("latest", 2)
+    assert latest.put(1, never) == [] and latest.put(2, never) == []
+    assert latest.put(3, never) == [1]
+    assert [latest.get(0), latest.get(0), latest.get(0)] == [2, 3, None]
+
+    lossless, abort = StageQueue("lossless", 1), threading.Event()
+    lossless.put("a", abort)
+    got = []
+    consumer = threading.Timer(0.2, lambda: got.append(lossless.get(1)))
+    consumer.start()
+    t0 = time.monotonic()
+    assert lossless.put("b", abort) == []  # blocked until the consumer took "a"
+    assert time.monotonic() - t0 >= 0.15 and got == ["a"]
+    abort.set()
+    assert lossless.put("c", abort) == ["c"]  # full and aborting: handed back, never lost silently
+
+
+class Collect:
+    """A sink that keeps what it is given."""
+
+    def __init__(self, delay_s: float = 0.0):
+        self.results, self.delay_s = [], delay_s
+
+    def __call__(self, r):
+        time.sleep(self.delay_s)
+        self.results.append(r)
+
+
+def run_pipeline(source, policy, cfg=CFG, sink=None, during=None, timeout=60):
+    sink = sink or Collect()
+    pipeline = Pipeline(cfg, policy, writers=(sink,))
+    pipeline.start(source)
+    if during is not None:
+        during(pipeline, sink)
+    assert pipeline.wait(timeout)
+    return pipeline, pipeline.close(), sink
+
+
+def test_lossless_delivers_every_frame_in_order_with_the_in_process_features():
+    source = RenderedSource(24, skip_counters=(10,), n_distinct=3)
+    pipeline, summary, sink = run_pipeline(source, "lossless")
+    counters = [r.frame.frame_counter for r in sink.results]
+    assert counters == source.emitted == [c for c in range(24) if c != 10]
+    assert summary["consistent"] and summary["frames_out"] == 23 and summary["frames_dropped"] == 0
+    assert summary["gaps"] == [{"after_counter": 9, "next_counter": 11, "kind": "counter_gap"}]
+    assert sink.results[10].gap_before == "counter_gap"
+
+    reference = FeatureExtractor(CFG.intrinsics, CFG.features, CFG.segmentation)
+    for r in sink.results[:3]:  # shared-memory worker result == direct computation, bit for bit
+        ref = reference(r.frame.range_m, r.frame.amplitude)
+        np.testing.assert_array_equal(r.mask, ref.mask)
+        for name, ref_map in ref.maps.items():
+            np.testing.assert_array_equal(r.features[name], ref_map, err_msg=name)
+        assert r.mask.sum() > 300  # a face, not an empty frame
+    assert {"capture", "queue", "segmentation", "fft", "nfft", "latency"} <= set(sink.results[0].timings_ms)
+    assert not pipeline.running
+
+
+def test_killed_worker_is_ledgered_restarted_and_the_run_finishes():
+    source = RenderedSource(40, n_distinct=3)
+    killed = []
+
+    def kill_one(pipeline, sink):
+        deadline = time.monotonic() + 30
+        while len(sink.results) < 5 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        victim = pipeline.workers[0]
+        while not victim.inflight and time.monotonic() < deadline:  # make sure it holds a frame
+            time.sleep(0.001)
+        killed.append(victim.pid)
+        os.kill(victim.pid, signal.SIGKILL)
+
+    pipeline, summary, sink = run_pipeline(source, "lossless", during=kill_one)
+    lost = [d for d in summary["drops"] if d["reason"] == "worker_died"]
+    assert len(lost) >= 1 and all(d["stage"] == "features" for d in lost)
+    assert summary["frames_dropped"] == len(lost)
+    assert summary["consistent"] and summary["frames_in"] == 40
+    assert pipeline.worker_restarts >= 1 and pipeline.workers[0].pid != killed[0]
+    delivered = [r.frame.frame_counter for r in sink.results]
+    assert delivered == sorted(delivered) and len(delivered) == 40 - len(lost)
+    assert set(delivered).isdisjoint(d["frame_counter"] for d in lost)
+
+
+def test_live_policy_drops_instead_of_blocking_and_never_goes_back_in_time():
+    cfg = replace(CFG, pipeline=replace(CFG.pipeline, sink_queue=2))
+    source = RenderedSource(45, fps=60, n_distinct=3)
+    slow_sink = Collect(delay_s=0.06)  # ~16 fps: the sink cannot keep up with a 60 fps camera
+    t0 = time.monotonic()
+    _, summary, sink = run_pipeline(source, "latest", cfg=cfg, sink=slow_sink)
+    assert time.monotonic() - t0 < 45 / 16  # capture was never held back by the slow sink
+    assert summary["consistent"] and summary["frames_in"] == 45
+    assert summary["frames_dropped"] > 0 and summary["frames_out"] == len(sink.results)
+    assert {d["reason"] for d in summary["drops"]} <= {"queue_full", "superseded"}
+    delivered = [r.frame.frame_counter for r in sink.results]
+    assert delivered == sorted(delivered)
