@@ -37,7 +37,8 @@ MAX_RECORD_BYTES = 256 << 20
 """Largest record the reader accepts; a larger length field is corruption (a frame chunk is ~0.1 MB)."""
 
 StopReason = Literal["end", "truncated", "corrupt"]
-_KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
+_DATA_OPCODES = frozenset({Opcode.HEADER, Opcode.METADATA, Opcode.ATTACHMENT, Opcode.CHUNK, Opcode.MESSAGE_INDEX})
+"""Top-level records a tofd recording has before its end-of-data record (anything else there is damage)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,6 +82,7 @@ class RecordingReader:
         self.detail = ""
         self.offset = len(MCAP0_MAGIC)  # end of the last good record, bytes
         self._frame_channels: set[int] = set()
+        self._previous_opcode: int | None = None
 
     def close(self) -> None:
         self._file.close()
@@ -117,8 +119,11 @@ class RecordingReader:
         """Frames of one top-level record (raises on corruption)."""
         stream = ReadDataStream(BytesIO(body))
         if opcode == Opcode.CHUNK:
+            chunk = Chunk.read(stream)
+            if stream.count != len(body):  # the writer never pads: a longer record is a damaged length
+                raise fmt.FormatError(f"chunk record of {len(body)} bytes holds {stream.count}")
             frames = []
-            for rec in breakup_chunk(Chunk.read(stream), validate_crc=True):
+            for rec in breakup_chunk(chunk, validate_crc=True):
                 if isinstance(rec, Channel):
                     if rec.topic == fmt.FRAME_TOPIC and rec.message_encoding == fmt.FRAME_ENCODING:
                         self._frame_channels.add(rec.id)
@@ -133,8 +138,12 @@ class RecordingReader:
                 raise fmt.FormatError("attachment CRC mismatch")
             att = Attachment.read(stream)
             self.attachments[att.name] = att.data
-        elif opcode not in _KNOWN_OPCODES:
-            raise fmt.FormatError(f"unknown record opcode {opcode:#04x}")
+        elif opcode not in _DATA_OPCODES:
+            raise fmt.FormatError(f"record opcode {opcode:#04x} does not belong in a recording's data section")
+        elif opcode == Opcode.MESSAGE_INDEX and self._previous_opcode != Opcode.CHUNK:
+            raise fmt.FormatError("message index without its chunk before it (a damaged chunk record?)")
+        elif opcode == Opcode.HEADER and self.offset != len(MCAP0_MAGIC):
+            raise fmt.FormatError("a second header record")
         return []
 
     def frames(self) -> Iterator[Frame]:
@@ -154,6 +163,7 @@ class RecordingReader:
                                       f"{type(exc).__name__}: {exc}")
                 return
             self.offset += 9 + len(body)
+            self._previous_opcode = opcode
             yield from frames
 
 

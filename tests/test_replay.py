@@ -229,6 +229,20 @@ def test_bit_flip_inside_a_frame_stops_at_that_frame(clip, tmp_path):
         assert "crc" in source.stop_detail.lower()
 
 
+@pytest.mark.parametrize("bit", range(8))
+def test_damaged_record_opcode_stops_there_and_never_skips_a_frame(clip, tmp_path, bit):
+    path, frames = clip
+    with open(path, "rb") as f:
+        starts = [c.chunk_start_offset for c in make_reader(f).get_summary().chunk_indexes]
+    flipped = bytearray(path.read_bytes())
+    flipped[starts[4]] ^= 1 << bit  # chunk (0x06) -> message index, channel, footer, unknown, ...
+    flip_path = tmp_path / "op.mcap"
+    flip_path.write_bytes(flipped)
+    source = ReplaySource(flip_path)
+    assert counters(collect(source)) == [0, 1, 2, 3]
+    assert source.stopped_reason == "corrupt" and f"byte {starts[4]}" in source.stop_detail
+
+
 def test_truncated_file_loops_over_its_prefix(clip, tmp_path):
     path, _ = clip
     cut_path = tmp_path / "cut.mcap"
