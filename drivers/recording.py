@@ -73,6 +73,7 @@ class RecordingWriter:
         """Append one frame; when this returns the frame survives the death of this process."""
         if self._file.closed:
             raise ValueError(f"recording {self.path} is closed")
+        data = fmt.encode_frame(frame)  # first: a frame that does not encode leaves the file as it was
         if self.frames_written == 0:
             self._writer.add_metadata(fmt.META_INTRINSICS, fmt.to_metadata(frame.intrinsics))
             self._writer.add_metadata(fmt.META_DEVICE, fmt.to_metadata(frame.device))
@@ -82,7 +83,7 @@ class RecordingWriter:
             log_time=int(round(frame.host_wall_s * 1e9)),
             publish_time=int(frame.timestamp_us) * 1000,
             sequence=int(frame.frame_counter) & 0xFFFFFFFF,
-            data=fmt.encode_frame(frame),
+            data=data,
         )
         self._writer.flush()  # closes the chunk (CRC, zstd) and hands it to the OS
         self.frames_written += 1

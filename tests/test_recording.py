@@ -99,6 +99,9 @@ def test_writer_rejects_planes_that_are_not_float32_of_the_image_shape(tmp_path)
         frame.amplitude = frame.amplitude[:-1]
         with pytest.raises(ValueError, match="frame.amplitude"):
             writer.write(frame)
+        writer.write(make_frame(2))  # the rejected frames left no trace
+    assert [f.frame_counter for f in iter_frames(tmp_path / "r.mcap")] == [2]
+    assert read_recording_info(tmp_path / "r.mcap").frame_count == 1
 
 
 def test_writer_rejects_bad_fsync_interval(tmp_path):
