@@ -25,10 +25,12 @@ def make_frame(counter: int, *, quantized: bool = True, registers: Registers = D
     rng = np.random.default_rng(counter)
     shape = intrinsics.shape
     if quantized:
-        raw = rng.integers(2000, 9000, size=shape, dtype=np.uint16)
+        v, u = np.indices(shape)
+        raw = (3000 + 20 * u + 10 * v + rng.integers(0, 64, size=shape)).astype(np.uint16)  # a noisy slope
         raw[:10, :20] = protocol.RAW_INVALID
         range_m = protocol.raw_to_range_m(raw, protocol.mod_freq_khz(registers.mod_freq_index))
-        amplitude = rng.integers(0, 65536, size=shape).astype(np.float32)
+        amplitude = (1000 + rng.integers(0, 512, size=shape)).astype(np.float32)
+        amplitude[-1, -3:] = [0, 1, 65535]
     else:
         range_m = rng.uniform(0.3, 2.0, size=shape).astype(np.float32)
         range_m[:10, :20] = np.nan
