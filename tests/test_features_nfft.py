@@ -28,7 +28,8 @@ def _reference_points(range_m, mask, cfg):
 @pytest.mark.parametrize("distance", [0.45, 0.7])
 def test_nfft_matches_dense_ndft_solution(distance):
     """Small grid, tight CG: eps0/eps2 equal those of the exactly solved damped problem (dense NDFT)."""
-    cfg = dataclasses.replace(CFG, grid_size=16, cg_tolerance=1e-13, cg_max_iterations=5000, nufft_eps=1e-12)
+    cfg = dataclasses.replace(CFG, grid_size=16, cg_tolerance=1e-13, cg_max_iterations=5000, nufft_eps=1e-12,
+                              cg_precision="double")
     nf = NFFTFeatures(INTR, cfg)
     scene = synthetic.sphere(INTR, distance, 0.08, apex_px=(70.0, 80.0))
     mask = scene.mask
@@ -53,6 +54,19 @@ def test_nfft_matches_dense_ndft_solution(distance):
     assert np.median(np.abs(eps0 - eps0_ref) / eps0_ref) <= 1e-4
     assert np.max(np.abs(eps2 - eps2_ref)) <= 1e-4 * np.max(eps2_ref)
     assert maps.residual <= 1e-12
+
+
+@pytest.mark.parametrize("distance", [0.35, 0.7])
+def test_single_precision_cg_matches_double(distance):
+    """The default single-precision CG gives the double-precision features to 1e-4 of their peak."""
+    scene = synthetic.sphere(INTR, distance, 0.08, apex_px=(70.0, 80.0))
+    maps = {p: NFFTFeatures(INTR, dataclasses.replace(CFG, cg_precision=p)).range_features(scene.range_m, scene.mask)
+            for p in ("single", "double")}
+    for name in ("eps0", "eps2"):
+        single, double = getattr(maps["single"], name), getattr(maps["double"], name)
+        assert np.array_equal(np.isfinite(single), np.isfinite(double))
+        assert np.nanmax(np.abs(single - double)) <= 1e-4 * np.nanmax(double)
+    assert abs(maps["single"].iterations - maps["double"].iterations) <= 2
 
 
 def test_points_outside_the_square_are_dropped_and_nan():

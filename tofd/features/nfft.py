@@ -77,7 +77,10 @@ class NFFTFeatures:
         self._filters = np.stack([c0 + 1j * c2, s2 + 0j])  # (2, N, N) rows ky, columns kx
         # stopping weight: A(rho) (= |C0|) on the compact half spectrum, rows ky, columns kx = 0 .. N/2 - 1
         self._band = np.concatenate((c0[: self._h, : self._h], c0[n - self._h + 1:, : self._h]))
-        self._padded = np.zeros((2 * n, n + 1), np.complex128)  # half spectrum of the 2N circulant
+        single = cfg.cg_precision == "single"
+        self._real, self._complex = (np.float32, np.complex64) if single else (np.float64, np.complex128)
+        self._band = self._band.astype(self._real)
+        self._padded = np.zeros((2 * n, n + 1), self._complex)  # half spectrum of the 2N circulant
         self._neg_rows = (-np.arange(n)) % n
         self._neg_cols_src = n - np.arange(n - self._h + 1, n)
         opts = dict(eps=cfg.nufft_eps, modeord=1, nthreads=1, upsampfac=_upsampfac(cfg.nufft_eps))
@@ -127,8 +130,8 @@ class NFFTFeatures:
         kernel = kernel_and_rhs[0, :, : n + 1].copy()
         kernel[n, :] = 0  # the unpaired -N row and column never enter (A^H A f)_k for |k| < N/2
         kernel[:, n] = 0
-        circulant = sfft.irfft2(kernel, s=(2 * n, 2 * n), workers=1) * float(4 * n * n)
-        rhs = np.concatenate((kernel_and_rhs[1, :h, :h], kernel_and_rhs[1, 2 * n - h + 1:, :h]))
+        circulant = (sfft.irfft2(kernel, s=(2 * n, 2 * n), workers=1) * float(4 * n * n)).astype(self._real)
+        rhs = np.concatenate((kernel_and_rhs[1, :h, :h], kernel_and_rhs[1, 2 * n - h + 1:, :h])).astype(self._complex)
         coeffs, iterations, residual = self._solve(circulant, rhs, lam)
         self._type2.setpts(ty, tx)
         out = self._type2.execute(self._filters * self._hermitian_full(coeffs))
