@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from drivers.camera import Intrinsics
 from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.detect import (
     VARIANTS,
@@ -63,12 +64,13 @@ def test_detect_finds_the_pixel_in_the_box():
     maps["range_nfft_eps0"][2, 5] = 1.0  # the only pixel near the box centre (log10 0, -3)
     maps["range_nfft_eps0"][0, 0] = np.nan
     box = Box(VARIANTS["nfft_range"], np.array([0.0, -3.0]), np.array([0.5, 0.5]))
-    points = np.arange(h * w * 3, dtype=float).reshape(h, w, 3)
-    det = detect(maps, points, box, scale=1.0)
+    intrinsics = Intrinsics(width=w, height=h, fx=10.0, fy=10.0, cx=3.5, cy=2.5)
+    range_m = np.linspace(0.4, 0.6, h * w).reshape(h, w)
+    det = detect(maps, range_m, intrinsics, box, scale=1.0)
     assert det.accepted and det.nose_px == (5, 2) and det.score == pytest.approx(0.0, abs=1e-6)
-    assert det.nose_xyz_m == tuple(points[2, 5])
+    np.testing.assert_allclose(det.nose_xyz_m, intrinsics.backproject(range_m)[2, 5])
     maps["range_nfft_eps0"][2, 5] = 10.0  # log10 = 1: distance 2 > scale 1
-    det = detect(maps, points, box, scale=1.0)
+    det = detect(maps, range_m, intrinsics, box, scale=1.0)
     assert not det.accepted and det.nose_px is None and det.score == pytest.approx(2.0)
 
 

@@ -19,7 +19,7 @@ Without `nose_xyz_m` the nose tip is back-projected from `range` at `nose_px` (n
 
 Intrinsics: optional sidecar `<stem>.json` next to `<stem>.npz` holding {"intrinsics": {width, height, fx, fy,
 cx, cy}} (drivers.camera.Intrinsics.to_dict); the SR3000 default when there is none.
-Recordings with ground truth (drivers.replay) are read with `dataset_from_frames`.
+Recordings with ground truth (drivers.replay) are read with `load_labelled` / `dataset_from_frames`.
 """
 
 from __future__ import annotations
@@ -189,6 +189,20 @@ def save_dataset(dataset: Dataset, path: str | Path) -> Path:
         np.savez_compressed(fh, **arrays)
     sidecar_path(path).write_text(json.dumps({"intrinsics": dataset.intrinsics.to_dict()}, indent=2) + "\n")
     return path
+
+
+def load_labelled(path: str | Path) -> Dataset:
+    """A dataset from a .npz dataset file, or from any other file as a tofd recording with ground truth."""
+    path = Path(path)
+    if path.suffix == ".npz":
+        return load_dataset(path)
+    from drivers.replay import iter_frames
+    from drivers.source import DriverError
+
+    try:
+        return dataset_from_frames(iter_frames(path), subject=path.stem)
+    except DriverError as exc:
+        raise DatasetError(f"{path}: cannot read recording: {exc}") from None
 
 
 def dataset_from_frames(frames: Iterable[Frame], subject: str = "recording") -> Dataset:

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.camera import Intrinsics
+
 MODEL_FORMAT = "tofd-nose-model"
 MODEL_VERSION = 1
 
@@ -231,16 +233,61 @@ class Detection:
     accepted: bool  # score <= scale
 
 
-def detect(maps: dict[str, np.ndarray], points: np.ndarray, box: Box, scale: float) -> Detection:
+def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrinsics, box: Box,
+           scale: float) -> Detection:
     """Detect the nose in one frame from its feature maps ((H, W), NaN outside the foreground).
 
-    points: (H, W, 3) camera-frame points in metres (Intrinsics.backproject of the range map).
+    range_m: (H, W) radial range in metres, for the 3-D point of the detected pixel.
     """
     dist = box.distance(stack_features(maps, box.features))
     flat = int(np.argmin(dist))
     score = float(dist.flat[flat])
     if not score <= scale:
         return Detection(None, None, score, False)
-    row, col = np.unravel_index(flat, dist.shape)
-    xyz = tuple(float(c) for c in points[row, col])
-    return Detection((int(col), int(row)), xyz, score, True)
+    row, col = (int(i) for i in np.unravel_index(flat, dist.shape))
+    ray = np.array([(col - intrinsics.cx) / intrinsics.fx, (row - intrinsics.cy) / intrinsics.fy, 1.0])
+    xyz = ray / np.linalg.norm(ray) * float(range_m[row, col])
+    return Detection((col, row), (float(xyz[0]), float(xyz[1]), float(xyz[2])), score, True)
+
+
+def resolve_model_path(model_path: str | Path) -> Path:
+    """A model path as given if it exists (relative to the cwd), else relative to the bundled config/ directory."""
+    path = Path(model_path)
+    if path.is_absolute() or path.exists():
+        return path
+    return Path(__file__).resolve().parent.parent / "config" / path
+
+
+class NoseDetector:
+    """The detector of the pipeline: one variant of a model file at one box scale, checked against the config.
+
+    `detect_maps` works on feature maps computed elsewhere (e.g. by the pipeline's workers);
+    `detect_frame` segments and computes the variant's features itself (tofd.feature_maps).
+    """
+
+    def __init__(self, config: object, model: NoseModel | None = None) -> None:
+        from tofd.feature_maps import families_for
+
+        det = config.detector
+        self.model = model if model is not None else load_model(resolve_model_path(det.model_path))
+        self.model.check_compatible(config.features, config.segmentation)
+        vm = self.model.variant(det.variant)
+        self.box = vm.box
+        self.scale = det.box_scale if det.box_scale > 0 else vm.operating_scale
+        self.families = families_for(self.box.features)
+        self.intrinsics = config.intrinsics
+        self._config = config
+        self._extractor = None
+
+    def detect_maps(self, maps: dict[str, np.ndarray], range_m: np.ndarray) -> Detection:
+        """Detection from named feature maps (tofd.feature_maps names) and the frame's range map (metres)."""
+        return detect(maps, range_m, self.intrinsics, self.box, self.scale)
+
+    def detect_frame(self, range_m: np.ndarray, amplitude: np.ndarray) -> Detection:
+        """Segment, compute this variant's features, detect."""
+        if self._extractor is None:
+            from tofd.feature_maps import FeatureExtractor
+
+            cfg = self._config
+            self._extractor = FeatureExtractor(cfg.intrinsics, cfg.features, cfg.segmentation, self.families)
+        return self.detect_maps(self._extractor(range_m, amplitude).maps, range_m)

@@ -1,0 +1,154 @@
+"""The paper's evaluation: train the box detector on one dataset, trace per-image ROC curves on another.
+
+Features are computed once per frame (all three families: range FFT, range NFFT, amplitude FFT), reduced to
+the foreground pixels' log10 features and their 3-D distance to the ground-truth nose tip, and reused by all
+four variants and every box scale. True nose pixels: foreground pixels within `radius_m` (15 mm) of the tip;
+the box is learned from the tighter `positive_radius_m` neighbourhood of the tip (the tip's own features,
+not those of the nose's flanks, which also sit 15 mm away from it).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.camera import Intrinsics
+from tofd.config import FeatureConfig, SegmentationConfig
+from tofd.dataset import Dataset
+from tofd.detect import VARIANTS, Box, NoseModel, VariantModel, learn_box, to_log_features
+from tofd.feature_maps import MAP_NAMES, FeatureExtractor
+from tofd.roc import RocCurve, roc_from_min_distances
+
+DISTANCE_BIN_M = 0.05  # per-distance results group frames by nose distance rounded to this
+
+
+@dataclass(slots=True)
+class FrameSamples:
+    """The foreground pixels of one frame, reduced to what the evaluation needs."""
+
+    log_features: np.ndarray  # (P, len(MAP_NAMES)) float32 log10 eccentricities, columns MAP_NAMES
+    tip_distance_m: np.ndarray  # (P,) float32 3-D distance to the ground-truth nose tip (NaN if unknown)
+    nfft_iterations: int = 0
+
+
+def frame_samples(extractor: FeatureExtractor, range_m: np.ndarray, amplitude: np.ndarray,
+                  nose_xyz_m: np.ndarray) -> FrameSamples:
+    """Features of one frame's foreground pixels and their distance to the nose tip."""
+    ff = extractor(range_m, amplitude)
+    points = extractor.intrinsics.backproject(range_m)[ff.mask]
+    tip = np.linalg.norm(points - np.asarray(nose_xyz_m, dtype=np.float64), axis=1).astype(np.float32)
+    feats = np.stack([ff.maps[n][ff.mask] for n in MAP_NAMES], axis=1)
+    return FrameSamples(to_log_features(feats).astype(np.float32), tip, ff.nfft_iterations)
+
+
+_worker_extractor: FeatureExtractor | None = None
+
+
+def _init_worker(intrinsics: Intrinsics, features: FeatureConfig, segmentation: SegmentationConfig) -> None:
+    global _worker_extractor
+    _worker_extractor = FeatureExtractor(intrinsics, features, segmentation)
+
+
+def _worker(job: tuple[np.ndarray, np.ndarray, np.ndarray]) -> FrameSamples:
+    assert _worker_extractor is not None  # set by the pool initializer
+    return frame_samples(_worker_extractor, *job)
+
+
+def extract_samples(dataset: Dataset, features: FeatureConfig, segmentation: SegmentationConfig,
+                    workers: int = 2, progress: Callable[[int, int], None] | None = None) -> list[FrameSamples]:
+    """FrameSamples of every frame, in order; `workers` > 1 spreads frames over spawned processes."""
+    tips = dataset.nose_points()
+    tips[~dataset.nose_visible] = np.nan
+    jobs = ((dataset.range_m[i], dataset.amplitude[i], tips[i]) for i in range(len(dataset)))
+    out: list[FrameSamples] = []
+
+    def collect(results: Iterator[FrameSamples]) -> list[FrameSamples]:
+        for s in results:
+            out.append(s)
+            if progress is not None:
+                progress(len(out), len(dataset))
+        return out
+
+    if workers <= 1 or len(dataset) < 2 * workers:
+        _init_worker(dataset.intrinsics, features, segmentation)
+        return collect(map(_worker, jobs))
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Pool(workers, _init_worker, (dataset.intrinsics, features, segmentation)) as pool:
+        return collect(pool.imap(_worker, jobs, chunksize=2))
+
+
+def _columns(variant: str) -> list[int]:
+    return [MAP_NAMES.index(n) for n in VARIANTS[variant]]
+
+
+def min_distances(samples: list[FrameSamples], variant: str, box: Box,
+                  radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame: smallest box distance of its true nose pixels and of its other foreground pixels (inf: none)."""
+    cols = _columns(variant)
+    true_min = np.full(len(samples), np.inf)
+    false_min = np.full(len(samples), np.inf)
+    for i, s in enumerate(samples):
+        d = box.distance(s.log_features[:, cols])
+        true = s.tip_distance_m <= radius_m
+        if true.any():
+            true_min[i] = d[true].min()
+        if (~true).any():
+            false_min[i] = d[~true].min()
+    return true_min, false_min
+
+
+def _has_nose(samples: list[FrameSamples], radius_m: float) -> np.ndarray:
+    return np.array([bool(np.any(s.tip_distance_m <= radius_m)) for s in samples])
+
+
+def train_model(samples: list[FrameSamples], features: FeatureConfig, segmentation: SegmentationConfig,
+                quantile: float = 0.05, positive_radius_m: float = 0.005, radius_m: float = 0.015,
+                variants: tuple[str, ...] = tuple(VARIANTS), training: dict | None = None) -> NoseModel:
+    """Learn each variant's box from the pixels within positive_radius_m of the nose tips; the operating
+    scale of each is its equal-error scale on the training frames (true nose radius radius_m)."""
+    import dataclasses
+
+    positive = [s.log_features[s.tip_distance_m <= positive_radius_m] for s in samples]
+    pos = np.concatenate(positive) if positive else np.empty((0, len(MAP_NAMES)), np.float32)
+    has_nose = _has_nose(samples, radius_m)
+    out = {}
+    for variant in variants:
+        box = learn_box(pos[:, _columns(variant)], VARIANTS[variant], quantile)
+        roc = roc_from_min_distances(*min_distances(samples, variant, box, radius_m), has_nose)
+        out[variant] = VariantModel(variant, box, round(roc.eer_scale, 6), round(roc.eer, 6))
+    info = {"frames": len(samples), "positive_pixels": int(len(pos)), **(training or {})}
+    return NoseModel(out, dataclasses.asdict(features), dataclasses.asdict(segmentation), quantile,
+                     positive_radius_m * 1e3, info)
+
+
+@dataclass(slots=True)
+class VariantResult:
+    """One variant's ROC on the whole test set and per distance bin (metres)."""
+
+    variant: str
+    overall: RocCurve
+    per_distance: dict[float, RocCurve] = field(default_factory=dict)
+
+
+def distance_bins(distance_m: np.ndarray) -> np.ndarray:
+    """Nose distances rounded to DISTANCE_BIN_M (the keys of the per-distance results)."""
+    return np.round(np.round(np.asarray(distance_m) / DISTANCE_BIN_M) * DISTANCE_BIN_M, 3)
+
+
+def evaluate_model(model: NoseModel, samples: list[FrameSamples], distance_m: np.ndarray,
+                   radius_m: float = 0.015) -> dict[str, VariantResult]:
+    """ROC curves of every variant of the model on test samples, overall and per distance bin."""
+    has_nose = _has_nose(samples, radius_m)
+    bins = distance_bins(distance_m)
+    results = {}
+    for name, vm in model.variants.items():
+        tmin, fmin = min_distances(samples, name, vm.box, radius_m)
+        res = VariantResult(name, roc_from_min_distances(tmin, fmin, has_nose))
+        for b in np.unique(bins):
+            sel = bins == b
+            res.per_distance[float(b)] = roc_from_min_distances(tmin[sel], fmin[sel], has_nose[sel])
+        results[name] = res
+    return results

@@ -1,0 +1,69 @@
+"""The detector's named feature maps of one frame: segmentation, then FFT/NFFT eccentricities of range and
+FFT eccentricities of amplitude.
+
+Map names: range_fft_eps0, range_fft_eps2, range_nfft_eps0, range_nfft_eps2, amp_fft_eps0, amp_fft_eps2
+(each (H, W) float32, NaN outside the foreground). Amplitude features are those of the amplitude divided by
+its foreground median (FFTFeatures.amplitude_features), so they do not follow the 1/r^2 fall-off with distance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.camera import Intrinsics
+from tofd.config import FeatureConfig, SegmentationConfig
+from tofd.segmentation import segment
+
+FAMILIES = ("range_fft", "range_nfft", "amp_fft")
+"""Groups of maps computed together: each family is one filter pass giving <family>_eps0 and <family>_eps2."""
+
+MAP_NAMES = tuple(f"{fam}_{eps}" for fam in FAMILIES for eps in ("eps0", "eps2"))
+
+
+def families_for(names: tuple[str, ...] | list[str]) -> tuple[str, ...]:
+    """The families needed to compute the given map names."""
+    unknown = [n for n in names if n not in MAP_NAMES]
+    if unknown:
+        raise ValueError(f"unknown feature map(s) {', '.join(unknown)} (known: {', '.join(MAP_NAMES)})")
+    return tuple(f for f in FAMILIES if any(n.startswith(f + "_") for n in names))
+
+
+@dataclass(slots=True)
+class FrameFeatures:
+    """A frame's foreground mask and named eccentricity maps."""
+
+    mask: np.ndarray  # (H, W) bool
+    maps: dict[str, np.ndarray]  # name -> (H, W) float32, NaN outside the foreground
+    nfft_iterations: int = 0
+
+
+class FeatureExtractor:
+    """Computes the requested feature families for frames of one camera (plans are made once and reused)."""
+
+    def __init__(self, intrinsics: Intrinsics, features: FeatureConfig, segmentation: SegmentationConfig,
+                 families: tuple[str, ...] = FAMILIES) -> None:
+        from tofd.features import FFTFeatures, NFFTFeatures
+
+        unknown = [f for f in families if f not in FAMILIES]
+        if unknown:
+            raise ValueError(f"unknown feature family {', '.join(unknown)} (known: {', '.join(FAMILIES)})")
+        self.intrinsics, self.segmentation, self.families = intrinsics, segmentation, tuple(families)
+        self._fft = FFTFeatures(intrinsics, features)
+        self._nfft = NFFTFeatures(intrinsics, features) if "range_nfft" in families else None
+
+    def __call__(self, range_m: np.ndarray, amplitude: np.ndarray) -> FrameFeatures:
+        mask = segment(range_m, amplitude, self.segmentation)
+        maps: dict[str, np.ndarray] = {}
+        iterations = 0
+        for family in self.families:
+            if family == "range_fft":
+                fm = self._fft.range_features(range_m, mask)
+            elif family == "range_nfft":
+                fm = self._nfft.range_features(range_m, mask)
+                iterations = fm.iterations
+            else:
+                fm = self._fft.amplitude_features(amplitude, mask)
+            maps[f"{family}_eps0"], maps[f"{family}_eps2"] = fm.eps0, fm.eps2
+        return FrameFeatures(mask, maps, iterations)
