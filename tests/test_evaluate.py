@@ -1,0 +1,92 @@
+"""Evaluation end to end on a tiny rendered split, the CLI outputs, and the NoseDetector on a frame."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from tofd.config import Config, DetectorConfig
+from tofd.detect import VARIANTS, NoseDetector, save_model
+from tofd.evaluate import distance_bins, evaluate_model, extract_samples, train_model
+from tofd.feature_maps import MAP_NAMES
+from tofd.synth_faces import SUBJECTS, TEST_SUBJECTS, TRAIN_SUBJECTS, generate, make_subject
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    cfg = Config()
+    train = generate("train", 6, seed=3)
+    test = generate("test", 8, seed=4)
+    s_train = extract_samples(train, cfg.features, cfg.segmentation, workers=1)
+    s_test = extract_samples(test, cfg.features, cfg.segmentation, workers=1)
+    return cfg, train, test, s_train, s_test
+
+
+def test_split_subjects_are_disjoint_and_identities_differ():
+    assert set(TRAIN_SUBJECTS).isdisjoint(TEST_SUBJECTS) and len(set(TRAIN_SUBJECTS) | set(TEST_SUBJECTS)) >= 4
+    base, varied = make_subject(SUBJECTS["lps"]), make_subject(SUBJECTS["lps_long"])
+    moved = np.linalg.norm(varied.vertices - base.vertices, axis=1)
+    assert moved.max() > 0.005 and varied.faces.shape == base.faces.shape
+
+
+def test_generated_split_follows_the_protocol(tiny):
+    _, train, test, _, _ = tiny
+    assert set(train.subject) == set(TRAIN_SUBJECTS) and np.all(train.distance_m == 0.6)
+    assert set(test.subject) == set(TEST_SUBJECTS)
+    assert test.distance_m.min() == pytest.approx(0.35) and test.distance_m.max() == pytest.approx(0.70)
+    assert np.all(np.abs(train.yaw_deg) <= 30) and np.all(np.abs(train.pitch_deg) <= 15)
+    # the ground-truth tip lies on the rendered surface: its range matches the range image at nose_px
+    for ds in (train, test):
+        u, v = np.rint(ds.nose_px).astype(int).T
+        seen = ds.range_m[np.arange(len(ds)), v, u]
+        np.testing.assert_allclose(seen[ds.nose_visible], ds.distance_m[ds.nose_visible], atol=0.02)
+
+
+def test_samples_hold_the_nose(tiny):
+    _, _, _, s_train, _ = tiny
+    for s in s_train:
+        assert s.log_features.shape == (len(s.tip_distance_m), len(MAP_NAMES))
+        assert np.nanmin(s.tip_distance_m) < 0.005  # a foreground pixel sits on the tip
+
+
+def test_end_to_end_roc(tiny):
+    cfg, _, test, s_train, s_test = tiny
+    model = train_model(s_train, cfg.features, cfg.segmentation)
+    assert set(model.variants) == set(VARIANTS)
+    results = evaluate_model(model, s_test, test.distance_m)
+    for r in results.values():
+        roc = r.overall
+        assert roc.n_images == len(test)
+        assert np.all(np.diff(roc.detection_rate) >= 0) and np.all(np.diff(roc.false_positive_rate) >= 0)
+        assert 0 <= roc.eer <= 1
+        # the largest scale accepts every pixel with finite features: all noses found
+        assert roc.detection_rate[-1] == 1.0
+        assert set(r.per_distance) == set(distance_bins(test.distance_m).tolist())
+        assert sum(p.n_images for p in r.per_distance.values()) == len(test)
+
+
+def test_nose_detector_on_a_frame(tiny, tmp_path):
+    cfg, _, test, s_train, _ = tiny
+    path = save_model(train_model(s_train, cfg.features, cfg.segmentation), tmp_path / "m.json")
+    cfg = dataclasses.replace(cfg, detector=DetectorConfig(model_path=str(path), variant="nfft_range", box_scale=1e6))
+    det = NoseDetector(cfg).detect_frame(test.range_m[0], test.amplitude[0])
+    assert det.accepted and det.nose_px is not None  # a huge box accepts the best foreground pixel
+    u, v = det.nose_px
+    assert np.linalg.norm(det.nose_xyz_m) == pytest.approx(test.range_m[0][v, u], rel=1e-5)
+
+
+def test_cli_evaluate_writes_table_json_and_png(tmp_path, capsys):
+    from tofd.cli import main
+    from tofd.dataset import save_dataset
+
+    save_dataset(generate("train", 4, seed=5), tmp_path / "train.npz")
+    save_dataset(generate("test", 8, seed=6), tmp_path / "test.npz")
+    rc = main(["evaluate", "--train", str(tmp_path / "train.npz"), "--test", str(tmp_path / "test.npz"),
+               "--out", str(tmp_path / "out"), "--workers", "1"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "NFFT range+amp" in out and "0.35m" in out
+    report = json.loads((tmp_path / "out" / "evaluation.json").read_text())
+    assert set(report["results"]) == set(VARIANTS) and report["test"]["frames"] == 8
+    assert (tmp_path / "out" / "roc.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
