@@ -118,3 +118,14 @@ def test_bad_model_file_names_the_key(tmp_path):
         load_model(tmp_path / "bad.json")
     with pytest.raises(ModelError, match="cannot read model"):
         load_model(tmp_path / "absent.json")
+
+
+def test_shipped_model_matches_the_bundled_config():
+    from tofd.config import load_config
+    from tofd.detect import NoseDetector
+
+    try:
+        det = NoseDetector(load_config())
+    except ModelMismatch as exc:
+        pytest.fail(f"config/nose_model.json is stale, retrain: tofd train --out config/nose_model.json ({exc})")
+    assert det.scale > 0 and det.box.features == VARIANTS["nfft_range_amp"]
