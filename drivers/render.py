@@ -106,22 +106,37 @@ def place_mesh(mesh: FaceMesh, pose: Pose, intrinsics: Intrinsics) -> np.ndarray
     return rotated + (target - rotated[mesh.nose])
 
 
+def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(N, 3) unit vertex normals facing the camera: area-weighted sums of the faces' normals, each face's
+    normal first turned towards the camera (the meshes' winding is not consistent)."""
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 x area
+    normal *= -np.sign(np.einsum("ij,ij->i", normal, tri[:, 0]))[:, None]
+    summed = np.zeros_like(vertices)
+    for corner in range(3):
+        np.add.at(summed, faces[:, corner], normal)
+    return summed / (np.linalg.norm(summed, axis=1, keepdims=True) + 1e-300)
+
+
 def rasterize(
     vertices: np.ndarray, faces: np.ndarray, intrinsics: Intrinsics
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest-hit radial range (NaN where no triangle) and |cos(incidence)| per pixel, both (H, W) float64."""
+    """Nearest-hit radial range (NaN where no triangle) and |cos(incidence)| per pixel, both (H, W) float64.
+
+    The range is exact (ray-plane intersection with the hit triangle); the incidence angle uses the vertex
+    normals interpolated over the triangle (smooth shading), so amplitude does not show the facets.
+    """
     h, w = intrinsics.shape
-    tri = vertices[faces]  # (M, 3, 3)
-    tri = tri[np.all(tri[:, :, 2] > 1e-3, axis=1)]
-    uv = intrinsics.project(tri)  # (M, 3, 2)
+    faces = faces[np.all(vertices[faces][:, :, 2] > 1e-3, axis=1)]
+    uv = intrinsics.project(vertices[faces])  # (M, 3, 2)
     lo = np.maximum(np.ceil(uv.min(axis=1) - 0.5), 0).astype(np.int64)
     hi = np.minimum(np.floor(uv.max(axis=1) + 0.5), [w - 1, h - 1]).astype(np.int64)
     size = np.maximum(hi - lo + 1, 0)
     count = size[:, 0] * size[:, 1]
     keep = count > 0
-    tri, uv, lo, size, count = tri[keep], uv[keep], lo[keep], size[keep], count[keep]
+    faces, uv, lo, size, count = faces[keep], uv[keep], lo[keep], size[keep], count[keep]
 
-    tid = np.repeat(np.arange(len(tri)), count)
+    tid = np.repeat(np.arange(len(faces)), count)
     offset = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
     pu = lo[tid, 0] + offset % size[tid, 0]
     pv = lo[tid, 1] + offset // size[tid, 0]
@@ -132,28 +147,30 @@ def rasterize(
     def edge(p0: np.ndarray, p1: np.ndarray, q: np.ndarray) -> np.ndarray:
         return (p1[:, 0] - p0[:, 0]) * (q[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (q[:, 0] - p0[:, 0])
 
-    e0, e1, e2 = edge(b, c, p), edge(c, a, p), edge(a, b, p)
+    bary = np.stack([edge(b, c, p), edge(c, a, p), edge(a, b, p)], axis=1)  # unnormalised barycentrics
     eps = 1e-9
-    inside = ((e0 >= -eps) & (e1 >= -eps) & (e2 >= -eps)) | ((e0 <= eps) & (e1 <= eps) & (e2 <= eps))
-    tid, pu, pv = tid[inside], pu[inside], pv[inside]
+    inside = np.all(bary >= -eps, axis=1) | np.all(bary <= eps, axis=1)
+    tid, pu, pv, bary = tid[inside], pu[inside], pv[inside], bary[inside]
 
+    tri = vertices[faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True) + 1e-300
     rays = intrinsics.unit_rays()[pv, pu]  # (K, 3)
     n = normal[tid]
-    cos_inc = np.einsum("ij,ij->i", n, rays)
     with np.errstate(divide="ignore", invalid="ignore"):
-        rng_hit = np.einsum("ij,ij->i", n, tri[tid, 0]) / cos_inc
+        rng_hit = np.einsum("ij,ij->i", n, tri[tid, 0]) / np.einsum("ij,ij->i", n, rays)
     ok = np.isfinite(rng_hit) & (rng_hit > 0)
-    pix, rng_hit, cos_inc = (pv * w + pu)[ok], rng_hit[ok], np.abs(cos_inc[ok])
+    pix, rng_hit, tid, bary, rays = (pv * w + pu)[ok], rng_hit[ok], tid[ok], bary[ok], rays[ok]
 
     order = np.lexsort((rng_hit, pix))
-    first = np.unique(pix[order], return_index=True)[1]
-    nearest = order[first]
+    nearest = order[np.unique(pix[order], return_index=True)[1]]
+    vertex_normals = _vertex_normals(vertices, faces)
+    weights = bary[nearest] / bary[nearest].sum(axis=1, keepdims=True)
+    smooth = np.einsum("ij,ijk->ik", weights, vertex_normals[faces[tid[nearest]]])
+    smooth /= np.linalg.norm(smooth, axis=1, keepdims=True) + 1e-300
     range_m = np.full(h * w, np.nan)
     cosine = np.zeros(h * w)
     range_m[pix[nearest]] = rng_hit[nearest]
-    cosine[pix[nearest]] = cos_inc[nearest]
+    cosine[pix[nearest]] = np.abs(np.einsum("ij,ij->i", smooth, rays[nearest]))
     return range_m.reshape(h, w), cosine.reshape(h, w)
 
 
