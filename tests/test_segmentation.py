@@ -1,10 +1,11 @@
+import cv2
 import numpy as np
 import pytest
 
 from drivers.camera import Intrinsics
 from tofd import synthetic
 from tofd.config import ConfigError, SegmentationConfig, config_from_dict
-from tofd.segmentation import largest_component, otsu_threshold, segment
+from tofd.segmentation import component_at, fill_holes, otsu_threshold, segment
 
 INTR = Intrinsics()
 
@@ -25,46 +26,108 @@ def test_otsu_splits_two_clusters():
     assert 1.4 < otsu_threshold(values) < 3.6
 
 
-def test_face_is_the_nearest_part_and_invalid_pixels_never_foreground():
+RAY_Z = INTR.unit_rays()[..., 2]
+
+
+def _cap(head, range_m, margin):
+    """The analytic answer: the head's pixels within `margin` of its nearest depth (z)."""
+    return head.mask & (range_m * RAY_Z <= np.nanmin(head.range_m * RAY_Z) + margin)
+
+
+def test_face_is_an_iso_range_cap_and_invalid_pixels_never_foreground():
     head, range_m, amp = _scene()
     # invalid pixels inside the head: NaN, 0, inf range; NaN amplitude
     range_m[72, 80:84] = np.nan
     range_m[70, 88] = 0.0
     range_m[75, 90] = np.inf
     amp[68, 86] = np.nan
-    mask = segment(range_m, amp, SegmentationConfig())
+    cfg = SegmentationConfig()
+    mask = segment(range_m, amp, cfg)
     assert mask.dtype == bool and mask.shape == INTR.shape
     assert not mask[72, 80:84].any() and not mask[70, 88] and not mask[75, 90] and not mask[68, 86]
     assert mask[72, 88]  # the apex (nearest point) is foreground
-    # everything kept lies on the head, and the range cut keeps its nearest part
+    # everything kept lies on the head, within the depth margin of the apex, and the cap is all there
     assert np.all(head.mask[mask])
-    assert np.nanmax(range_m[mask]) < np.nanmax(range_m[head.mask])
-    amp_fg = (amp > 0) & np.isfinite(range_m) & (range_m < 1.9)  # head + body, not the wall
-    assert 0.1 * amp_fg.sum() < mask.sum() < 0.35 * amp_fg.sum()
+    # reference = 1st percentile of the depths: within a few mm of the apex
+    assert np.nanmax((range_m * RAY_Z)[mask]) <= np.nanmin(head.range_m * RAY_Z) + cfg.depth_margin_m + 0.003
+    cap = _cap(head, range_m, cfg.depth_margin_m) & np.isfinite(range_m) & np.isfinite(amp) & (range_m > 0)
+    assert (mask & cap).sum() >= 0.97 * cap.sum()
+    assert (mask & ~_cap(head, range_m, cfg.depth_margin_m + 0.003)).sum() == 0
 
 
-def test_percentile_is_monotone_and_configurable():
+def test_cut_is_a_depth_not_a_pixel_share():
+    """The same sphere near and far (with a body that fills more of the image when near): the kept cap
+    reaches the same depth behind the apex, the margin, and is the analytic cap."""
+    wall = synthetic.tilted_plane(INTR, 2.0, 0.0, 0.0)
+    cfg = SegmentationConfig()
+    extents = []
+    for d in (0.35, 0.7):
+        head = synthetic.sphere(INTR, d, 0.09)
+        body = synthetic.sphere(INTR, d + 0.15, 0.4, apex_px=(88.0, 150.0))  # shoulders: nearer the frame edge
+        scene = head.over(body.over(wall))
+        mask = segment(scene.range_m, scene.amplitude, cfg)
+        assert np.all(head.mask[mask])
+        depth = scene.range_m * RAY_Z
+        extents.append(depth[mask].max() - depth[mask].min())
+        cap = _cap(head, scene.range_m, cfg.depth_margin_m)
+        assert (mask & cap).sum() / (mask | cap).sum() > 0.9
+    assert extents[0] == pytest.approx(cfg.depth_margin_m, abs=0.003)
+    assert extents[1] == pytest.approx(extents[0], abs=0.002)
+
+
+def test_margin_is_monotone_and_configurable():
     _, range_m, amp = _scene()
-    sizes = [segment(range_m, amp, SegmentationConfig(range_percentile=p)).sum() for p in (10.0, 20.0, 40.0)]
+    sizes = [segment(range_m, amp, SegmentationConfig(depth_margin_m=m)).sum() for m in (0.02, 0.04, 0.08)]
     assert sizes[0] < sizes[1] < sizes[2]
 
 
-def test_largest_component_drops_a_nearer_speck():
+def test_noise_does_not_fray_the_border_and_far_outliers_are_dropped():
+    head, range_m, amp = _scene()
+    noisy = range_m + 0.004 * np.random.default_rng(2).standard_normal(range_m.shape)
+    noisy[74, 86] = 1.5  # a flying pixel inside the cap: the median hides it, its own range is beyond the cut
+    plain = SegmentationConfig(median_px=1, morphology_px=1)
+    filtered, raw = segment(noisy, amp, SegmentationConfig()), segment(noisy, amp, plain)
+    assert not filtered[74, 86]
+
+    def border(m):
+        return int((m & ~cv2.erode(m.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)).sum())
+
+    cap = _cap(head, range_m, SegmentationConfig().depth_margin_m)
+    assert border(filtered) < 0.8 * border(raw)
+    assert (filtered ^ cap).sum() < (raw ^ cap).sum()
+
+
+def test_nearest_component_drops_specks_and_the_farther_object():
     _, range_m, amp = _scene()
-    range_m[5:7, 5:7] = 0.3  # a bright near speck far from the head
+    range_m[5:7, 5:7] = 0.3  # a bright near speck far from the head: the median removes it
     amp[5:7, 5:7] = amp.max()
     assert not segment(range_m, amp, SegmentationConfig())[5:7, 5:7].any()
-    assert segment(range_m, amp, SegmentationConfig(largest_component=False))[5:7, 5:7].all()
+    second = synthetic.sphere(INTR, 0.52 / RAY_Z[30, 20], 0.09, apex_px=(20.0, 30.0))  # a second head 2 cm deeper
+    range_m, amp = (np.where(second.mask, a, b) for a, b in ((second.range_m, range_m), (second.amplitude, amp)))
+    near_only = segment(range_m, amp, SegmentationConfig())
+    both = segment(range_m, amp, SegmentationConfig(nearest_component=False))
+    assert near_only[72, 88] and not near_only[30, 20]
+    assert both[72, 88] and both[30, 20]
+
+
+def test_fill_holes_and_component_at():
+    ring = np.zeros((7, 7), bool)
+    ring[1:6, 1:6] = True
+    ring[3, 3] = False
+    assert fill_holes(ring)[3, 3] and fill_holes(ring).sum() == 25
+    notch = ring.copy()
+    notch[0:4, 3] = False  # the hole opens to the border: not a hole
+    assert not fill_holes(notch)[3, 3]
+    two = np.zeros((5, 9), bool)
+    two[1:3, 1:3] = True
+    two[1:4, 5:8] = True
+    assert component_at(two, 2, 6).sum() == 9 and not component_at(two, 0, 0).any()
 
 
 def test_all_invalid_gives_empty_mask():
     nan = np.full(INTR.shape, np.nan, np.float32)
     assert not segment(nan, nan, SegmentationConfig()).any()
     assert not segment(np.zeros(INTR.shape), np.ones(INTR.shape), SegmentationConfig()).any()
-
-
-def test_largest_component_of_empty_mask():
-    assert not largest_component(np.zeros((4, 4), bool)).any()
 
 
 def test_shape_mismatch_is_named():
@@ -74,6 +137,10 @@ def test_shape_mismatch_is_named():
 
 def test_config_validation_names_key():
     with pytest.raises(ConfigError, match="segmentation.range_percentile"):
-        config_from_dict({"segmentation": {"range_percentile": 0}})
+        config_from_dict({"segmentation": {"range_percentile": 101}})
+    with pytest.raises(ConfigError, match="segmentation.depth_margin_m"):
+        config_from_dict({"segmentation": {"depth_margin_m": 0}})
+    with pytest.raises(ConfigError, match="segmentation.median_px"):
+        config_from_dict({"segmentation": {"median_px": 4}})
     with pytest.raises(ConfigError, match="segmentation.amplitude_method"):
         config_from_dict({"segmentation": {"amplitude_method": "mean"}})

@@ -52,17 +52,26 @@ class CameraConfig:
 
 @dataclass(frozen=True, slots=True)
 class SegmentationConfig:
-    """Foreground segmentation: adaptive amplitude threshold, then a range percentile (tofd.segmentation)."""
+    """Foreground segmentation: adaptive amplitude threshold, then an iso-range cut of the head (tofd.segmentation)."""
 
-    amplitude_method: str = "otsu"  # the only method: Otsu's threshold on the finite amplitudes
-    range_percentile: float = 20.0  # keep pixels at most this percentile of range (the nearest 20 %)
-    largest_component: bool = True  # keep only the largest 8-connected foreground region
+    amplitude_method: str = "otsu"  # the only method: Otsu's threshold on the finite log amplitudes
+    range_percentile: float = 1.0  # percent: reference (robust nearest) range = this percentile of the filtered ranges
+    depth_margin_m: float = 0.035  # metres: keep pixels whose filtered range <= reference + this
+    median_px: int = 5  # pixels: median filter of the range before the cut (1 = none; 3 or 5)
+    morphology_px: int = 3  # pixels: ellipse of the opening + closing of the mask (1 = none)
+    nearest_component: bool = True  # keep only the 8-connected region holding the nearest kept pixel
 
     def validate(self) -> None:
         if self.amplitude_method != "otsu":
             raise ValueError(f"amplitude_method: {self.amplitude_method!r} is not one of 'otsu'")
-        if not 0.0 < self.range_percentile <= 100.0:
-            raise ValueError(f"range_percentile: {self.range_percentile} is not in (0, 100]")
+        if not 0.0 <= self.range_percentile <= 100.0:
+            raise ValueError(f"range_percentile: {self.range_percentile} is not in [0, 100]")
+        if not self.depth_margin_m > 0:
+            raise ValueError(f"depth_margin_m: {self.depth_margin_m} must be > 0")
+        if self.median_px not in (1, 3, 5):
+            raise ValueError(f"median_px: {self.median_px} is not one of 1, 3, 5")
+        if self.morphology_px < 1:
+            raise ValueError(f"morphology_px: {self.morphology_px} must be >= 1")
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,7 +79,7 @@ class FeatureConfig:
     """Generalized-eccentricity features (FFT and NFFT paths, tofd.features); frequencies in cycles/metre."""
 
     equivalence_range_m: float = 0.5  # e: the NFFT features equal the FFT features of an object at e
-    tuning_frequency_per_m: float = 20.0  # rho0: peak of the radial tuning A(rho), cycles/m
+    tuning_frequency_per_m: float = 30.0  # rho0: peak of the radial tuning A(rho), cycles/m
     lowpass_sigma_per_m: float = 50.0  # Gaussian low-pass width, cycles/m (anti-aliasing for the NFFT grid)
     fft_padding_px: int = 16  # FFT path: background margin per side against wrap-around, pixels
     grid_size: int = 64  # NFFT path: N, frequency grid N x N (even)

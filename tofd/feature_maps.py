@@ -54,7 +54,7 @@ class FeatureExtractor:
         self._nfft = NFFTFeatures(intrinsics, features) if "range_nfft" in families else None
 
     def __call__(self, range_m: np.ndarray, amplitude: np.ndarray) -> FrameFeatures:
-        mask = segment(range_m, amplitude, self.segmentation)
+        mask = segment(range_m, amplitude, self.segmentation, self.intrinsics)
         maps: dict[str, np.ndarray] = {}
         iterations = 0
         for family in self.families:

@@ -112,6 +112,21 @@ def generate(
 ) -> Dataset:
     """Render `frames` labelled frames of a split, cycling through its subjects and distances evenly."""
     subjects, distances = _split(split)
+    return render_frames(subjects, distances, frames, seed, intrinsics, progress)
+
+
+def render_frames(
+    subjects: tuple[str, ...],
+    distances: tuple[float, ...],
+    frames: int,
+    seed: int = 0,
+    intrinsics: Intrinsics | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Dataset:
+    """Render `frames` labelled frames of these SUBJECTS at these nose distances (metres), cycling evenly."""
+    unknown = [s for s in subjects if s not in SUBJECTS]
+    if unknown:
+        raise ValueError(f"unknown subject(s) {', '.join(unknown)} (known: {', '.join(SUBJECTS)})")
     if frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames}")
     intrinsics = intrinsics or Intrinsics()

@@ -12,9 +12,11 @@ the NFFT grid. T ~ rho^2 near 0 (a Laplacian of Gaussian in space) makes the fil
 linear surfaces (any plane) give exactly 0 and a sphere's apex response depends only on its curvature.
 nfft_notes' T = (rho/rho0) exp(1/2 - rho^2/(2 rho0^2)) is ~|rho| at 0, a long-tailed kernel whose apex
 response depends on the sphere's rim and background: measured NFFT eps0 at a 0.1 m sphere's apex varied
-by 20 % over 0.3-0.9 m with it and by 0.2 % with rho^2 (converged CG). Default rho0 = 20 /m (spatial
-Gaussian ~ 1 / (pi sqrt(2) rho0) = 1.1 cm, nose-tip scale): on rendered faces it gave the fewest non-nose
-pixels inside the nose's (eps0, eps2) box among rho0 = 10, 15, 20, 30 /m (2.5 % vs 5-10 %).
+by 20 % over 0.3-0.9 m with it and by 0.2 % with rho^2 (converged CG). Default rho0 = 30 /m (spatial
+Gaussian ~ 1 / (pi sqrt(2) rho0) = 7.5 mm, the nose tip's scale), with the default segmentation, chosen by
+leave-one-subject-out cross-validation on the training subjects (bench/tune_detector.py): NFFT range-only EER
+~4 % at rho0 = 30-40 /m against 25-45 % at 20 /m and > 80 % at 10-16 /m. Above 30 /m the sphere's apex eps2
+(0 in theory) rose past 1e-6 eps0 with single-precision CG, so 30 is the top of that plateau we keep.
 
 Both feature paths call `transfer_functions` with physical frequencies, so they apply the same filter:
 - FFT path: pixel frequency (cycles/pixel) times f/e (a pixel spans e/f metres at the equivalence range);
