@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 
@@ -11,6 +14,7 @@ from drivers.camera import Intrinsics
 from drivers.frame import DeviceInfo, Frame, GroundTruth
 from drivers.render import Pose, load_face, render_face
 from drivers.source import FrameSource
+from tofd.config import Config, load_config
 
 
 def rendered_frames(n_distinct: int = 8, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, tuple[float, float]]]:
@@ -50,3 +54,37 @@ class RenderedSource(FrameSource):
             yield Frame(range_m.copy(), amplitude.copy(), counter, timestamp_us=counter * 33_333,
                         host_monotonic_s=time.monotonic(), host_wall_s=time.time(), intrinsics=self.intrinsics,
                         device=DeviceInfo("0000BEEF", backend="emulated"), ground_truth=GroundTruth(nose))
+
+
+def write_test_model(path: Path, cfg: Config) -> Path:
+    """A nose model for the current feature settings, learned on the 3x3 pixels around the true nose tip of a
+    few rendered frames (so pipeline tests do not depend on the shipped model being in sync)."""
+    from tofd.detect import VARIANTS, NoseModel, VariantModel, learn_box, save_model, stack_features
+    from tofd.feature_maps import FeatureExtractor
+
+    extract = FeatureExtractor(cfg.intrinsics, cfg.features, cfg.segmentation)
+    frames = [extract(r, a) for r, a, _ in rendered_frames(3)]
+    variants = {}
+    for name, features in VARIANTS.items():
+        samples = []
+        for feats, (_, _, (u, v)) in zip(frames, rendered_frames(3), strict=True):
+            row, col = int(round(v)), int(round(u))
+            patch = stack_features(feats.maps, features)[row - 1:row + 2, col - 1:col + 2]
+            samples.append(patch.reshape(-1, len(features)))
+        variants[name] = VariantModel(name, learn_box(np.concatenate(samples), features, quantile=0.0), 1.5)
+    model = NoseModel(variants, dataclasses.asdict(cfg.features), dataclasses.asdict(cfg.segmentation))
+    return save_model(model, path)
+
+
+def write_config(directory: Path, **sections: dict[str, object]) -> Path:
+    """A config file: the bundled defaults with `sections` overridden, e.g. rerun={"sink": "web"}; the detector
+    uses a model written by write_test_model."""
+    cfg = load_config()
+    table = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    table["detector"]["model_path"] = str(write_test_model(directory / "nose_model.json", cfg))
+    for section, values in sections.items():
+        table[section].update(values)
+    path = directory / "tofd.toml"
+    path.write_text("".join(f"[{name}]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in values.items()) + "\n"
+                            for name, values in table.items()))
+    return path

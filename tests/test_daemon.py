@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+from pipeline_sources import write_config
 from test_rerun_sink import check_rrd
 
 from drivers.replay import read_recording_info
@@ -30,8 +31,8 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     sock.settimeout(60)
     env = {**os.environ, "NOTIFY_SOCKET": str(notify), "WATCHDOG_USEC": "400000", "RUST_LOG": "error"}
     rrd, summary_path = tmp_path / "live.rrd", tmp_path / "summary.json"
-    proc = tofd("run", "--emulate", "--rerun", f"save:{rrd}", "--health-port", "0", "--summary", summary_path,
-                env=env)
+    proc = tofd("run", "--emulate", "--config", write_config(tmp_path), "--rerun", f"save:{rrd}", "--health-port", "0",
+                "--summary", summary_path, env=env)
     try:
         messages = []
         while "READY=1" not in messages:
@@ -57,7 +58,8 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
 
 def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     n = read_recording_info(CLIP).frame_count
-    proc = tofd("replay", CLIP, "--out", tmp_path, env={**os.environ, "RUST_LOG": "error"})
+    proc = tofd("replay", CLIP, "--out", tmp_path, "--config", write_config(tmp_path),
+                env={**os.environ, "RUST_LOG": "error"})
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
     assert "replay [" in err and f"{n}/{n} frames" in err
@@ -65,6 +67,8 @@ def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     lines = [json.loads(x) for x in (tmp_path / f"{stem}.results.jsonl").read_text().splitlines()]
     counters = [x["frame_counter"] for x in lines]
     assert len(lines) == n and counters == sorted(counters)
+    accepted = [x for x in lines if x["accepted"]]
+    assert accepted and all(len(x["nose_px"]) == 2 and x["score"] <= 1.5 for x in accepted)
     summary = json.loads((tmp_path / f"{stem}.summary.json").read_text())
     assert summary["frames_out"] == n and summary["frames_dropped"] == 0 and summary["consistent"]
     check_rrd(tmp_path / f"{stem}.rrd", counters)

@@ -8,9 +8,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from pipeline_sources import RenderedSource
+from pipeline_sources import RenderedSource, write_config
 
-from tofd.config import Config
+from tofd.config import Config, load_config
+from tofd.detect import NoseDetector
 from tofd.feature_maps import FeatureExtractor
 from tofd.pipeline import DropLedger, Pipeline
 from tofd.pipeline.queues import StageQueue
@@ -137,3 +138,18 @@ def test_live_policy_drops_instead_of_blocking_and_never_goes_back_in_time():
     assert {d["reason"] for d in summary["drops"]} <= {"queue_full", "superseded"}
     delivered = [r.frame.frame_counter for r in sink.results]
     assert delivered == sorted(delivered)
+
+
+def test_detection_in_the_pipeline_equals_the_detector_on_the_frame(tmp_path):
+    cfg = load_config(write_config(tmp_path))
+    detector = NoseDetector(cfg)
+    sink = Collect()
+    pipeline = Pipeline(cfg, "lossless", writers=(sink,), detector=detector)
+    pipeline.start(RenderedSource(6, n_distinct=3))
+    assert pipeline.wait(60)
+    pipeline.close()
+    assert len(sink.results) == 6
+    for r in sink.results:
+        assert r.detection == detector.detect_frame(r.frame.range_m, r.frame.amplitude)
+        assert r.timings_ms["detection"] > 0
+    assert any(r.detection.accepted for r in sink.results)

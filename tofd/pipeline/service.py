@@ -10,7 +10,6 @@ import json
 import logging
 import signal
 import sys
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -95,8 +94,9 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     from tofd.viewer import RerunLogger, RerunTarget
 
     target = None if cfg.rerun.sink == "none" else RerunTarget(cfg.rerun, cfg.rerun.sink)
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)}
+    stop: list[int] = []  # signals received; the handler must not take locks (it can interrupt anything)
+    previous = {sig: signal.signal(sig, lambda signum, _: stop.append(signum)) for sig in (signal.SIGTERM,
+                                                                                         signal.SIGINT)}
     health = pipeline = None
     try:
         viewer = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud) if target else None
@@ -136,14 +136,15 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     return ServiceResult(1 if pipeline.error else 0, summary, target.web_url if target else None)
 
 
-def _supervise(pipeline: Pipeline, stop: threading.Event, stale_after_s: float, progress: Progress | None) -> None:
+def _supervise(pipeline: Pipeline, stop: list[int], stale_after_s: float, progress: Progress | None) -> None:
     """Wait for the end of the run, pinging the systemd watchdog while healthy and drawing progress."""
     watchdog = watchdog_interval_s()
     tick = min(0.25, watchdog or 0.25)
     last_ping = 0.0
     while pipeline.running:
-        if stop.wait(tick):
-            log.info("stop requested: draining")
+        time.sleep(tick)
+        if stop:
+            log.info("%s: draining the pipeline", signal.Signals(stop[0]).name)
             pipeline.stop()
             return
         if watchdog is not None and time.monotonic() - last_ping >= watchdog:

@@ -8,10 +8,9 @@ calls them from its sink thread, behind a queue that drops (live) instead of blo
 
 from __future__ import annotations
 
-import shutil
+import importlib.util
 import socket
 import subprocess
-import sys
 import tempfile
 import time
 import uuid
@@ -30,12 +29,16 @@ class ViewerError(RuntimeError):
 
 
 def rerun_executable() -> str:
-    """The `rerun` CLI of this environment (next to the interpreter), else the one on PATH."""
-    local = Path(sys.executable).with_name("rerun")
-    found = str(local) if local.exists() else shutil.which("rerun")
-    if not found:
-        raise ViewerError("the `rerun` command was not found (it ships with rerun-sdk)")
-    return found
+    """The native `rerun` binary shipped in rerun-sdk's rerun_cli package.
+
+    Not the `rerun` console script: that Python shim runs the binary as ITS child, which would outlive a
+    terminate() of the shim.
+    """
+    spec = importlib.util.find_spec("rerun_cli")
+    binary = Path(spec.origin).with_name("rerun") if spec and spec.origin else None
+    if binary is None or not binary.exists():
+        raise ViewerError("the rerun viewer binary was not found (it ships with rerun-sdk, package rerun_cli)")
+    return str(binary)
 
 
 def port_open(host: str, port: int) -> bool:
@@ -86,8 +89,9 @@ class RerunTarget:
             if port is not None and port_open(host, port):
                 raise ViewerError(f"port {port} on {host} is already in use (rerun.grpc_port / rerun.web_port)")
         self._child_log = tempfile.TemporaryFile()  # a file, not a pipe: a full pipe would stall the viewer
+        # own session: a Ctrl-C or a signal to our process group must not kill the viewer before we drain
         self.child = subprocess.Popen([rerun_executable(), *args], stdin=subprocess.DEVNULL,
-                                      stdout=subprocess.DEVNULL, stderr=self._child_log)
+                                      stdout=subprocess.DEVNULL, stderr=self._child_log, start_new_session=True)
         deadline = time.monotonic() + timeout_s
         while not port_open(host, self.cfg.grpc_port):
             if self.child.poll() is not None:
