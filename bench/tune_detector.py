@@ -29,6 +29,8 @@ from tofd.synth_faces import TEST_DISTANCES_M, TRAIN_DISTANCES_M, TRAIN_SUBJECTS
 
 GRIDS = {
     "quick": {"quantile": [0.05]},  # the current defaults
+    "border": {"head_height_m": [0.0, 0.18], "depth_margin_m": [0.035, 0.05], "quantile": [0.05],
+               "border_margin_m": [0.0, 0.004, 0.008, 0.01, 0.012, 0.015, 0.02]},
     "default": {"tuning_frequency_per_m": [10.0, 15.0, 20.0, 25.0, 30.0, 40.0],
                 "depth_margin_m": [0.04, 0.05, 0.06, 0.08, 0.10], "quantile": [0.05]},
     "wide": {"tuning_frequency_per_m": [8.0, 10.0, 13.0, 16.0, 20.0], "lowpass_sigma_per_m": [50.0],
@@ -38,8 +40,8 @@ GRIDS = {
     "finer": {"tuning_frequency_per_m": [30.0, 35.0, 40.0, 50.0], "depth_margin_m": [0.03, 0.035, 0.04, 0.045],
               "quantile": [0.05]},
 }
-SEGMENTATION_KEYS = ("depth_margin_m", "range_percentile", "median_px", "morphology_px")
-BOX_KEYS = ("quantile", "positive_radius_m")
+SEGMENTATION_KEYS = ("depth_margin_m", "range_percentile", "median_px", "morphology_px", "head_height_m")
+BOX_KEYS = ("quantile", "positive_radius_m", "border_margin_m")  # cheap: no feature recomputation
 
 
 def render_subjects(frames: int, seed: int) -> dict[str, dict[str, object]]:
@@ -71,7 +73,8 @@ def cross_validate(data: dict, cfg: Config, box: dict, cache: dict, workers: int
     for held in data:
         train = [s for name in data if name != held for s in samples[name]["train"]]
         model = train_model(train, cfg.features, cfg.segmentation, **box)
-        res = evaluate_model(model, samples[held]["test"], data[held]["test"].distance_m)
+        res = evaluate_model(model, samples[held]["test"], data[held]["test"].distance_m,
+                             border_margin_m=box.get("border_margin_m", 0.0))
         folds[held] = {v: r.overall.eer for v, r in res.items()}
     return folds
 

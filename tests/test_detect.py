@@ -3,6 +3,7 @@
 import dataclasses
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -15,6 +16,7 @@ from tofd.detect import (
     ModelMismatch,
     NoseModel,
     VariantModel,
+    border_distance_m,
     detect,
     learn_box,
     load_model,
@@ -72,6 +74,39 @@ def test_detect_finds_the_pixel_in_the_box():
     maps["range_nfft_eps0"][2, 5] = 10.0  # log10 = 1: distance 2 > scale 1
     det = detect(maps, range_m, intrinsics, box, scale=1.0)
     assert not det.accepted and det.nose_px is None and det.score == pytest.approx(2.0)
+
+
+def test_border_distance_is_physical_and_scale_invariant():
+    intrinsics = Intrinsics()
+    yy, xx = np.mgrid[: intrinsics.height, : intrinsics.width]
+    for depth in (0.35, 0.7):
+        radius_px = 0.05 * intrinsics.fx / depth  # a disc of 5 cm radius at this depth
+        mask = (xx - 88) ** 2 + (yy - 72) ** 2 <= radius_px**2
+        range_m = depth / intrinsics.unit_rays()[..., 2]
+        border = border_distance_m(mask, range_m, intrinsics)
+        assert border[72, 88] == pytest.approx(0.05, abs=0.002)  # the centre: 5 cm from the border, at any depth
+        cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+        ring = mask & ~cv2.erode(mask.view(np.uint8), cross).view(bool)  # 4-neighbours of the border
+        assert np.all(border[ring] <= 0.5 * depth / intrinsics.fx * 1.001) and np.all(border[~mask] == 0)
+    edge = np.zeros((intrinsics.height, intrinsics.width), bool)
+    edge[:, :10] = True  # a mask touching the image edge: the edge is a border too
+    assert border_distance_m(edge, np.full(edge.shape, 0.5), intrinsics)[72, 0] < 0.002
+
+
+def test_detect_never_picks_a_pixel_near_the_mask_border():
+    h, w = 40, 40
+    intrinsics = Intrinsics(width=w, height=h, fx=100.0, fy=100.0, cx=19.5, cy=19.5)
+    maps = {n: np.full((h, w), np.nan, np.float32) for n in VARIANTS["nfft_range"]}
+    for n in maps:
+        maps[n][5:35, 5:35] = 1e-3  # the foreground: a 30 px square
+    maps["range_nfft_eps0"][5, 20] = 1.0  # best pixel: on the border (a clamped cap)
+    maps["range_nfft_eps0"][20, 20] = 0.5  # second best: inside
+    box = Box(VARIANTS["nfft_range"], np.array([0.0, -3.0]), np.array([0.5, 0.5]))
+    range_m = np.full((h, w), 0.5)
+    assert detect(maps, range_m, intrinsics, box, 1.0).nose_px == (20, 5)
+    # 0.5 m / 100 px: 5 mm per pixel; a 2 cm margin excludes the 4 outer pixel rings, not the centre
+    det = detect(maps, range_m, intrinsics, box, 1.0, border_margin_m=0.02)
+    assert det.accepted and det.nose_px == (20, 20)
 
 
 def test_stack_features_names_missing_map():

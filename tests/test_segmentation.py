@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from drivers.camera import Intrinsics
+from drivers.render import Pose, load_face, render_face
 from tofd import synthetic
 from tofd.config import ConfigError, SegmentationConfig, config_from_dict
 from tofd.segmentation import component_at, fill_holes, otsu_threshold, segment
@@ -110,6 +111,16 @@ def test_nearest_component_drops_specks_and_the_farther_object():
     assert both[72, 88] and both[30, 20]
 
 
+def test_head_not_a_nearer_shoulder_is_kept():
+    """A head-and-shoulders mesh turned and nodded down: a shoulder is nearer than the nose tip."""
+    r = render_face(load_face("lee_perry_smith"), Pose(0.7, yaw_deg=29.0, pitch_deg=-14.0))
+    u, v = np.round(r.nose_px).astype(int)
+    anywhere = segment(r.range_m, r.amplitude, SegmentationConfig(head_height_m=0.0))
+    assert not anywhere[v, u] and np.flatnonzero(anywhere.any(axis=1)).min() > v + 30  # the shoulder won
+    head = segment(r.range_m, r.amplitude, SegmentationConfig())
+    assert head[v, u] and not head[v + 50 :].any()  # the face around the nose, no shoulder
+
+
 def test_fill_holes_and_component_at():
     ring = np.zeros((7, 7), bool)
     ring[1:6, 1:6] = True
@@ -144,3 +155,7 @@ def test_config_validation_names_key():
         config_from_dict({"segmentation": {"median_px": 4}})
     with pytest.raises(ConfigError, match="segmentation.amplitude_method"):
         config_from_dict({"segmentation": {"amplitude_method": "mean"}})
+    with pytest.raises(ConfigError, match="segmentation.head_height_m"):
+        config_from_dict({"segmentation": {"head_height_m": -0.1}})
+    with pytest.raises(ConfigError, match="detector.border_margin_m"):
+        config_from_dict({"detector": {"border_margin_m": -0.01}})

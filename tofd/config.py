@@ -60,6 +60,7 @@ class SegmentationConfig:
     median_px: int = 5  # pixels: median filter of the range before the cut (1 = none; 3 or 5)
     morphology_px: int = 3  # pixels: ellipse of the opening + closing of the mask (1 = none)
     nearest_component: bool = True  # keep only the 8-connected region holding the nearest kept pixel
+    head_height_m: float = 0.18  # metres: nearest point / component searched this far below the top (0 = anywhere)
 
     def validate(self) -> None:
         if self.amplitude_method != "otsu":
@@ -72,6 +73,8 @@ class SegmentationConfig:
             raise ValueError(f"median_px: {self.median_px} is not one of 1, 3, 5")
         if self.morphology_px < 1:
             raise ValueError(f"morphology_px: {self.morphology_px} must be >= 1")
+        if not self.head_height_m >= 0:
+            raise ValueError(f"head_height_m: {self.head_height_m} must be >= 0 (0 = no head band)")
 
 
 @dataclass(frozen=True, slots=True)
@@ -176,6 +179,7 @@ class DetectorConfig:
     model_path: str = "nose_model.json"  # JSON model; a relative path not found from the cwd is looked up in config/
     variant: str = "nfft_range_amp"  # fft_range, fft_range_amp, nfft_range or nfft_range_amp
     box_scale: float = 0.0  # box half-widths times this (> 0); 0 = the model's operating scale (training EER)
+    border_margin_m: float = 0.008  # metres: pixels nearer than this to the mask border are never the nose
 
     def validate(self) -> None:
         variants = ("fft_range", "fft_range_amp", "nfft_range", "nfft_range_amp")
@@ -183,6 +187,8 @@ class DetectorConfig:
             raise ValueError(f"variant: {self.variant!r} is not one of {', '.join(variants)}")
         if not self.box_scale >= 0:
             raise ValueError(f"box_scale: {self.box_scale} must be >= 0 (0 = the model's operating scale)")
+        if not self.border_margin_m >= 0:
+            raise ValueError(f"border_margin_m: {self.border_margin_m} must be >= 0 (0 = no exclusion)")
 
 
 @dataclass(frozen=True, slots=True)

@@ -10,6 +10,13 @@ A pixel's *box distance* is max_k |x_k - centre_k| / half_width_k: the pixel is 
 its box distance <= s. The detector reports the foreground pixel of smallest box distance (its score) and
 accepts it iff score <= the operating scale, so sweeping the scale traces the ROC (tofd.roc).
 
+Border exclusion (`border_margin_m`, config detector.border_margin_m): the filters' response within about one
+filter width of the mask border is dominated by the clamped background (e.g. a chin that pokes just past the
+segmentation's iso-depth cut leaves a small flat-topped cap that looks like a nose tip), so pixels nearer than
+this physical distance to the border of the foreground (or the image edge) are never candidates. The distance
+is measured in pixels (cv2.distanceTransform, to the border line half a pixel beyond the last foreground pixel)
+and converted to metres with each pixel's depth / f, so the excluded strip is the same on the face at any distance.
+
 Model file (`save_model` / `load_model`): small JSON, one box per variant plus the feature and segmentation
 settings it was trained with, so features computed with other settings are refused (ModelMismatch).
 """
@@ -21,6 +28,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from drivers.camera import Intrinsics
@@ -233,13 +241,31 @@ class Detection:
     accepted: bool  # score <= scale
 
 
+def border_distance_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """(H, W) float32 distance in metres from each mask pixel to the mask border or image edge (0 off the mask).
+
+    Pixels: Euclidean distance to the nearest non-mask pixel (outside the image counts as non-mask) minus half a
+    pixel; metres: times the pixel's depth (range * z of its unit ray) / fx.
+    """
+    padded = np.pad(np.asarray(mask, dtype=np.uint8), 1)
+    px = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    with np.errstate(invalid="ignore"):
+        metres = np.maximum(px - 0.5, 0) * (np.asarray(range_m) * intrinsics.unit_rays()[..., 2]) / intrinsics.fx
+    return np.where(mask, np.nan_to_num(metres, nan=0.0), 0.0).astype(np.float32)
+
+
 def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrinsics, box: Box,
-           scale: float) -> Detection:
+           scale: float, border_margin_m: float = 0.0) -> Detection:
     """Detect the nose in one frame from its feature maps ((H, W), NaN outside the foreground).
 
-    range_m: (H, W) radial range in metres, for the 3-D point of the detected pixel.
+    range_m: (H, W) radial range in metres, for the 3-D point of the detected pixel and the border distance.
+    border_margin_m: foreground pixels (where the box's features are finite) nearer than this to its border
+    are never the nose (module docstring).
     """
     dist = box.distance(stack_features(maps, box.features))
+    if border_margin_m > 0:
+        foreground = np.isfinite(dist)
+        dist[border_distance_m(foreground, range_m, intrinsics) < border_margin_m] = np.inf
     flat = int(np.argmin(dist))
     score = float(dist.flat[flat])
     if not score <= scale:
@@ -274,6 +300,7 @@ class NoseDetector:
         vm = self.model.variant(det.variant)
         self.box = vm.box
         self.scale = det.box_scale if det.box_scale > 0 else vm.operating_scale
+        self.border_margin_m = det.border_margin_m
         self.families = families_for(self.box.features)
         self.intrinsics = config.intrinsics
         self._config = config
@@ -281,7 +308,7 @@ class NoseDetector:
 
     def detect_maps(self, maps: dict[str, np.ndarray], range_m: np.ndarray) -> Detection:
         """Detection from named feature maps (tofd.feature_maps names) and the frame's range map (metres)."""
-        return detect(maps, range_m, self.intrinsics, self.box, self.scale)
+        return detect(maps, range_m, self.intrinsics, self.box, self.scale, self.border_margin_m)
 
     def detect_frame(self, range_m: np.ndarray, amplitude: np.ndarray) -> Detection:
         """Segment, compute this variant's features, detect."""

@@ -4,7 +4,8 @@ Features are computed once per frame (all three families: range FFT, range NFFT,
 the foreground pixels' log10 features and their 3-D distance to the ground-truth nose tip, and reused by all
 four variants and every box scale. True nose pixels: foreground pixels within `radius_m` (15 mm) of the tip;
 the box is learned from the tighter `positive_radius_m` neighbourhood of the tip (the tip's own features,
-not those of the nose's flanks, which also sit 15 mm away from it).
+not those of the nose's flanks, which also sit 15 mm away from it). Pixels nearer than `border_margin_m` to
+the mask border are never classified nose (tofd.detect.border_distance_m), neither in training nor in testing.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 from drivers.camera import Intrinsics
 from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.dataset import Dataset
-from tofd.detect import VARIANTS, Box, NoseModel, VariantModel, learn_box, to_log_features
+from tofd.detect import VARIANTS, Box, NoseModel, VariantModel, border_distance_m, learn_box, to_log_features
 from tofd.feature_maps import MAP_NAMES, FeatureExtractor
 from tofd.roc import RocCurve, roc_from_min_distances
 
@@ -31,6 +32,7 @@ class FrameSamples:
 
     log_features: np.ndarray  # (P, len(MAP_NAMES)) float32 log10 eccentricities, columns MAP_NAMES
     tip_distance_m: np.ndarray  # (P,) float32 3-D distance to the ground-truth nose tip (NaN if unknown)
+    border_m: np.ndarray  # (P,) float32 distance to the mask border, metres (tofd.detect.border_distance_m)
     nfft_iterations: int = 0
 
 
@@ -41,7 +43,8 @@ def frame_samples(extractor: FeatureExtractor, range_m: np.ndarray, amplitude: n
     points = extractor.intrinsics.backproject(range_m)[ff.mask]
     tip = np.linalg.norm(points - np.asarray(nose_xyz_m, dtype=np.float64), axis=1).astype(np.float32)
     feats = np.stack([ff.maps[n][ff.mask] for n in MAP_NAMES], axis=1)
-    return FrameSamples(to_log_features(feats).astype(np.float32), tip, ff.nfft_iterations)
+    border = border_distance_m(ff.mask, range_m, extractor.intrinsics)[ff.mask]
+    return FrameSamples(to_log_features(feats).astype(np.float32), tip, border, ff.nfft_iterations)
 
 
 _worker_extractor: FeatureExtractor | None = None
@@ -84,14 +87,15 @@ def _columns(variant: str) -> list[int]:
     return [MAP_NAMES.index(n) for n in VARIANTS[variant]]
 
 
-def min_distances(samples: list[FrameSamples], variant: str, box: Box,
-                  radius_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame: smallest box distance of its true nose pixels and of its other foreground pixels (inf: none)."""
+def min_distances(samples: list[FrameSamples], variant: str, box: Box, radius_m: float,
+                  border_margin_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame: smallest box distance of its true nose pixels and of its other foreground pixels (inf: none);
+    pixels nearer than border_margin_m to the mask border count as inf (never classified nose)."""
     cols = _columns(variant)
     true_min = np.full(len(samples), np.inf)
     false_min = np.full(len(samples), np.inf)
     for i, s in enumerate(samples):
-        d = box.distance(s.log_features[:, cols])
+        d = np.where(s.border_m < border_margin_m, np.inf, box.distance(s.log_features[:, cols]))
         true = s.tip_distance_m <= radius_m
         if true.any():
             true_min[i] = d[true].min()
@@ -106,20 +110,24 @@ def _has_nose(samples: list[FrameSamples], radius_m: float) -> np.ndarray:
 
 def train_model(samples: list[FrameSamples], features: FeatureConfig, segmentation: SegmentationConfig,
                 quantile: float = 0.05, positive_radius_m: float = 0.005, radius_m: float = 0.015,
-                variants: tuple[str, ...] = tuple(VARIANTS), training: dict | None = None) -> NoseModel:
-    """Learn each variant's box from the pixels within positive_radius_m of the nose tips; the operating
-    scale of each is its equal-error scale on the training frames (true nose radius radius_m)."""
+                variants: tuple[str, ...] = tuple(VARIANTS), training: dict | None = None,
+                border_margin_m: float = 0.0) -> NoseModel:
+    """Learn each variant's box from the pixels within positive_radius_m of the nose tips (and at least
+    border_margin_m from the mask border); the operating scale of each is its equal-error scale on the training
+    frames (true nose radius radius_m). The margin is recorded in the model's training info."""
     import dataclasses
 
-    positive = [s.log_features[s.tip_distance_m <= positive_radius_m] for s in samples]
+    positive = [s.log_features[(s.tip_distance_m <= positive_radius_m) & (s.border_m >= border_margin_m)]
+                for s in samples]
     pos = np.concatenate(positive) if positive else np.empty((0, len(MAP_NAMES)), np.float32)
     has_nose = _has_nose(samples, radius_m)
     out = {}
     for variant in variants:
         box = learn_box(pos[:, _columns(variant)], VARIANTS[variant], quantile)
-        roc = roc_from_min_distances(*min_distances(samples, variant, box, radius_m), has_nose)
+        roc = roc_from_min_distances(*min_distances(samples, variant, box, radius_m, border_margin_m), has_nose)
         out[variant] = VariantModel(variant, box, round(roc.eer_scale, 6), round(roc.eer, 6))
-    info = {"frames": len(samples), "positive_pixels": int(len(pos)), **(training or {})}
+    info = {"frames": len(samples), "positive_pixels": int(len(pos)), "border_margin_m": border_margin_m,
+            **(training or {})}
     return NoseModel(out, dataclasses.asdict(features), dataclasses.asdict(segmentation), quantile,
                      positive_radius_m * 1e3, info)
 
@@ -139,13 +147,13 @@ def distance_bins(distance_m: np.ndarray) -> np.ndarray:
 
 
 def evaluate_model(model: NoseModel, samples: list[FrameSamples], distance_m: np.ndarray,
-                   radius_m: float = 0.015) -> dict[str, VariantResult]:
+                   radius_m: float = 0.015, border_margin_m: float = 0.0) -> dict[str, VariantResult]:
     """ROC curves of every variant of the model on test samples, overall and per distance bin."""
     has_nose = _has_nose(samples, radius_m)
     bins = distance_bins(distance_m)
     results = {}
     for name, vm in model.variants.items():
-        tmin, fmin = min_distances(samples, name, vm.box, radius_m)
+        tmin, fmin = min_distances(samples, name, vm.box, radius_m, border_margin_m)
         res = VariantResult(name, roc_from_min_distances(tmin, fmin, has_nose))
         for b in np.unique(bins):
             sel = bins == b

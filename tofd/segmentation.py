@@ -18,7 +18,11 @@
    - the depth is median-filtered (`median_px` x `median_px`; invalid pixels count as far), so single
      noisy or flying pixels neither fray the cut nor become the nearest point;
    - reference = the `range_percentile` (default 1) percentile of the filtered depths of the step-1
-     pixels: a robust nearest point (the nose tip on a face);
+     pixels in the head band: a robust nearest point (the nose tip on a face). Head band (`head_height_m`,
+     default 0.18 m; 0 = the whole step-1 foreground): the rows at most that far below the top of the body
+     (step-1 pixels within head_height_m in depth of the nearest one; rows converted to metres at that
+     depth). The head is the top of a body seen by an upright camera; on a head-and-shoulders view a turned
+     and nodded-down head can have a shoulder nearer than its nose, which the plain nearest point would pick;
    - keep step-1 pixels whose filtered depth is <= reference + `depth_margin_m` (default 0.035 m: the
      nose and the face around it, chosen by cross-validation on the training subjects,
      bench/tune_detector.py). A depth in metres is the same at every distance, unlike a pixel-count share.
@@ -26,8 +30,8 @@
    pixels whose own (unfiltered) depth is invalid or beyond the cut are dropped again -- flying pixels on
    the silhouette and noise spikes that the median hid: the features clamp them to the background value,
    i.e. to the cut, which is the continuous surface the cut is for. Finally, with `nearest_component`,
-   only the 8-connected region holding the nearest kept pixel (the head, not a speck or a shoulder that
-   also passed the cut).
+   only the 8-connected region holding the nearest kept pixel of the head band (the head, not a speck or a
+   shoulder that also passed the cut).
 """
 
 from __future__ import annotations
@@ -83,6 +87,23 @@ def filtered(depth_m: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
     return cv2.medianBlur(r, size) if size > 1 else r
 
 
+def head_band(mask: np.ndarray, smooth: np.ndarray, cfg: SegmentationConfig, fy: float) -> np.ndarray:
+    """The step-1 pixels at most `head_height_m` below the top of the body (all of `mask` if that is 0).
+
+    Body: step-1 pixels whose filtered depth is within `head_height_m` of the nearest one (not a far object
+    that passed the amplitude step). Rows are converted to metres at the nearest depth (z / fy per row).
+    """
+    if cfg.head_height_m <= 0:
+        return mask
+    nearest = float(np.percentile(smooth[mask], cfg.range_percentile))
+    rows = np.flatnonzero((mask & (smooth <= nearest + cfg.head_height_m)).any(axis=1))
+    if len(rows) == 0:
+        return mask
+    last_row = rows[0] + cfg.head_height_m * fy / nearest
+    band = mask & (np.arange(mask.shape[0])[:, None] <= last_row)
+    return band if band.any() else mask
+
+
 def segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
             intrinsics: Intrinsics | None = None) -> np.ndarray:
     """(H, W) bool foreground mask from a radial range map (metres, NaN/0/inf invalid) and amplitude.
@@ -106,7 +127,8 @@ def segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
     mask &= smooth < FAR_M
     if not mask.any():
         return mask
-    reference = float(np.percentile(smooth[mask], cfg.range_percentile))
+    head = head_band(mask, smooth, cfg, intrinsics.fy)
+    reference = float(np.percentile(smooth[head], cfg.range_percentile))
     cut = reference + cfg.depth_margin_m
     mask &= smooth <= cut
     if cfg.morphology_px > 1:
@@ -115,7 +137,7 @@ def segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
         mask = cv2.morphologyEx(m, cv2.MORPH_CLOSE, kernel).view(bool)
     with np.errstate(invalid="ignore"):
         mask = fill_holes(mask) & valid & (depth <= cut)
-    if cfg.nearest_component and mask.any():
-        nearest = int(np.argmin(np.where(mask, smooth, np.inf)))
+    if cfg.nearest_component and (mask & head).any():
+        nearest = int(np.argmin(np.where(mask & head, smooth, np.inf)))
         mask = component_at(mask, *divmod(nearest, mask.shape[1]))
     return mask

@@ -45,12 +45,13 @@ def main(args: argparse.Namespace) -> int:
         samples = samples_for(train, cfg, args, "train", timing)
         model = train_model(samples, cfg.features, cfg.segmentation, args.quantile, args.positive_radius_mm / 1e3,
                             radius_m, training={"data": args.train or f"rendered train split seed {args.seed}",
-                                                "subjects": sorted(set(train.subject.tolist()))})
+                                                "subjects": sorted(set(train.subject.tolist()))},
+                            border_margin_m=cfg.detector.border_margin_m)
         del samples
     test = dataset_for(args, "test", timing)
     samples = samples_for(test, cfg, args, "test", timing)
     sweep = time.monotonic()
-    results = evaluate_model(model, samples, test.distance_m, radius_m)
+    results = evaluate_model(model, samples, test.distance_m, radius_m, cfg.detector.border_margin_m)
     timing["roc_sweep_s"] = round(time.monotonic() - sweep, 3)
     timing["total_s"] = round(time.monotonic() - start, 3)
 

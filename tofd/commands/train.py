@@ -32,7 +32,8 @@ def main(args: argparse.Namespace) -> int:
     samples = samples_for(ds, cfg, args, "train", timing)
     model = train_model(samples, cfg.features, cfg.segmentation, args.quantile, args.positive_radius_mm / 1e3,
                         args.radius_mm / 1e3, training={"data": args.train or f"rendered train split seed {args.seed}",
-                                                        "subjects": sorted(set(ds.subject.tolist()))})
+                                                        "subjects": sorted(set(ds.subject.tolist()))},
+                        border_margin_m=cfg.detector.border_margin_m)
     path = save_model(model, args.out)
     for name, vm in model.variants.items():
         print(f"{name:<16} operating scale {vm.operating_scale:.3f}  training EER {100 * vm.train_eer:.1f} %")
