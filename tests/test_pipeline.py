@@ -140,11 +140,11 @@ def test_live_policy_drops_instead_of_blocking_and_never_goes_back_in_time():
     assert delivered == sorted(delivered)
 
 
-def test_detection_in_the_pipeline_equals_the_detector_on_the_frame(tmp_path):
+def test_detection_in_the_workers_equals_the_detector_on_the_frame(tmp_path):
     cfg = load_config(write_config(tmp_path))
     detector = NoseDetector(cfg)
     sink = Collect()
-    pipeline = Pipeline(cfg, "lossless", writers=(sink,), detector=detector)
+    pipeline = Pipeline(cfg, "lossless", writers=(sink,), detect=True)
     pipeline.start(RenderedSource(6, n_distinct=3))
     assert pipeline.wait(60)
     pipeline.close()

@@ -1,10 +1,10 @@
-"""The threaded pipeline: capture thread -> feature worker processes -> detection -> sink thread.
+"""The threaded pipeline: capture thread -> worker processes (features, detection) -> sink thread.
 
 Threads in the parent process:
 - capture: iterates the FrameSource, admits each frame to the ledger, marks device gaps, queues it;
 - dispatch: copies a queued frame into a free shared-memory slot and hands the slot to a worker;
 - collect: receives worker results (or notices a dead worker: its frames are ledgered, it is restarted),
-  copies the maps out of the slot, runs the detector, orders the frames and queues them for the sink;
+  copies the maps out of the slot, orders the frames and queues them for the sink;
 - sink: logs to Rerun (optional) and writes results (optional); a frame is delivered when this is done.
 
 Queue policy (see queues.py): "latest" for live sources (the dispatch queue holds only the newest frame
@@ -13,7 +13,8 @@ blocks). Either way the collector hands frames to the sink in sequence order. Ev
 DropLedger with its stage and reason.
 
 Timings per frame (ms): capture (driver receive -> admitted), queue (admitted -> sent to a worker),
-segmentation, fft, nfft (in the worker), detection, logging (Rerun), latency (driver receive -> sink done).
+segmentation, fft, nfft, detection (in the worker), logging (Rerun), latency (driver receive -> sink done).
+Workers run the detector too (it is ~4 ms of numpy per frame: in the parent it would compete for the GIL).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from tofd.pipeline.ledger import DropLedger
 from tofd.pipeline.queues import Policy, StageQueue
 from tofd.pipeline.results import FrameResult
 from tofd.pipeline.slots import FEATURE_FIELDS, SlotRing
+from tofd.pipeline.stages import detection_from
 from tofd.pipeline.stats import PipelineStats
 from tofd.pipeline.worker import WorkerHandle
 
@@ -61,22 +63,23 @@ class Pipeline:
     """Run frames from a FrameSource through the stages; see the module docstring.
 
     `viewer` is called for every frame on the sink thread (its time is the "logging" stage), then each of
-    `writers`. `detector` (a tofd.detect.NoseDetector) is optional. `live_source`: the frames' host receive
+    `writers`. `detect`: the workers run the configured nose detector (cfg.detector; check it loads first,
+    e.g. with service.load_detector). `live_source`: the frames' host receive
 times are this process's monotonic clock (a camera), so latency counts from there; else (replay) from the
 capture thread's arrival. Use: start(source), then wait() or stop().
     """
 
     def __init__(self, cfg: Config, policy: Policy, intrinsics: Intrinsics | None = None,
-                 viewer: Sink | None = None, writers: tuple[Sink, ...] = (), detector=None,
+                 viewer: Sink | None = None, writers: tuple[Sink, ...] = (), detect: bool = False,
                  live_source: bool = True):
         pc = cfg.pipeline
         self.cfg, self.policy, self.intrinsics = cfg, policy, intrinsics or cfg.intrinsics
-        self.viewer, self.writers, self.detector, self.live_source = viewer, writers, detector, live_source
+        self.viewer, self.writers, self.live_source = viewer, writers, live_source
         self.ledger = DropLedger()
         self.stats = PipelineStats(pc.stats_window)
         self.ring = SlotRing.create(pc.workers * pc.tasks_per_worker, self.intrinsics.shape)
         spec = json.dumps({"shm": self.ring.name, "n_slots": self.ring.n_slots, "shape": self.ring.shape,
-                           "config": _config_table(cfg), "intrinsics": self.intrinsics.to_dict()})
+                           "config": _config_table(cfg), "intrinsics": self.intrinsics.to_dict(), "detect": detect})
         self.workers = [WorkerHandle(i, spec) for i in range(pc.workers)]
         self.inq: StageQueue[_Queued] = StageQueue(policy, 1 if policy == "latest" else pc.input_queue)
         self.outq: StageQueue[FrameResult] = StageQueue(policy, pc.sink_queue)
@@ -312,22 +315,13 @@ capture thread's arrival. Use: start(source), then wait() or stop().
             seq=seq, frame=item.frame, mask=views["mask"].copy(),
             features={name: views[name].copy() for name in FEATURE_FIELDS},
             nfft_iterations=msg["nfft_iterations"], nfft_residual=msg["nfft_residual"], arrival_s=item.origin_s,
-            gap_before=item.gap_before,
+            gap_before=item.gap_before, detection=detection_from(msg),
             timings_ms={"capture": (item.admitted_s - item.origin_s) * 1e3,
                         "queue": (item.sent_s - item.admitted_s) * 1e3, **msg["timings_ms"]})
         with self._lock:
             self.ring.release(slot)
             self._failures = 0
             self._lock.notify_all()
-        if self.detector is not None:
-            self.ledger.advance(seq, "detection")
-            t0 = time.perf_counter()
-            try:
-                result.detection = self.detector.detect_maps(result.features, result.frame.range_m)
-            except Exception as exc:
-                self._drop(seq, "detection", f"error: {type(exc).__name__}: {exc}")
-                return
-            result.timings_ms["detection"] = (time.perf_counter() - t0) * 1e3
         self._done[seq] = result
 
     def _worker_died(self, worker: WorkerHandle, reason: str) -> None:

@@ -13,7 +13,9 @@ import threading
 from collections import Counter
 from dataclasses import asdict, dataclass
 
-STAGES = ("capture", "features", "detection", "viewer")
+STAGES = ("capture", "features", "viewer")
+"""capture: the capture thread; features: the queue to and the worker processes (segmentation, FFT, NFFT,
+detection); viewer: the queue to and the sink thread (Rerun logging, results file)."""
 
 
 @dataclass(frozen=True, slots=True)

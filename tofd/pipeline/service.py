@@ -100,7 +100,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     health = pipeline = None
     try:
         viewer = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud) if target else None
-        pipeline = Pipeline(cfg, policy, viewer=viewer, writers=writers, detector=load_detector(cfg),
+        pipeline = Pipeline(cfg, policy, viewer=viewer, writers=writers, detect=load_detector(cfg) is not None,
                             live_source=live_source)
         if cfg.health.enabled:
             health = HealthServer(cfg.health.bind, cfg.health.port, pipeline.snapshot, lambda: pipeline.running,

@@ -1,7 +1,5 @@
-"""The feature stage of a worker process, kept thin: it adapts the features API to shared-memory slots.
-
-(Detection runs in the parent: tofd.detect.NoseDetector.detect_maps on the maps read back from the slot.)
-"""
+"""The stages of a worker process, kept thin: they adapt the features and detector APIs to shared-memory
+slots and to small JSON-ready results."""
 
 from __future__ import annotations
 
@@ -11,6 +9,7 @@ import numpy as np
 
 from drivers.camera import Intrinsics
 from tofd.config import Config
+from tofd.pipeline.slots import FEATURE_FIELDS
 
 
 class FeatureStage:
@@ -20,13 +19,15 @@ class FeatureStage:
     per stage.
     """
 
-    def __init__(self, cfg: Config, intrinsics: Intrinsics):
+    def __init__(self, cfg: Config, intrinsics: Intrinsics, detect: bool):
+        from tofd.detect import NoseDetector
         from tofd.features import FFTFeatures, NFFTFeatures
         from tofd.segmentation import segment
 
         self._segment, self._cfg = segment, cfg
         self._fft = FFTFeatures(intrinsics, cfg.features)
         self._nfft = NFFTFeatures(intrinsics, cfg.features)
+        self._detector = NoseDetector(cfg) if detect else None
 
     def run(self, slot: dict[str, np.ndarray]) -> dict:
         """Read range_m/amplitude from `slot`, write mask and feature maps into it; timings in ms."""
@@ -42,10 +43,25 @@ class FeatureStage:
         for prefix, maps in (("range_fft", fft_range), ("amp_fft", fft_amp), ("range_nfft", nfft_range)):
             slot[f"{prefix}_eps0"][...] = maps.eps0
             slot[f"{prefix}_eps2"][...] = maps.eps2
-        return {
-            "timings_ms": {"segmentation": (t1 - t0) * 1e3, "fft": (t2 - t1) * 1e3, "nfft": (t3 - t2) * 1e3},
-            "nfft_iterations": int(nfft_range.iterations),
-            "nfft_residual": float(nfft_range.residual),
-            "foreground_px": int(np.count_nonzero(mask)),
-        }
+        timings = {"segmentation": (t1 - t0) * 1e3, "fft": (t2 - t1) * 1e3, "nfft": (t3 - t2) * 1e3}
+        reply = {"timings_ms": timings, "nfft_iterations": int(nfft_range.iterations),
+                 "nfft_residual": float(nfft_range.residual)}
+        if self._detector is not None:
+            maps = {name: slot[name] for name in FEATURE_FIELDS}
+            det = self._detector.detect_maps(maps, slot["range_m"])
+            timings["detection"] = (time.perf_counter() - t3) * 1e3
+            reply["detection"] = {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score,
+                                  "accepted": det.accepted}
+        return reply
+
+
+def detection_from(message: dict):
+    """The tofd.detect.Detection in a worker's reply, or None (no detector)."""
+    from tofd.detect import Detection
+
+    d = message.get("detection")
+    if d is None:
+        return None
+    return Detection(tuple(d["nose_px"]) if d["nose_px"] else None,
+                     tuple(d["nose_xyz_m"]) if d["nose_xyz_m"] else None, float(d["score"]), bool(d["accepted"]))
 

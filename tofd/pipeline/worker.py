@@ -31,7 +31,7 @@ def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
 
     spec = json.loads(spec_json)
     ring = SlotRing.attach(spec["shm"], spec["n_slots"], tuple(spec["shape"]))
-    stage = FeatureStage(config_from_dict(spec["config"]), Intrinsics.from_dict(spec["intrinsics"]))
+    stage = FeatureStage(config_from_dict(spec["config"]), Intrinsics.from_dict(spec["intrinsics"]), spec["detect"])
     results.send_bytes(json.dumps({"ready": os.getpid()}).encode())
     try:
         while True:

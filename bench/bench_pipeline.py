@@ -1,0 +1,163 @@
+"""Pipeline benchmark: live emulated camera at 30 fps, lossless replay throughput, RSS over the live run.
+
+    python bench/bench_pipeline.py                 # short: 20 s live, 300 replayed frames
+    python bench/bench_pipeline.py --minutes 10    # the soak: 10 min live (RSS flat within 5 %?)
+
+Every mode runs the real pipeline (2 worker processes, FFT + NFFT + detection) with the Rerun .rrd sink
+(written to a temp dir) and, for comparison in the same run, without any Rerun sink. Latency is capture
+(driver receive) -> sink done. RSS is the sum over the service process and its workers, sampled every
+second; "RSS growth" compares the mean of the last fifth of the run with the mean of the second fifth
+(after warm-up). Prints a table and writes bench/results/bench_pipeline.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from drivers.emulator import open_emulated_camera
+from drivers.replay import ReplaySource
+from tofd.config import load_config
+from tofd.pipeline import Pipeline
+from tofd.pipeline.service import load_detector
+from tofd.viewer import RerunLogger, RerunTarget
+
+ROOT = Path(__file__).resolve().parent.parent
+CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
+
+
+def rss_mb(pids: list[int]) -> float:
+    total = 0
+    for pid in pids:
+        try:
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1])
+        except OSError:
+            pass
+    return total / 1024
+
+
+class Latencies:
+    """Sink keeping every delivered frame's end-to-end latency (ms)."""
+
+    def __init__(self):
+        self.ms: list[float] = []
+
+    def __call__(self, r) -> None:
+        self.ms.append((time.monotonic() - r.arrival_s) * 1e3)
+
+
+def with_detector(cfg, tmp: Path):
+    """The config, with a nose model learned on rendered frames for the current feature settings
+    (tests/pipeline_sources.py) if the shipped model does not load, so detection is always in the loop."""
+    from tofd.config import ConfigError
+
+    try:
+        if load_detector(cfg) is not None:
+            return cfg
+        reason = "no shipped model"
+    except ConfigError as exc:
+        reason = str(exc)
+    sys.path.insert(0, str(ROOT / "tests"))
+    from pipeline_sources import write_test_model
+
+    print(f"note: {reason}; using a model learned for the current settings")
+    model = write_test_model(tmp / "nose_model.json", cfg)
+    return replace(cfg, detector=replace(cfg.detector, model_path=str(model)))
+
+
+def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | None, max_frames: int | None,
+        tmp: Path) -> dict:
+    target = RerunTarget(cfg.rerun, "save", path=str(tmp / f"{policy}-{time.monotonic_ns()}.rrd")) if rerun else None
+    lat = Latencies()
+    pipeline = Pipeline(cfg, policy, viewer=RerunLogger(target.rec, cfg.intrinsics) if target else None,
+                        writers=(lat,), detect=True, live_source=live)
+    rss, stop_sampling = [], threading.Event()
+
+    def sample() -> None:
+        while not stop_sampling.wait(1.0):
+            rss.append(rss_mb([os.getpid(), *(w.pid for w in pipeline.workers if w.pid)]))
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    pipeline.start(source, max_frames)
+    sampler.start()
+    t0 = time.monotonic()
+    if duration_s is not None:
+        time.sleep(duration_s)
+        pipeline.stop()
+    pipeline.wait()
+    elapsed = time.monotonic() - t0
+    stop_sampling.set()
+    summary = pipeline.close()
+    if target is not None:
+        target.close()
+    q = pipeline.stats.quantiles_ms()
+    latency = np.asarray(lat.ms[len(lat.ms) // 10:])  # skip the warm-up tenth
+    n = len(rss)
+    return {
+        "frames_in": summary["frames_in"], "frames_out": summary["frames_out"],
+        "frames_dropped": summary["frames_dropped"], "dropped_by_stage": summary["dropped_by_stage"],
+        "consistent": summary["consistent"], "seconds": round(elapsed, 2),
+        "fps": round(summary["frames_out"] / elapsed, 2),
+        "latency_p50_ms": round(float(np.percentile(latency, 50)), 1),
+        "latency_p99_ms": round(float(np.percentile(latency, 99)), 1),
+        "stage_p50_ms": {k: round(v[0], 2) for k, v in q.items()},
+        "stage_p99_ms": {k: round(v[1], 2) for k, v in q.items()},
+        "rss_mb_first": round(rss[0], 1) if rss else None, "rss_mb_max": round(max(rss), 1) if rss else None,
+        "rss_growth_pct": round(100 * (np.mean(rss[-max(1, n // 5):]) / np.mean(rss[n // 5: 2 * n // 5]) - 1), 2)
+        if n >= 10 else None,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--minutes", type=float, default=None, help="live run length (default: 20 s)")
+    ap.add_argument("--replay-frames", type=int, default=300, help="frames of lossless replay (looped clip)")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "bench_pipeline.json")
+    args = ap.parse_args()
+    cfg = load_config()
+    live_s = args.minutes * 60 if args.minutes else 20.0
+    results = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                           "load_avg_at_start": os.getloadavg()}, "workers": cfg.pipeline.workers}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        cfg = with_detector(cfg, tmp)
+        for rerun in (True, False):
+            with ReplaySource(CLIP, loop=True) as source:
+                results[f"replay_lossless{'_rerun' if rerun else '_no_rerun'}"] = run(
+                    cfg, source, "lossless", live=False, rerun=rerun, duration_s=None,
+                    max_frames=args.replay_frames, tmp=tmp)
+        with open_emulated_camera(prerender=True, intrinsics=cfg.intrinsics) as camera:
+            results["live_30fps_rerun"] = run(cfg, camera, "latest", live=True, rerun=True, duration_s=live_s,
+                                              max_frames=None, tmp=tmp)
+    r_on, r_off = results["replay_lossless_rerun"], results["replay_lossless_no_rerun"]
+    results["replay_rerun_cost_ratio"] = round(r_off["fps"] / r_on["fps"], 2)
+    print(f"{'mode':28} {'fps':>7} {'p50 ms':>7} {'p99 ms':>7} {'in':>6} {'out':>6} {'drop':>5} {'RSS MB':>7} "
+          f"{'RSS +%':>7}")
+    for mode in ("live_30fps_rerun", "replay_lossless_rerun", "replay_lossless_no_rerun"):
+        r = results[mode]
+        print(f"{mode:28} {r['fps']:7.1f} {r['latency_p50_ms']:7.1f} {r['latency_p99_ms']:7.1f} {r['frames_in']:6d} "
+              f"{r['frames_out']:6d} {r['frames_dropped']:5d} {r['rss_mb_max'] or 0:7.0f} "
+              f"{r['rss_growth_pct'] if r['rss_growth_pct'] is not None else float('nan'):7.2f}")
+    print("stage p50/p99 ms (live):", {k: (v, results['live_30fps_rerun']['stage_p99_ms'][k])
+                                       for k, v in results["live_30fps_rerun"]["stage_p50_ms"].items()})
+    print(f"replay without/with Rerun fps ratio: {results['replay_rerun_cost_ratio']}; "
+          f"load average at start {results['machine']['load_avg_at_start']}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=1) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
