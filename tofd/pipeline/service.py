@@ -17,7 +17,7 @@ from pathlib import Path
 
 from drivers.source import FrameSource
 from tofd.config import Config, ConfigError
-from tofd.health import HealthServer, health_status, sd_notify, watchdog_interval_s
+from tofd.health import HealthServer, sd_notify, watchdog_interval_s
 from tofd.pipeline.core import Pipeline, Sink
 from tofd.pipeline.queues import Policy
 
@@ -112,7 +112,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             log.info("web viewer: %s", target.web_url)
         if on_started is not None:
             on_started(pipeline, target.web_url if target else None)
-        _supervise(pipeline, stop, cfg.health.stale_after_s, progress)
+        _supervise(pipeline, stop, progress)
     finally:
         sd_notify("STOPPING=1")
         summary = pipeline.close() if pipeline is not None else {}
@@ -136,8 +136,8 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     return ServiceResult(1 if pipeline.error else 0, summary, target.web_url if target else None)
 
 
-def _supervise(pipeline: Pipeline, stop: list[int], stale_after_s: float, progress: Progress | None) -> None:
-    """Wait for the end of the run, pinging the systemd watchdog while healthy and drawing progress."""
+def _supervise(pipeline: Pipeline, stop: list[int], progress: Progress | None) -> None:
+    """Wait for the end of the run, pinging the systemd watchdog while the pipeline works, drawing progress."""
     watchdog = watchdog_interval_s()
     tick = min(0.25, watchdog or 0.25)
     last_ping = 0.0
@@ -148,8 +148,8 @@ def _supervise(pipeline: Pipeline, stop: list[int], stale_after_s: float, progre
             pipeline.stop()
             return
         if watchdog is not None and time.monotonic() - last_ping >= watchdog:
-            if health_status(pipeline.snapshot(), pipeline.running, stale_after_s)[0]:
-                sd_notify("WATCHDOG=1")
+            if pipeline.error is None:  # alive and not failed; a camera that is away (reconnecting) is no reason
+                sd_notify("WATCHDOG=1")  # for systemd to restart us: /healthz reports that to monitoring instead
             last_ping = time.monotonic()
         if progress is not None:
             progress.update(pipeline.snapshot())
