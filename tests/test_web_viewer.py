@@ -38,9 +38,10 @@ def colour_variety(img: np.ndarray) -> int:
 
 def test_web_viewer_shows_the_views_of_a_live_run(tmp_path):
     grpc_port, web_port = free_port(), free_port()
-    # a slower camera (INT_TIME code 150: ~7.7 fps) so the software-rendered viewer keeps up with the stream
+    # a slower camera (INT_TIME code 255: ~4.7 fps) and one worker leave CPU for the software-rendered viewer,
+    # whose wasm start-up dominates this test (about a minute on 2 busy cores)
     config = write_config(tmp_path, rerun={"sink": "web", "grpc_port": grpc_port, "web_port": web_port},
-                          camera={"int_time_code": 150})
+                          camera={"int_time_code": 255}, pipeline={"workers": 1})
     proc = subprocess.Popen([sys.executable, "-m", "tofd", "run", "--emulate", "--config", str(config),
                              "--health-port", "0"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True, env={**os.environ, "RUST_LOG": "error"})
@@ -55,7 +56,7 @@ def test_web_viewer_shows_the_views_of_a_live_run(tmp_path):
         time.sleep(2)  # a few frames into the stream
         url = f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}%2Fproxy"
         png = tmp_path / "viewer.png"
-        console = screenshot(url, png, wait_s=15)
+        console = screenshot(url, png, wait_s=10)
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
