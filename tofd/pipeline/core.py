@@ -326,6 +326,8 @@ capture thread's arrival. Use: start(source), then wait() or stop().
 
     def _worker_died(self, worker: WorkerHandle, reason: str) -> None:
         """Ledger the frames a dead worker held, then restart it (unless shutting down or failing)."""
+        with self._lock:
+            worker.ready = False  # the dispatcher must not pick it any more
         while worker.results.poll(0):  # results it sent before dying are still good
             try:
                 msg = worker.receive()

@@ -103,8 +103,12 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
         pipeline = Pipeline(cfg, policy, viewer=viewer, writers=writers, detect=load_detector(cfg) is not None,
                             live_source=live_source)
         if cfg.health.enabled:
-            health = HealthServer(cfg.health.bind, cfg.health.port, pipeline.snapshot, lambda: pipeline.running,
-                                  cfg.health.stale_after_s).start()
+            try:
+                health = HealthServer(cfg.health.bind, cfg.health.port, pipeline.snapshot,
+                                      lambda: pipeline.running, cfg.health.stale_after_s).start()
+            except OSError as exc:
+                raise ConfigError(f"health.port: cannot listen on {cfg.health.bind}:{cfg.health.port}: "
+                                  f"{exc.strerror}") from None
             log.info("health: http://%s:%d/healthz and /metrics", health.bind, health.port)
         pipeline.start(source, max_frames)
         sd_notify("READY=1")
