@@ -83,11 +83,12 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     lat = Latencies()
     pipeline = Pipeline(cfg, policy, viewer=RerunLogger(target.rec, cfg.intrinsics) if target else None,
                         writers=(lat,), detect=True, live_source=live)
-    rss, stop_sampling = [], threading.Event()
+    rss, rss_parent, stop_sampling = [], [], threading.Event()
 
     def sample() -> None:
         while not stop_sampling.wait(1.0):
             rss.append(rss_mb([os.getpid(), *(w.pid for w in pipeline.workers if w.pid)]))
+            rss_parent.append(rss_mb([os.getpid()]))
 
     sampler = threading.Thread(target=sample, daemon=True)
     pipeline.start(source, max_frames)
@@ -117,6 +118,8 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
         "rss_mb_first": round(rss[0], 1) if rss else None, "rss_mb_max": round(max(rss), 1) if rss else None,
         "rss_growth_pct": round(100 * (np.mean(rss[-max(1, n // 5):]) / np.mean(rss[n // 5: 2 * n // 5]) - 1), 2)
         if n >= 10 else None,
+        "rss_mb_every_10s": [round(x) for x in rss[::10]],
+        "rss_parent_mb_every_10s": [round(x) for x in rss_parent[::10]],
     }
 
 
