@@ -71,7 +71,11 @@ def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     assert accepted and all(len(x["nose_px"]) == 2 and x["score"] <= 1.5 for x in accepted)
     summary = json.loads((tmp_path / f"{stem}.summary.json").read_text())
     assert summary["frames_out"] == n and summary["frames_dropped"] == 0 and summary["consistent"]
-    check_rrd(tmp_path / f"{stem}.rrd", counters)
+    tables = check_rrd(tmp_path / f"{stem}.rrd", counters)
+    nose = tables[bp.NOSE_2D][1]
+    logged = dict(zip(nose.column("frame").to_pylist(), nose.column("Points2D:positions").to_pylist(), strict=True))
+    for x in accepted:  # the detected nose pixel is what the viewer shows
+        assert logged[x["frame_counter"]] == [[float(c) for c in x["nose_px"]]]
 
 
 def test_replay_of_a_missing_file_is_a_one_line_error(tmp_path):
