@@ -1,6 +1,7 @@
 """Choose segmentation/feature/box parameters by leave-one-subject-out cross-validation on the TRAINING subjects.
 
-The test subject of the default split (tofd.synth_faces.TEST_SUBJECTS) is never rendered here. Each fold
+The subjects are tofd.synth_faces.CV_SUBJECTS: the training subjects plus two variants (forward chin, flatter
+nose); the test subject of the default split (TEST_SUBJECTS) is never rendered here. Each fold
 mirrors the paper's protocol inside the training subjects: learn the boxes on two subjects at the training
 distance (0.60 m), evaluate on the held-out third one at the test distances (0.35-0.70 m). Per grid point the
 features are computed once per frame and shared by the folds; the score is the mean EER over the folds.
@@ -25,12 +26,16 @@ import numpy as np
 from tofd.config import Config
 from tofd.detect import VARIANTS
 from tofd.evaluate import evaluate_model, extract_samples, train_model
-from tofd.synth_faces import TEST_DISTANCES_M, TRAIN_DISTANCES_M, TRAIN_SUBJECTS, render_frames
+from tofd.synth_faces import CV_SUBJECTS, TEST_DISTANCES_M, TRAIN_DISTANCES_M, render_frames
 
 GRIDS = {
     "quick": {"quantile": [0.05]},  # the current defaults
     "border": {"head_height_m": [0.0, 0.18], "depth_margin_m": [0.035, 0.05], "quantile": [0.05],
                "border_margin_m": [0.0, 0.004, 0.008, 0.01, 0.012, 0.015, 0.02]},
+    "chin": {"depth_margin_m": [0.03, 0.035, 0.045], "quantile": [0.05],
+             "border_margin_m": [0.0, 0.004, 0.008, 0.01, 0.012, 0.015, 0.02]},
+    "chin_fine": {"depth_margin_m": [0.02, 0.025, 0.03, 0.035], "quantile": [0.05],
+                  "border_margin_m": [0.004, 0.006, 0.008, 0.01]},
     "default": {"tuning_frequency_per_m": [10.0, 15.0, 20.0, 25.0, 30.0, 40.0],
                 "depth_margin_m": [0.04, 0.05, 0.06, 0.08, 0.10], "quantile": [0.05]},
     "wide": {"tuning_frequency_per_m": [8.0, 10.0, 13.0, 16.0, 20.0], "lowpass_sigma_per_m": [50.0],
@@ -47,7 +52,7 @@ BOX_KEYS = ("quantile", "positive_radius_m", "border_margin_m")  # cheap: no fea
 def render_subjects(frames: int, seed: int) -> dict[str, dict[str, object]]:
     """Per training subject: `frames` frames at the training distance and 2 * `frames` at the test distances."""
     out = {}
-    for i, name in enumerate(TRAIN_SUBJECTS):
+    for i, name in enumerate(CV_SUBJECTS):
         out[name] = {"train": render_frames((name,), TRAIN_DISTANCES_M, frames, seed + 2 * i),
                      "test": render_frames((name,), TEST_DISTANCES_M, 2 * frames, seed + 2 * i + 1)}
     return out
@@ -109,7 +114,7 @@ def main() -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"protocol": "leave-one-training-subject-out: train 2 subjects at "
                                f"{TRAIN_DISTANCES_M} m, test the third at {TEST_DISTANCES_M} m",
-                               "subjects": list(TRAIN_SUBJECTS), "frames_per_subject": args.frames,
+                               "subjects": list(CV_SUBJECTS), "frames_per_subject": args.frames,
                                "seed": args.seed, "grid": grid, "rows": rows, "best": best,
                                "seconds": round(time.monotonic() - start, 1)}, indent=1) + "\n")
     print(f"wrote {out}")

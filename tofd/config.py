@@ -56,7 +56,7 @@ class SegmentationConfig:
 
     amplitude_method: str = "otsu"  # the only method: Otsu's threshold on the finite log amplitudes
     range_percentile: float = 1.0  # percent: reference (robust nearest) range = this percentile of the filtered ranges
-    depth_margin_m: float = 0.035  # metres: keep pixels whose filtered range <= reference + this
+    depth_margin_m: float = 0.025  # metres: keep pixels whose filtered range <= reference + this
     median_px: int = 5  # pixels: median filter of the range before the cut (1 = none; 3 or 5)
     morphology_px: int = 3  # pixels: ellipse of the opening + closing of the mask (1 = none)
     nearest_component: bool = True  # keep only the 8-connected region holding the nearest kept pixel
@@ -179,7 +179,7 @@ class DetectorConfig:
     model_path: str = "nose_model.json"  # JSON model; a relative path not found from the cwd is looked up in config/
     variant: str = "nfft_range_amp"  # fft_range, fft_range_amp, nfft_range or nfft_range_amp
     box_scale: float = 0.0  # box half-widths times this (> 0); 0 = the model's operating scale (training EER)
-    border_margin_m: float = 0.008  # metres: pixels nearer than this to the mask border are never the nose
+    border_margin_m: float = 0.006  # metres: pixels nearer than this to the mask border are never the nose
 
     def validate(self) -> None:
         variants = ("fft_range", "fft_range_amp", "nfft_range", "nfft_range_amp")

@@ -23,7 +23,7 @@
      (step-1 pixels within head_height_m in depth of the nearest one; rows converted to metres at that
      depth). The head is the top of a body seen by an upright camera; on a head-and-shoulders view a turned
      and nodded-down head can have a shoulder nearer than its nose, which the plain nearest point would pick;
-   - keep step-1 pixels whose filtered depth is <= reference + `depth_margin_m` (default 0.035 m: the
+   - keep step-1 pixels whose filtered depth is <= reference + `depth_margin_m` (default 0.025 m: the
      nose and the face around it, chosen by cross-validation on the training subjects,
      bench/tune_detector.py). A depth in metres is the same at every distance, unlike a pixel-count share.
 3. Clean-up: morphological opening then closing with a `morphology_px` ellipse and holes filled; then

@@ -59,9 +59,15 @@ SUBJECTS: dict[str, Subject] = {s.name: s for s in (
         Bump("nose", (0.0, -0.002, 0.003), 0.012),
         Bump("cheek_left", (0.0, 0.0, -0.003), 0.02), Bump("cheek_right", (0.0, 0.0, -0.003), 0.02),
         Bump("chin", (0.0, -0.004, 0.006), 0.02))),
+    Subject("mp_chin", "mediapipe_canonical", (0.97, 1.03, 1.0), (  # forward chin: 14 mm behind the nose tip
+        Bump("chin", (0.0, -0.003, 0.010), 0.018),)),
+    Subject("lps_flat", "lee_perry_smith", (1.03, 0.98, 0.95), (  # flatter nose, fuller cheeks
+        Bump("nose", (0.0, 0.0, -0.004), 0.012),
+        Bump("cheek_left", (0.0, 0.0, 0.003), 0.02), Bump("cheek_right", (0.0, 0.0, 0.003), 0.02))),
 )}
 
 TRAIN_SUBJECTS = ("lps", "mp", "mp_broad")
+CV_SUBJECTS = (*TRAIN_SUBJECTS, "mp_chin", "lps_flat")  # bench/tune_detector.py: never the test subject
 TEST_SUBJECTS = ("lps_long",)
 TRAIN_DISTANCES_M = (0.60,)
 TEST_DISTANCES_M = (0.35, 0.40, 0.45, 0.50, 0.55, 0.60, 0.65, 0.70)
