@@ -7,12 +7,19 @@ import tomllib
 import types
 import typing
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Literal
 
 from drivers.camera import Intrinsics
 
-DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "config" / "tofd.toml"
+
+def default_file(name: str) -> Path:
+    """A bundled default file: config/<name> in the source tree, installed as the package tofd.defaults."""
+    return Path(str(resources.files("tofd.defaults").joinpath(name)))
+
+
+DEFAULT_CONFIG_PATH = default_file("tofd.toml")
 
 
 class ConfigError(ValueError):

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from drivers.camera import Intrinsics
+from tofd.config import default_file
 
 MODEL_FORMAT = "tofd-nose-model"
 MODEL_VERSION = 1
@@ -281,7 +282,7 @@ def resolve_model_path(model_path: str | Path) -> Path:
     path = Path(model_path)
     if path.is_absolute() or path.exists():
         return path
-    return Path(__file__).resolve().parent.parent / "config" / path
+    return default_file(str(path))
 
 
 class NoseDetector:

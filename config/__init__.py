@@ -1,0 +1,1 @@
+"""Default configuration files of tofd, installed as the package `tofd.defaults` (see pyproject.toml)."""
