@@ -68,6 +68,7 @@ def main(args: argparse.Namespace) -> int:
     if source.stopped_reason not in (None, "end"):
         print(f"tofd replay: the recording is {source.stopped_reason} after frame {source.last_good_counter}: "
               f"{source.stop_detail}", file=sys.stderr)
+    written = ["results.jsonl", "summary.json"] + (["rrd"] if cfg.rerun.sink == "save" else [])
     print(f"tofd replay: {s['frames_out']} frames processed, {s['frames_dropped']} dropped, {s['fps']} fps; "
-          f"wrote {args.out}/{stem}.{{rrd,results.jsonl,summary.json}}", file=sys.stderr)
+          f"wrote {args.out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
     return result.exit_code

@@ -11,7 +11,6 @@ import logging
 import signal
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -88,8 +87,7 @@ class Progress:
 
 def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool,
           writers: tuple[Sink, ...] = (), max_frames: int | None = None, progress: Progress | None = None,
-          summary_path: Path | None = None, on_started: Callable[[Pipeline, str | None], None] | None = None
-          ) -> ServiceResult:
+          summary_path: Path | None = None) -> ServiceResult:
     """Run `source` through the pipeline until it ends, `max_frames` were taken, or SIGTERM/SIGINT."""
     from tofd.viewer import RerunLogger, RerunTarget
 
@@ -98,6 +96,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     previous = {sig: signal.signal(sig, lambda signum, _: stop.append(signum)) for sig in (signal.SIGTERM,
                                                                                          signal.SIGINT)}
     health = pipeline = None
+    run_s = 0.0
     try:
         viewer = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud) if target else None
         pipeline = Pipeline(cfg, policy, viewer=viewer, writers=writers, detect=load_detector(cfg) is not None,
@@ -111,12 +110,13 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
                                   f"{exc.strerror}") from None
             log.info("health: http://%s:%d/healthz and /metrics", health.bind, health.port)
         pipeline.start(source, max_frames)
+        started_s = time.monotonic()
         sd_notify("READY=1")
         if target is not None and target.web_url:
             log.info("web viewer: %s", target.web_url)
-        if on_started is not None:
-            on_started(pipeline, target.web_url if target else None)
         _supervise(pipeline, stop, progress)
+        pipeline.wait(cfg.pipeline.drain_timeout_s)
+        run_s = time.monotonic() - started_s
     finally:
         sd_notify("STOPPING=1")
         summary = pipeline.close() if pipeline is not None else {}
@@ -128,7 +128,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             signal.signal(sig, handler)
     snap = pipeline.snapshot()
     summary["error"] = pipeline.error
-    summary["fps"] = round(snap["fps"], 2)
+    summary["fps"] = round(summary["frames_out"] / run_s, 2) if run_s > 0 else 0.0  # over the whole run
     summary["timings_ms"] = {k: [round(x, 3) for x in v] for k, v in snap["timings_ms"].items()}
     summary["worker_restarts"] = pipeline.worker_restarts
     summary["device_events"] = dict(snap["device_events"])
