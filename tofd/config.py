@@ -15,7 +15,10 @@ from drivers.camera import Intrinsics
 
 
 def default_file(name: str) -> Path:
-    """A bundled default file: config/<name> in the source tree, installed as the package tofd.defaults."""
+    """A bundled default file: config/<name> of a source checkout, else of the installed package tofd.defaults."""
+    source_tree = Path(__file__).resolve().parent.parent / "config" / name
+    if source_tree.exists():
+        return source_tree
     return Path(str(resources.files("tofd.defaults").joinpath(name)))
 
 
