@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from pipeline_sources import write_config
-from test_rerun_sink import check_rrd
+from rrd_helpers import check_rrd
 
 from drivers.replay import read_recording_info
 from tofd.viewer import blueprint as bp

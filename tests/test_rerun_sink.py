@@ -2,63 +2,15 @@
 
 import json
 
-import numpy as np
-import pyarrow as pa
 import pytest
-import rerun as rr
 from pipeline_sources import RenderedSource
 from rerun.chunk import RrdReader
+from rrd_helpers import check_rrd
 
 from tofd.config import Config
 from tofd.pipeline import Pipeline
 from tofd.viewer import RerunLogger, RerunTarget
 from tofd.viewer import blueprint as bp
-
-PER_FRAME = [bp.RANGE, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(), f"{bp.TIMINGS}/nfft",
-             f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]
-
-
-def read_entities(path):
-    """entity path -> (static chunks, pyarrow table of the temporal rows sorted by frame)."""
-    chunks = list(RrdReader(path).stream().to_chunks())
-    tables = {}
-    for entity in {c.entity_path for c in chunks}:
-        batches = [c.to_record_batch() for c in chunks if c.entity_path == entity and not c.is_static]
-        static = [c for c in chunks if c.entity_path == entity and c.is_static]
-        table = pa.Table.from_batches(batches).sort_by("frame") if batches else None
-        tables[entity] = (static, table)
-    return tables
-
-
-def image_at(table, archetype, row):
-    fmt = table.column(f"{archetype}:format")[row].as_py()[0]
-    blob = table.column(f"{archetype}:buffer")[row].values[0].values
-    dtype = rr.ChannelDatatype(fmt["channel_datatype"]).to_np_dtype()
-    return np.frombuffer(blob.to_numpy(zero_copy_only=False).tobytes(), dtype=dtype).reshape(fmt["height"],
-                                                                                              fmt["width"])
-
-
-def check_rrd(path, counters, results_by_counter=None):
-    """Every entity logged per frame has one row for each delivered frame counter (None: the same rows as the
-    range image); statics are there."""
-    tables = read_entities(str(path))
-    if counters is None:
-        counters = tables[bp.RANGE][1].column("frame").to_pylist()
-    for entity in PER_FRAME:
-        assert entity in tables, f"{entity} missing from {path}"
-        rows = tables[entity][1].column("frame").to_pylist()
-        assert rows == counters, entity
-    assert tables[bp.CAMERA][0], "the Pinhole is logged statically"
-    device_time = tables[bp.RANGE][1].column("device_time").cast(pa.int64()).to_numpy()
-    assert np.all(np.diff(device_time) > 0)
-    if results_by_counter:
-        c = counters[-1]
-        range_m = image_at(tables[bp.RANGE][1], "DepthImage", len(counters) - 1)
-        expected = np.nan_to_num(results_by_counter[c].frame.range_m, nan=0.0)
-        np.testing.assert_array_equal(range_m, expected)
-        cloud = tables[bp.FOREGROUND][1].column("Points3D:positions")[len(counters) - 1]
-        assert len(cloud) == int(results_by_counter[c].mask.sum())
-    return tables
 
 
 def test_saved_rrd_holds_every_frame(tmp_path):
