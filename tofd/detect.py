@@ -6,6 +6,8 @@ Features are the generalised eccentricities eps0, eps2 of the range image (FFT o
 
 Learning (`learn_box`): per feature, the `quantile` and 1 - `quantile` quantiles of the training pixels near the
 true nose tip give the box at scale 1; the box at scale s has the same centre and s times the half-widths.
+Training (tofd.evaluate.train_model) then rescales each feature's half-width with the labelled negatives
+(tofd.evaluate.shape_box), so a feature that separates nothing is widened instead of costing detections.
 A pixel's *box distance* is max_k |x_k - centre_k| / half_width_k: the pixel is inside the box at scale s iff
 its box distance <= s. The detector reports the foreground pixel of smallest box distance (its score) and
 accepts it iff score <= the operating scale, so sweeping the scale traces the ROC (tofd.roc).
