@@ -29,7 +29,9 @@ from tofd.evaluate import evaluate_model, extract_samples, train_model
 from tofd.synth_faces import CV_SUBJECTS, TEST_DISTANCES_M, TRAIN_DISTANCES_M, render_frames
 
 GRIDS = {
-    "quick": {"quantile": [0.05]},  # the current defaults
+    "quick": {"quantile": [0.05], "border_margin_m": [0.006]},  # the current defaults
+    "shaped": {"depth_margin_m": [0.02, 0.025, 0.03, 0.035], "quantile": [0.05],
+               "border_margin_m": [0.004, 0.006, 0.008, 0.01, 0.012, 0.015]},
     "border": {"head_height_m": [0.0, 0.18], "depth_margin_m": [0.035, 0.05], "quantile": [0.05],
                "border_margin_m": [0.0, 0.004, 0.008, 0.01, 0.012, 0.015, 0.02]},
     "chin": {"depth_margin_m": [0.03, 0.035, 0.045], "quantile": [0.05],

@@ -64,11 +64,16 @@ def to_log_features(values: np.ndarray) -> np.ndarray:
     return np.log10(np.maximum(values, LOG_FLOOR))
 
 
-def stack_features(maps: dict[str, np.ndarray], names: tuple[str, ...]) -> np.ndarray:
-    """(..., k) log10 feature vectors from named eccentricity maps (each (...)); NaN where any is missing."""
+def require_maps(maps: dict[str, np.ndarray], names: tuple[str, ...]) -> None:
+    """Raise KeyError naming the feature maps that were not computed."""
     missing = [n for n in names if n not in maps]
     if missing:
         raise KeyError(f"feature map(s) {', '.join(missing)} not computed")
+
+
+def stack_features(maps: dict[str, np.ndarray], names: tuple[str, ...]) -> np.ndarray:
+    """(..., k) log10 feature vectors from named eccentricity maps (each (...)); NaN where any is missing."""
+    require_maps(maps, names)
     return to_log_features(np.stack([np.asarray(maps[n], dtype=np.float64) for n in names], axis=-1))
 
 
@@ -262,18 +267,22 @@ def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrins
     """Detect the nose in one frame from its feature maps ((H, W), NaN outside the foreground).
 
     range_m: (H, W) radial range in metres, for the 3-D point of the detected pixel and the border distance.
-    border_margin_m: foreground pixels (where the box's features are finite) nearer than this to its border
-    are never the nose (module docstring).
+    border_margin_m: foreground pixels (where all the box's features are finite) nearer than this to its border
+    are never the nose (module docstring). Only foreground pixels are scored (a few thousand of 25k).
     """
-    dist = box.distance(stack_features(maps, box.features))
+    require_maps(maps, box.features)
+    candidates = np.logical_and.reduce([np.isfinite(maps[n]) for n in box.features])
     if border_margin_m > 0:
-        foreground = np.isfinite(dist)
-        dist[border_distance_m(foreground, range_m, intrinsics) < border_margin_m] = np.inf
-    flat = int(np.argmin(dist))
-    score = float(dist.flat[flat])
+        candidates &= border_distance_m(candidates, range_m, intrinsics) >= border_margin_m
+    rows, cols = np.nonzero(candidates)
+    if rows.size == 0:
+        return Detection(None, None, float("inf"), False)
+    dist = box.distance(stack_features({n: maps[n][rows, cols] for n in box.features}, box.features))
+    best = int(np.argmin(dist))
+    score = float(dist[best])
     if not score <= scale:
         return Detection(None, None, score, False)
-    row, col = (int(i) for i in np.unravel_index(flat, dist.shape))
+    row, col = int(rows[best]), int(cols[best])
     ray = np.array([(col - intrinsics.cx) / intrinsics.fx, (row - intrinsics.cy) / intrinsics.fy, 1.0])
     xyz = ray / np.linalg.norm(ray) * float(range_m[row, col])
     return Detection((col, row), (float(xyz[0]), float(xyz[1]), float(xyz[2])), score, True)
