@@ -30,7 +30,7 @@ from tofd.features import FFTFeatures, NFFTFeatures
 from tofd.segmentation import segment
 
 DISTANCES_M = (0.35, 0.5, 0.7)
-FACE_DEPTH_M = 0.08  # metres: segmentation depth margin for the face scenes, the whole face (a worst case: 1,500-5,000
+FACE_DEPTH_M = 0.08  # metres: segmentation depth margin for the face scenes, the whole face (a worst case: 1,700-5,600
 # points; the detector's default 0.025 m keeps a third of that)
 
 
