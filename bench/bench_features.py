@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import multiprocessing as mp
 import platform
 import time
 from pathlib import Path
 
 import numpy as np
+from report import write_json
 
 from drivers.camera import Intrinsics
 from drivers.render import Pose, load_face, render_face
@@ -114,12 +114,9 @@ def main() -> int:
               f"{r['nfft_over_fft']:9.1f}")
     print(f"2 processes: {throughput_ms:.2f} ms wall per frame (FFT + NFFT range features), "
           f"{1e3 / throughput_ms:.0f} frames/s")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"machine": platform.platform(), "cpu_count": mp.cpu_count(), "repeats": args.repeats,
-                               "feature_config": cfg, "face_depth_margin_m": FACE_DEPTH_M,
-                               "rows": single + dual, "two_process_wall_ms_per_frame": throughput_ms}, indent=2))
-    print(f"wrote {out}")
+    write_json(args.out, {"machine": platform.platform(), "cpu_count": mp.cpu_count(), "repeats": args.repeats,
+                          "feature_config": cfg, "face_depth_margin_m": FACE_DEPTH_M,
+                          "rows": single + dual, "two_process_wall_ms_per_frame": throughput_ms})
     return 0
 
 

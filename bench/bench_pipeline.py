@@ -13,7 +13,6 @@ second; "RSS growth" compares the mean of the last fifth of the run with the mea
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -24,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from report import write_json
 
 from drivers.emulator import open_emulated_camera
 from drivers.replay import ReplaySource
@@ -157,9 +157,7 @@ def main() -> None:
                                        for k, v in results["live_30fps_rerun"]["stage_p50_ms"].items()})
     print(f"replay without/with Rerun fps ratio: {results['replay_rerun_cost_ratio']}; "
           f"load average at start {results['machine']['load_avg_at_start']}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    write_json(args.out, results)
 
 
 if __name__ == "__main__":

@@ -9,13 +9,13 @@ file per plane) and read back. Prints a table and writes JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from report import write_json
 
 from drivers.recording import RecordingWriter
 from drivers.replay import ReplaySource, iter_frames
@@ -78,9 +78,7 @@ def main() -> None:
           f"{result['write_cost_vs_npy']:8.2f}")
     print(f"{'lossless replay fps (median)':28}{result['median_replay_fps']:12.0f}"
           f"{result['median_npy_read_fps']:14.0f}{result['replay_vs_npy_read']:8.2f}")
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=1))
-    print(f"wrote {args.json}")
+    write_json(args.json, result)
 
 
 if __name__ == "__main__":

@@ -11,12 +11,12 @@ Baseline in the same run: the bare cost of the conversion alone (check_frame + r
 from __future__ import annotations
 
 import argparse
-import json
 import time
 import zlib
 from pathlib import Path
 
 import numpy as np
+from report import write_json
 
 from drivers import protocol as p
 from drivers.emulator import EmulatedCamera, EmulatedSR3000, FaceScene, Motion
@@ -83,9 +83,7 @@ def main() -> None:
         results[name] = r
         print(f"{name:16} {r['offered_fps']:8.1f} {r['delivered_fps']:9.1f} {r['frames']:7d} "
               f"{r['device_dropped']:7d} {r['p50_interval_ms']:7.2f} {r['p99_interval_ms']:7.2f}")
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(results, indent=2))
-    print(f"wrote {args.json}")
+    write_json(args.json, results)
 
 
 if __name__ == "__main__":

@@ -17,11 +17,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+from report import write_json
 
 from tofd.config import Config
 from tofd.detect import VARIANTS
@@ -112,14 +112,11 @@ def main() -> int:
               + f"  [{100 * worst:.0f}]", flush=True)
     best = min(rows, key=lambda r: (r["mean_eer"]["nfft_range"], r["mean_eer"]["nfft_range_amp"]))
     print(f"best (mean NFFT range EER, then NFFT range+amp): {best['point']}")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"protocol": "leave-one-training-subject-out: train 2 subjects at "
-                               f"{TRAIN_DISTANCES_M} m, test the third at {TEST_DISTANCES_M} m",
-                               "subjects": list(CV_SUBJECTS), "frames_per_subject": args.frames,
-                               "seed": args.seed, "grid": grid, "rows": rows, "best": best,
-                               "seconds": round(time.monotonic() - start, 1)}, indent=1) + "\n")
-    print(f"wrote {out}")
+    write_json(args.out, {"protocol": "leave-one-training-subject-out: train 2 subjects at "
+                          f"{TRAIN_DISTANCES_M} m, test the third at {TEST_DISTANCES_M} m",
+                          "subjects": list(CV_SUBJECTS), "frames_per_subject": args.frames,
+                          "seed": args.seed, "grid": grid, "rows": rows, "best": best,
+                          "seconds": round(time.monotonic() - start, 1)})
     return 0
 
 
