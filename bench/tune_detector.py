@@ -30,6 +30,8 @@ from tofd.synth_faces import CV_SUBJECTS, TEST_DISTANCES_M, TRAIN_DISTANCES_M, r
 
 GRIDS = {
     "quick": {"quantile": [0.05], "border_margin_m": [0.006]},  # the current defaults
+    "plane": {"plane_iterations": [0, 2], "plane_depth_m": [0.04, 0.06], "depth_margin_m": [0.025, 0.035],
+              "quantile": [0.05], "border_margin_m": [0.006]},
     "shaped": {"depth_margin_m": [0.02, 0.025, 0.03, 0.035], "quantile": [0.05],
                "border_margin_m": [0.004, 0.006, 0.008, 0.01, 0.012, 0.015]},
     "border": {"head_height_m": [0.0, 0.18], "depth_margin_m": [0.035, 0.05], "quantile": [0.05],
@@ -47,7 +49,8 @@ GRIDS = {
     "finer": {"tuning_frequency_per_m": [30.0, 35.0, 40.0, 50.0], "depth_margin_m": [0.03, 0.035, 0.04, 0.045],
               "quantile": [0.05]},
 }
-SEGMENTATION_KEYS = ("depth_margin_m", "range_percentile", "median_px", "morphology_px", "head_height_m")
+SEGMENTATION_KEYS = ("depth_margin_m", "range_percentile", "median_px", "morphology_px", "head_height_m",
+                     "plane_iterations", "plane_depth_m", "plane_max_tilt_deg")
 BOX_KEYS = ("quantile", "positive_radius_m", "border_margin_m")  # cheap: no feature recomputation
 
 

@@ -71,6 +71,9 @@ class SegmentationConfig:
     morphology_px: int = 3  # pixels: ellipse of the opening + closing of the mask (1 = none)
     nearest_component: bool = True  # keep only the 8-connected region holding the nearest kept pixel
     head_height_m: float = 0.18  # metres: nearest point / component searched this far below the top (0 = anywhere)
+    plane_iterations: int = 2  # fits of the face plane the cut is made along (0 = cut along the camera's z axis)
+    plane_depth_m: float = 0.04  # metres: the face front the plane is fitted to, behind the nearest point
+    plane_max_tilt_deg: float = 45.0  # degrees: largest tilt of the face frame from the camera's z axis
 
     def validate(self) -> None:
         if self.amplitude_method != "otsu":
@@ -85,6 +88,12 @@ class SegmentationConfig:
             raise ValueError(f"morphology_px: {self.morphology_px} must be >= 1")
         if not self.head_height_m >= 0:
             raise ValueError(f"head_height_m: {self.head_height_m} must be >= 0 (0 = no head band)")
+        if self.plane_iterations < 0:
+            raise ValueError(f"plane_iterations: {self.plane_iterations} must be >= 0 (0 = camera z axis)")
+        if not self.plane_depth_m > 0:
+            raise ValueError(f"plane_depth_m: {self.plane_depth_m} must be > 0")
+        if not 0.0 <= self.plane_max_tilt_deg < 90.0:
+            raise ValueError(f"plane_max_tilt_deg: {self.plane_max_tilt_deg} is not in [0, 90)")
 
 
 @dataclass(frozen=True, slots=True)

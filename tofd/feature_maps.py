@@ -14,7 +14,7 @@ import numpy as np
 
 from drivers.camera import Intrinsics
 from tofd.config import FeatureConfig, SegmentationConfig
-from tofd.segmentation import segment
+from tofd.segmentation import segment_face
 
 FAMILIES = ("range_fft", "range_nfft", "amp_fft")
 """Groups of maps computed together: each family is one filter pass giving <family>_eps0 and <family>_eps2."""
@@ -54,14 +54,15 @@ class FeatureExtractor:
         self._nfft = NFFTFeatures(intrinsics, features) if "range_nfft" in families else None
 
     def __call__(self, range_m: np.ndarray, amplitude: np.ndarray) -> FrameFeatures:
-        mask = segment(range_m, amplitude, self.segmentation, self.intrinsics)
+        fg = segment_face(range_m, amplitude, self.segmentation, self.intrinsics)
+        mask = fg.mask
         maps: dict[str, np.ndarray] = {}
         iterations = 0
         for family in self.families:
             if family == "range_fft":
-                fm = self._fft.range_features(range_m, mask)
+                fm = self._fft.range_features(range_m, mask, fg.rotation)
             elif family == "range_nfft":
-                fm = self._nfft.range_features(range_m, mask)
+                fm = self._nfft.range_features(range_m, mask, fg.rotation)
                 iterations = fm.iterations
             else:
                 fm = self._fft.amplitude_features(amplitude, mask)

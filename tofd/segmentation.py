@@ -36,6 +36,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
@@ -104,9 +106,58 @@ def head_band(mask: np.ndarray, smooth: np.ndarray, cfg: SegmentationConfig, fy:
     return band if band.any() else mask
 
 
+@dataclass(frozen=True, slots=True)
+class Foreground:
+    """A frame's segmentation: the foreground mask and the face frame its depth cut was made in."""
+
+    mask: np.ndarray  # (H, W) bool
+    rotation: np.ndarray  # (3, 3) camera -> face frame; row 2 = unit viewing direction of the face (identity: camera z)
+
+
+def rotation_to_z(direction: np.ndarray) -> np.ndarray:
+    """The smallest rotation (3, 3) taking the unit vector `direction` (z component > 0) onto +z."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(direction, z)
+    s2 = float(axis @ axis)
+    if s2 < 1e-18:
+        return np.eye(3)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + k + k @ k * ((1.0 - float(direction @ z)) / s2)
+
+
+def face_direction(points: np.ndarray, cfg: SegmentationConfig) -> np.ndarray:
+    """Unit viewing direction (z > 0) of the face: minus the normal of a plane fitted to its front.
+
+    Front: the points within `plane_depth_m` of the nearest (`range_percentile`) along the current
+    direction, starting from the camera's z axis; the plane is refitted `plane_iterations` times. The tilt
+    from z is limited to `plane_max_tilt_deg`.
+    """
+    direction = np.array([0.0, 0.0, 1.0])
+    max_tilt = np.radians(cfg.plane_max_tilt_deg)
+    for _ in range(cfg.plane_iterations):
+        d = points @ direction
+        front = points[d <= np.percentile(d, cfg.range_percentile) + cfg.plane_depth_m]
+        if len(front) < 3:
+            break
+        normal = np.linalg.svd(front - front.mean(axis=0), full_matrices=False)[2][2]
+        normal *= np.sign(normal[2]) or 1.0
+        tilt = np.arccos(np.clip(normal[2], -1.0, 1.0))
+        if tilt > max_tilt:  # keep the azimuth, limit the angle
+            lateral = normal[:2] / np.linalg.norm(normal[:2])
+            normal = np.array([*(np.sin(max_tilt) * lateral), np.cos(max_tilt)])
+        direction = normal
+    return direction
+
+
 def segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
             intrinsics: Intrinsics | None = None) -> np.ndarray:
-    """(H, W) bool foreground mask from a radial range map (metres, NaN/0/inf invalid) and amplitude.
+    """(H, W) bool foreground mask from a radial range map (metres, NaN/0/inf invalid) and amplitude."""
+    return segment_face(range_m, amplitude, cfg, intrinsics).mask
+
+
+def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
+                 intrinsics: Intrinsics | None = None) -> Foreground:
+    """Foreground mask and face frame from a radial range map (metres, NaN/0/inf invalid) and amplitude.
 
     intrinsics: the camera's, for the depth of each pixel (default: the SR3000 default Intrinsics()).
     """
@@ -114,20 +165,29 @@ def segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
     amplitude = np.asarray(amplitude)
     if range_m.shape != amplitude.shape or range_m.ndim != 2:
         raise ValueError(f"range_m {range_m.shape} and amplitude {amplitude.shape} must be equal 2-D shapes")
+    rotation = np.eye(3)
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(amplitude) & np.isfinite(range_m) & (range_m > 0)
     if not valid.any():
-        return np.zeros(range_m.shape, dtype=bool)
+        return Foreground(np.zeros(range_m.shape, dtype=bool), rotation)
     intrinsics = intrinsics or Intrinsics()
     if intrinsics.shape != range_m.shape:
         raise ValueError(f"range_m has shape {range_m.shape}, intrinsics {intrinsics.shape}")
-    depth = range_m * intrinsics.unit_rays()[..., 2]
+    rays = intrinsics.unit_rays()
+    depth = range_m * rays[..., 2]
     mask = amplitude_foreground(amplitude, valid)
     smooth = filtered(depth, valid, cfg.median_px)
     mask &= smooth < FAR_M
     if not mask.any():
-        return mask
+        return Foreground(mask, rotation)
     head = head_band(mask, smooth, cfg, intrinsics.fy)
+    if cfg.plane_iterations > 0:
+        per_depth = rays / rays[..., 2:]  # camera-frame point per metre of depth
+        direction = face_direction(per_depth[head] * smooth[head, None], cfg)
+        rotation = rotation_to_z(direction)
+        smooth = (per_depth @ direction) * smooth  # depth along the face's viewing direction
+        with np.errstate(invalid="ignore"):
+            depth = (rays @ direction) * range_m
     reference = float(np.percentile(smooth[head], cfg.range_percentile))
     cut = reference + cfg.depth_margin_m
     mask &= smooth <= cut
@@ -140,4 +200,4 @@ def segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
     if cfg.nearest_component and (mask & head).any():
         nearest = int(np.argmin(np.where(mask & head, smooth, np.inf)))
         mask = component_at(mask, *divmod(nearest, mask.shape[1]))
-    return mask
+    return Foreground(mask, rotation)

@@ -41,10 +41,13 @@ class FFTFeatures:
                                          intrinsics, cfg.equivalence_range_m)
         self._transfer = transfer_functions(kx, ky, cfg)  # (3, rows, cols // 2 + 1): C0, C2, S2
         self._buffer = np.empty(self._shape)
-        self._ray_z = intrinsics.unit_rays()[..., 2]
+        self._rays = intrinsics.unit_rays()
+        self._ray_z = self._rays[..., 2]
 
-    def range_features(self, range_m: np.ndarray, mask: np.ndarray) -> FeatureMaps:
+    def range_features(self, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray | None = None) -> FeatureMaps:
         """eps0, eps2 (metres^2) of a radial range map; background = the maximum foreground depth.
+
+        rotation: camera -> face frame (tofd.segmentation.Foreground); depth is then measured along its row 2.
 
         The filtered image is the depth z = range * (z component of the pixel's unit ray), the quantity
         the NFFT path filters: radial range adds a spurious curvature 1/d (a fronto-parallel wall has
@@ -54,7 +57,7 @@ class FFTFeatures:
         check_frame(range_m, mask, self.intrinsics, "range_m")
         if not mask.any():
             return FeatureMaps.empty(self.intrinsics.shape)
-        depth = range_m * self._ray_z
+        depth = range_m * (self._ray_z if rotation is None else self._rays @ rotation[2])
         return self._eccentricities(depth, mask, float(np.max(depth[mask])), 1.0)
 
     def amplitude_features(self, amplitude: np.ndarray, mask: np.ndarray) -> FeatureMaps:

@@ -87,10 +87,16 @@ class NFFTFeatures:
         self._type1 = finufft.Plan(1, (2 * n, 2 * n), n_trans=2, isign=-1, **opts)
         self._type2 = finufft.Plan(2, (n, n), n_trans=2, isign=1, **opts)
 
-    def unit_square_points(self, range_m: np.ndarray, mask: np.ndarray) -> UnitSquarePoints:
-        """Steps 1-2: the kept points in [-1/2, 1/2)^2 with max z = 0, and the damping for them."""
+    def unit_square_points(self, range_m: np.ndarray, mask: np.ndarray,
+                           rotation: np.ndarray | None = None) -> UnitSquarePoints:
+        """Steps 1-2: the kept points in [-1/2, 1/2)^2 with max z = 0, and the damping for them.
+
+        rotation: camera -> face frame (tofd.segmentation.Foreground), applied to the points first.
+        """
         flat = np.flatnonzero(mask)
         pts = self._rays.reshape(-1, 3)[flat] * range_m.reshape(-1)[flat, None].astype(np.float64)
+        if rotation is not None:
+            pts = pts @ rotation.T
         x = pts[:, 0] / self._square[0]
         y = pts[:, 1] / self._square[1]
         x -= x.mean()
@@ -102,13 +108,14 @@ class NFFTFeatures:
         return UnitSquarePoints(x[keep], y[keep], z - z.max() if z.size else z, flat[keep],
                                 self.cfg.damping / footprint if z.size else 0.0)
 
-    def range_features(self, range_m: np.ndarray, mask: np.ndarray) -> FeatureMaps:
-        """eps0, eps2 (metres^2) per foreground pixel of a radial range map; NaN elsewhere."""
+    def range_features(self, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray | None = None) -> FeatureMaps:
+        """eps0, eps2 (metres^2) per foreground pixel of a radial range map; NaN elsewhere (rotation: see
+        unit_square_points)."""
         check_frame(range_m, mask, self.intrinsics, "range_m")
         shape = self.intrinsics.shape
         if not mask.any():
             return FeatureMaps.empty(shape)
-        pts = self.unit_square_points(range_m, mask)
+        pts = self.unit_square_points(range_m, mask, rotation)
         if pts.index.size == 0:
             return FeatureMaps.empty(shape)
         c0, c2, s2, iterations, residual = self.fields(pts.x, pts.y, pts.z, pts.damping)
