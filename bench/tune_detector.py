@@ -30,6 +30,12 @@ from tofd.synth_faces import CV_SUBJECTS, TEST_DISTANCES_M, TRAIN_DISTANCES_M, r
 
 GRIDS = {
     "quick": {"quantile": [0.05], "border_margin_m": [0.006]},  # the current defaults
+    "plane_fine": {"plane_iterations": [1, 2, 3], "plane_depth_m": [0.03, 0.04], "depth_margin_m": [0.025, 0.03],
+                   "quantile": [0.05], "border_margin_m": [0.006]},
+    "band": {"tuning_frequency_per_m": [20.0, 25.0, 30.0, 35.0], "lowpass_sigma_per_m": [30.0, 40.0, 50.0, 70.0],
+             "quantile": [0.05], "border_margin_m": [0.006]},
+    "band2": {"tuning_frequency_per_m": [35.0, 40.0, 45.0], "lowpass_sigma_per_m": [50.0, 70.0],
+              "quantile": [0.05], "border_margin_m": [0.006]},
     "plane": {"plane_iterations": [0, 2], "plane_depth_m": [0.04, 0.06], "depth_margin_m": [0.025, 0.035],
               "quantile": [0.05], "border_margin_m": [0.006]},
     "shaped": {"depth_margin_m": [0.02, 0.025, 0.03, 0.035], "quantile": [0.05],
