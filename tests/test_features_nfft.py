@@ -112,3 +112,30 @@ def test_empty_mask():
     nf = NFFTFeatures(INTR, CFG)
     maps = nf.range_features(np.ones(INTR.shape), np.zeros(INTR.shape, bool))
     assert np.all(np.isnan(maps.eps0)) and maps.iterations == 0
+
+
+@pytest.mark.parametrize("tilt", [(20.0, 0.0), (0.0, -15.0), (15.0, 15.0)])
+def test_face_frame_makes_a_tilted_face_look_frontal(tilt):
+    """A disc with a spherical cap, tilted: with the segmentation's face frame the NFFT features at the cap's
+    top equal those of the frontal disc (eps2 ~ 0 by symmetry); in the camera frame the tilt shears the
+    height field (eps2 > 0, eps0 off)."""
+    from tofd.config import SegmentationConfig
+    from tofd.segmentation import segment_face
+
+    nfft = NFFTFeatures(INTR, CFG)
+    wall = synthetic.tilted_plane(INTR, 1.5, 0.0, 0.0)
+
+    def top_features(t, frame):
+        scene = synthetic.capped_disc(INTR, 0.5, *t).over(wall)
+        fg = segment_face(scene.range_m, scene.amplitude, SegmentationConfig(), INTR)
+        maps = nfft.range_features(scene.range_m, fg.mask, fg.rotation if frame else None)
+        height = INTR.backproject(scene.range_m) @ -synthetic.tilt_normal(*t)
+        top = np.unravel_index(np.nanargmin(np.where(fg.mask, height, np.nan)), height.shape)
+        return maps.eps0[top], maps.eps2[top]
+
+    frontal0, frontal2 = top_features((0.0, 0.0), True)
+    assert frontal2 < 1e-4 * frontal0
+    eps0, eps2 = top_features(tilt, True)
+    assert eps0 == pytest.approx(frontal0, rel=0.02) and eps2 < 1e-4 * eps0
+    cam0, cam2 = top_features(tilt, False)
+    assert abs(cam0 / frontal0 - 1) > 0.1 and cam2 > 5e-4 * cam0

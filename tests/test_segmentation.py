@@ -8,7 +8,7 @@ from drivers.camera import Intrinsics
 from drivers.render import Pose, load_face, render_face
 from tofd import synthetic
 from tofd.config import ConfigError, SegmentationConfig, config_from_dict
-from tofd.segmentation import component_at, fill_holes, otsu_threshold, segment
+from tofd.segmentation import component_at, fill_holes, otsu_threshold, rotation_to_z, segment, segment_face
 
 INTR = Intrinsics()
 
@@ -88,8 +88,9 @@ def test_noise_does_not_fray_the_border_and_far_outliers_are_dropped():
     head, range_m, amp = _scene()
     noisy = range_m + 0.004 * np.random.default_rng(2).standard_normal(range_m.shape)
     noisy[74, 86] = 1.5  # a flying pixel inside the cap: the median hides it, its own range is beyond the cut
-    # margin pinned: a shallower cut meets the sphere where it is flatter, so noise frays it more for any filter
-    cfg = SegmentationConfig(depth_margin_m=0.035)
+    # margin pinned: a shallower cut meets the sphere where it is flatter, so noise frays it more for any filter;
+    # cut along z (no face plane, whose noisy fit tilts it by ~0.5 deg) so that _cap is the exact answer
+    cfg = SegmentationConfig(depth_margin_m=0.035, plane_iterations=0)
     plain = dataclasses.replace(cfg, median_px=1, morphology_px=1)
     filtered, raw = segment(noisy, amp, cfg), segment(noisy, amp, plain)
     assert not filtered[74, 86]
@@ -119,10 +120,12 @@ def test_head_not_a_nearer_shoulder_is_kept():
     """A head-and-shoulders mesh turned and nodded down: a shoulder is nearer than the nose tip."""
     r = render_face(load_face("lee_perry_smith"), Pose(0.7, yaw_deg=29.0, pitch_deg=-14.0))
     u, v = np.round(r.nose_px).astype(int)
-    anywhere = segment(r.range_m, r.amplitude, SegmentationConfig(head_height_m=0.0))
+    along_z = SegmentationConfig(plane_iterations=0)  # the head band alone (the face plane is tested below)
+    anywhere = segment(r.range_m, r.amplitude, dataclasses.replace(along_z, head_height_m=0.0))
     assert not anywhere[v, u] and np.flatnonzero(anywhere.any(axis=1)).min() > v + 30  # the shoulder won
-    head = segment(r.range_m, r.amplitude, SegmentationConfig())
-    assert head[v, u] and not head[v + 50 :].any()  # the face around the nose, no shoulder
+    for cfg in (along_z, SegmentationConfig()):
+        head = segment(r.range_m, r.amplitude, cfg)
+        assert head[v, u] and not head[v + 50 :].any()  # the face around the nose, no shoulder
 
 
 def test_fill_holes_and_component_at():
@@ -163,3 +166,31 @@ def test_config_validation_names_key():
         config_from_dict({"segmentation": {"head_height_m": -0.1}})
     with pytest.raises(ConfigError, match="detector.border_margin_m"):
         config_from_dict({"detector": {"border_margin_m": -0.01}})
+
+
+def test_rotation_to_z_is_a_proper_rotation_onto_z():
+    for direction in (np.array([0.3, -0.2, 0.9]), np.array([0.0, 0.0, 1.0]), np.array([-0.6, 0.1, 0.5])):
+        direction = direction / np.linalg.norm(direction)
+        r = rotation_to_z(direction)
+        assert np.allclose(r @ direction, [0.0, 0.0, 1.0])
+        assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)
+
+
+@pytest.mark.parametrize("tilt", [(0.0, 0.0), (20.0, 0.0), (0.0, -15.0), (15.0, 15.0)])
+def test_cut_runs_along_the_fitted_face_plane(tilt):
+    """A tilted disc with a cap (a face with a nose) in front of a wall: the face frame is the disc's normal,
+    and the kept pixels are those within depth_margin_m of the cap's top along it, not along the camera's z."""
+    scene = synthetic.capped_disc(INTR, 0.5, *tilt).over(synthetic.tilted_plane(INTR, 1.5, 0.0, 0.0))
+    cfg = SegmentationConfig()
+    fg = segment_face(scene.range_m, scene.amplitude, cfg)
+    view = -synthetic.tilt_normal(*tilt)
+    assert np.degrees(np.arccos(np.clip(fg.rotation[2] @ view, -1, 1))) < 1.0
+    height = INTR.backproject(scene.range_m) @ view  # metres along the face's viewing direction
+    top = float(np.nanmin(height))
+    assert fg.mask.any() and np.nanmax(height[fg.mask]) <= top + cfg.depth_margin_m + 0.002
+    slab = np.isfinite(height) & (height <= top + cfg.depth_margin_m - 0.002)
+    assert (fg.mask & slab).sum() >= 0.97 * slab.sum()
+    camera_z = segment_face(scene.range_m, scene.amplitude, dataclasses.replace(cfg, plane_iterations=0))
+    assert np.array_equal(camera_z.rotation, np.eye(3))
+    if tilt != (0.0, 0.0):  # the cut along z is another slab: a tilted face's near edge, not its nose
+        assert (camera_z.mask ^ fg.mask).sum() > 0.2 * fg.mask.sum()

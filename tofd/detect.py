@@ -44,7 +44,7 @@ VARIANTS: dict[str, tuple[str, ...]] = {
     "fft_range": ("range_fft_eps0", "range_fft_eps2"),
     "fft_range_amp": ("range_fft_eps0", "range_fft_eps2", "amp_fft_eps0", "amp_fft_eps2"),
     "nfft_range": ("range_nfft_eps0", "range_nfft_eps2"),
-    "nfft_range_amp": ("range_nfft_eps0", "range_nfft_eps2", "amp_nfft_eps0", "amp_nfft_eps2"),
+    "nfft_range_amp": ("range_nfft_eps0", "range_nfft_eps2", "amp_fft_eps0", "amp_fft_eps2"),
 }
 """Variant name -> the feature maps (names as produced by tofd.feature_maps) its box is learned on."""
 

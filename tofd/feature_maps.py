@@ -16,7 +16,7 @@ from drivers.camera import Intrinsics
 from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.segmentation import segment_face
 
-FAMILIES = ("range_fft", "range_nfft", "amp_fft", "amp_nfft")
+FAMILIES = ("range_fft", "range_nfft", "amp_fft")
 """Groups of maps computed together: each family is one filter pass giving <family>_eps0 and <family>_eps2."""
 
 MAP_NAMES = tuple(f"{fam}_{eps}" for fam in FAMILIES for eps in ("eps0", "eps2"))
@@ -51,7 +51,7 @@ class FeatureExtractor:
             raise ValueError(f"unknown feature family {', '.join(unknown)} (known: {', '.join(FAMILIES)})")
         self.intrinsics, self.segmentation, self.families = intrinsics, segmentation, tuple(families)
         self._fft = FFTFeatures(intrinsics, features)
-        self._nfft = NFFTFeatures(intrinsics, features) if {"range_nfft", "amp_nfft"} & set(families) else None
+        self._nfft = NFFTFeatures(intrinsics, features) if "range_nfft" in families else None
 
     def __call__(self, range_m: np.ndarray, amplitude: np.ndarray) -> FrameFeatures:
         fg = segment_face(range_m, amplitude, self.segmentation, self.intrinsics)
@@ -64,8 +64,6 @@ class FeatureExtractor:
             elif family == "range_nfft":
                 fm = self._nfft.range_features(range_m, mask, fg.rotation)
                 iterations = fm.iterations
-            elif family == "amp_nfft":
-                fm = self._nfft.amplitude_features(range_m, amplitude, mask, fg.rotation)
             else:
                 fm = self._fft.amplitude_features(amplitude, mask)
             maps[f"{family}_eps0"], maps[f"{family}_eps2"] = fm.eps0, fm.eps2

@@ -1,4 +1,4 @@
-"""Analytic test scenes: exact radial range (metres along each pixel's ray) of a sphere and a plane.
+"""Analytic test scenes: exact radial range (metres along each pixel's ray) of spheres, planes and a capped disc.
 
 Ideal, noise-free images for the features' tests, the sphere experiment and the benchmark. Amplitude is
 Lambertian: gain * cos(incidence) / range^2 (gain = amplitude of a facing surface at 1 m). Pixels whose
@@ -55,7 +55,12 @@ def sphere(intrinsics: Intrinsics, apex_range_m: float, radius_m: float,
     """
     if apex_px is None:
         apex_px = (float(round(intrinsics.cx)), float(round(intrinsics.cy)))
-    centre = pixel_ray(intrinsics, apex_px) * (apex_range_m + radius_m)
+    return sphere_at(intrinsics, pixel_ray(intrinsics, apex_px) * (apex_range_m + radius_m), radius_m, gain)
+
+
+def sphere_at(intrinsics: Intrinsics, centre_m: np.ndarray, radius_m: float, gain: float = DEFAULT_GAIN) -> SyntheticImage:
+    """The sphere of `radius_m` about `centre_m` (camera frame, metres): each ray's first hit."""
+    centre = np.asarray(centre_m, dtype=np.float64)
     rays = intrinsics.unit_rays()
     along = rays @ centre
     disc = along**2 - (centre @ centre - radius_m**2)
@@ -78,9 +83,30 @@ def plane(intrinsics: Intrinsics, point_m: np.ndarray, normal: np.ndarray,
     return SyntheticImage(range_m, _lambertian(rays, range_m, np.broadcast_to(normal, rays.shape), gain))
 
 
+def tilt_normal(tilt_x_deg: float, tilt_y_deg: float) -> np.ndarray:
+    """Unit normal facing the camera (z < 0), turned by tilt_x about the y axis and tilt_y about the x axis."""
+    ax, ay = np.radians(tilt_x_deg), np.radians(tilt_y_deg)
+    return np.array([np.sin(ax) * np.cos(ay), np.sin(ay), -np.cos(ax) * np.cos(ay)])
+
+
 def tilted_plane(intrinsics: Intrinsics, distance_m: float, tilt_x_deg: float, tilt_y_deg: float,
                  gain: float = DEFAULT_GAIN) -> SyntheticImage:
-    """A plane through (0, 0, distance_m), its normal turned by tilt_x about the y axis, tilt_y about x."""
-    ax, ay = np.radians(tilt_x_deg), np.radians(tilt_y_deg)
-    normal = np.array([np.sin(ax) * np.cos(ay), np.sin(ay), -np.cos(ax) * np.cos(ay)])
-    return plane(intrinsics, np.array([0.0, 0.0, distance_m]), normal, gain)
+    """A plane through (0, 0, distance_m) with normal tilt_normal(tilt_x_deg, tilt_y_deg)."""
+    return plane(intrinsics, np.array([0.0, 0.0, distance_m]), tilt_normal(tilt_x_deg, tilt_y_deg), gain)
+
+
+def capped_disc(intrinsics: Intrinsics, distance_m: float, tilt_x_deg: float, tilt_y_deg: float,
+                cap_radius_m: float = 0.03, cap_height_m: float = 0.012, disc_radius_m: float = 0.09,
+                gain: float = DEFAULT_GAIN) -> SyntheticImage:
+    """A flat disc with a spherical cap on its centre (a face with a nose, crudely), facing the camera along
+    tilt_normal(tilt_x_deg, tilt_y_deg); the cap's top is at (0, 0, distance_m)."""
+    normal = tilt_normal(tilt_x_deg, tilt_y_deg)
+    top = np.array([0.0, 0.0, distance_m])
+    base = top - cap_height_m * normal
+    disc = plane(intrinsics, base, normal, gain)
+    offset = intrinsics.unit_rays() * disc.range_m[..., None] - base
+    in_plane = np.linalg.norm(offset - (offset @ normal)[..., None] * normal, axis=-1)
+    with np.errstate(invalid="ignore"):
+        outside = ~(in_plane <= disc_radius_m)
+    disc = SyntheticImage(np.where(outside, np.nan, disc.range_m), np.where(outside, 0.0, disc.amplitude))
+    return sphere_at(intrinsics, top - cap_radius_m * normal, cap_radius_m, gain).over(disc)

@@ -112,35 +112,13 @@ class NFFTFeatures:
         """eps0, eps2 (metres^2) per foreground pixel of a radial range map; NaN elsewhere (rotation: see
         unit_square_points)."""
         check_frame(range_m, mask, self.intrinsics, "range_m")
-        if not mask.any():
-            return FeatureMaps.empty(self.intrinsics.shape)
-        pts = self.unit_square_points(range_m, mask, rotation)
-        return self._maps(pts, pts.z)
-
-    def amplitude_features(self, range_m: np.ndarray, amplitude: np.ndarray, mask: np.ndarray,
-                           rotation: np.ndarray | None = None) -> FeatureMaps:
-        """eps0, eps2 (dimensionless) of the shading amplitude * range^2 / its median, on the range's points.
-
-        Amplitude falls as 1/range^2; times range^2 it is albedo * cos(incidence), which does not change
-        with distance, and filtered on the same back-projected points as the range it is scale-invariant
-        too. Offset so its minimum (grazing incidence at the border) is 0, like the range's far cut.
-        """
-        check_frame(amplitude, mask, self.intrinsics, "amplitude")
-        if not mask.any():
-            return FeatureMaps.empty(self.intrinsics.shape)
-        pts = self.unit_square_points(range_m, mask, rotation)
-        shading = (amplitude.reshape(-1)[pts.index] * range_m.reshape(-1)[pts.index] ** 2).astype(np.float64)
-        scale = float(np.median(shading)) if shading.size else 0.0
-        if not scale > 0:
-            return FeatureMaps.empty(self.intrinsics.shape)
-        shading /= scale
-        return self._maps(pts, shading - shading.min())
-
-    def _maps(self, pts: UnitSquarePoints, values: np.ndarray) -> FeatureMaps:
         shape = self.intrinsics.shape
+        if not mask.any():
+            return FeatureMaps.empty(shape)
+        pts = self.unit_square_points(range_m, mask, rotation)
         if pts.index.size == 0:
             return FeatureMaps.empty(shape)
-        c0, c2, s2, iterations, residual = self.fields(pts.x, pts.y, values, pts.damping)
+        c0, c2, s2, iterations, residual = self.fields(pts.x, pts.y, pts.z, pts.damping)
         eps0 = np.full(shape, np.nan, np.float32)
         eps2 = np.full(shape, np.nan, np.float32)
         eps0.reshape(-1)[pts.index] = c0 * c0

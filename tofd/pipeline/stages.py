@@ -22,9 +22,9 @@ class FeatureStage:
     def __init__(self, cfg: Config, intrinsics: Intrinsics, detect: bool):
         from tofd.detect import NoseDetector
         from tofd.features import FFTFeatures, NFFTFeatures
-        from tofd.segmentation import segment
+        from tofd.segmentation import segment_face
 
-        self._segment, self._cfg = segment, cfg
+        self._segment, self._cfg, self._intrinsics = segment_face, cfg, intrinsics
         self._fft = FFTFeatures(intrinsics, cfg.features)
         self._nfft = NFFTFeatures(intrinsics, cfg.features)
         self._detector = NoseDetector(cfg) if detect else None
@@ -32,13 +32,14 @@ class FeatureStage:
     def run(self, slot: dict[str, np.ndarray]) -> dict:
         """Read range_m/amplitude from `slot`, write mask and feature maps into it; timings in ms."""
         t0 = time.perf_counter()
-        mask = self._segment(slot["range_m"], slot["amplitude"], self._cfg.segmentation)
+        fg = self._segment(slot["range_m"], slot["amplitude"], self._cfg.segmentation, self._intrinsics)
+        mask = fg.mask
         slot["mask"][...] = mask
         t1 = time.perf_counter()
-        fft_range = self._fft.range_features(slot["range_m"], mask)
+        fft_range = self._fft.range_features(slot["range_m"], mask, fg.rotation)
         fft_amp = self._fft.amplitude_features(slot["amplitude"], mask)
         t2 = time.perf_counter()
-        nfft_range = self._nfft.range_features(slot["range_m"], mask)
+        nfft_range = self._nfft.range_features(slot["range_m"], mask, fg.rotation)
         t3 = time.perf_counter()
         for prefix, maps in (("range_fft", fft_range), ("amp_fft", fft_amp), ("range_nfft", nfft_range)):
             slot[f"{prefix}_eps0"][...] = maps.eps0
