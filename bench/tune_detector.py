@@ -36,6 +36,8 @@ GRIDS = {
              "quantile": [0.05], "border_margin_m": [0.006]},
     "band2": {"tuning_frequency_per_m": [35.0, 40.0, 45.0], "lowpass_sigma_per_m": [50.0, 70.0],
               "quantile": [0.05], "border_margin_m": [0.006]},
+    "box": {"quantile": [0.02, 0.05, 0.1], "positive_radius_m": [0.003, 0.005, 0.008],
+            "border_margin_m": [0.004, 0.006, 0.008, 0.01]},
     "plane": {"plane_iterations": [0, 2], "plane_depth_m": [0.04, 0.06], "depth_margin_m": [0.025, 0.035],
               "quantile": [0.05], "border_margin_m": [0.006]},
     "shaped": {"depth_margin_m": [0.02, 0.025, 0.03, 0.035], "quantile": [0.05],

@@ -23,6 +23,16 @@
      (step-1 pixels within head_height_m in depth of the nearest one; rows converted to metres at that
      depth). The head is the top of a body seen by an upright camera; on a head-and-shoulders view a turned
      and nodded-down head can have a shoulder nearer than its nose, which the plain nearest point would pick;
+   - face frame (`plane_iterations` > 0, default 2): depth is measured along the face's viewing direction
+     instead of the camera's z axis -- minus the normal of a plane fitted (SVD) to the face front, the head-band
+     points within `plane_depth_m` (0.04 m) of the nearest one, refitted along the new direction. A nodding
+     head otherwise makes its chin or forehead the nearest point, the cut a slab around it and the nose tip
+     sit on the slab's border, where the clamped background dominates its features (the misses at 0.6-0.7 m
+     before). The fit follows pitch (a face is flat from brow to chin) but hardly yaw (it is round across),
+     and a tilted disc's direction comes back within 0.1 deg (tests). Both range feature paths then filter
+     the surface in this frame (`Foreground.rotation`): the NFFT features of a tilted disc with a cap equal
+     the frontal ones (tests/test_features_nfft.py). Measured (bench/tune_detector.py --grid plane): mean
+     leave-one-subject-out EER NFFT range 5.3 -> 3.3 %, FFT range 14.2 -> 9.7 % at rho0 = 30 /m;
    - keep step-1 pixels whose filtered depth is <= reference + `depth_margin_m` (default 0.025 m: the
      nose and the face around it, chosen by cross-validation on the training subjects,
      bench/tune_detector.py). A depth in metres is the same at every distance, unlike a pixel-count share.

@@ -1,7 +1,8 @@
 """NFFT path (paper section 2.2): scale-invariant generalized eccentricities of the back-projected foreground.
 
 Per frame:
-1. back-project the foreground pixels (radial range) to camera-frame points x, y, z (metres);
+1. back-project the foreground pixels (radial range) to camera-frame points x, y, z (metres), turned into
+   the segmentation's face frame when given (tofd.segmentation.Foreground.rotation: z along the face's normal);
 2. scale x, y by the field of view at the equivalence range e (width W e / fx, height H e / fy), so that
    the field of view at e maps onto [-1/2, 1/2)^2; shift the centroid to 0; drop points outside (their
    features are NaN); offset z so its maximum is 0;

@@ -12,11 +12,13 @@ the NFFT grid. T ~ rho^2 near 0 (a Laplacian of Gaussian in space) makes the fil
 linear surfaces (any plane) give exactly 0 and a sphere's apex response depends only on its curvature.
 nfft_notes' T = (rho/rho0) exp(1/2 - rho^2/(2 rho0^2)) is ~|rho| at 0, a long-tailed kernel whose apex
 response depends on the sphere's rim and background: measured NFFT eps0 at a 0.1 m sphere's apex varied
-by 20 % over 0.3-0.9 m with it and by 0.2 % with rho^2 (converged CG). Default rho0 = 30 /m (spatial
-Gaussian ~ 1 / (pi sqrt(2) rho0) = 7.5 mm, the nose tip's scale), with the default segmentation, chosen by
-leave-one-subject-out cross-validation on the training subjects (bench/tune_detector.py): NFFT range-only EER
-~4 % at rho0 = 30-40 /m against 25-45 % at 20 /m and > 80 % at 10-16 /m. Above 30 /m the sphere's apex eps2
-(0 in theory) rose past 1e-6 eps0 with single-precision CG, so 30 is the top of that plateau we keep.
+by 20 % over 0.3-0.9 m with it and by 0.2 % with rho^2 (converged CG). Default rho0 = 35 /m (spatial
+Gaussian ~ 1 / (pi sqrt(2) rho0) = 6.4 mm, the nose tip's scale), with the default segmentation, chosen by
+leave-one-subject-out cross-validation on the training subjects (bench/tune_detector.py --grid band, band2):
+mean NFFT range-only EER 1.4 % at rho0 = 35 /m against 3.3 % at 30, 1.4-2.5 % at 40, 3-5 % at 45 and 17-21 % at
+20 /m. The NFFT grid must hold the band: at rho0 = 35 with a 64 x 64 grid (Nyquist 73 /m at e = 0.5 m, where A
+is still 5 % of its peak) a sphere's apex eps2 (0 in theory) rose to 1e-6 eps0 and a plane tilted 60 deg left
+eps0 at 2 % of a sphere's; the default 80 x 80 grid (Nyquist 91 /m) gives 4e-9 and 0.7 % for 25 % more time.
 
 Both feature paths call `transfer_functions` with physical frequencies, so they apply the same filter:
 - FFT path: pixel frequency (cycles/pixel) times f/e (a pixel spans e/f metres at the equivalence range);
