@@ -58,7 +58,8 @@ def sphere(intrinsics: Intrinsics, apex_range_m: float, radius_m: float,
     return sphere_at(intrinsics, pixel_ray(intrinsics, apex_px) * (apex_range_m + radius_m), radius_m, gain)
 
 
-def sphere_at(intrinsics: Intrinsics, centre_m: np.ndarray, radius_m: float, gain: float = DEFAULT_GAIN) -> SyntheticImage:
+def sphere_at(intrinsics: Intrinsics, centre_m: np.ndarray, radius_m: float,
+              gain: float = DEFAULT_GAIN) -> SyntheticImage:
     """The sphere of `radius_m` about `centre_m` (camera frame, metres): each ray's first hit."""
     centre = np.asarray(centre_m, dtype=np.float64)
     rays = intrinsics.unit_rays()
