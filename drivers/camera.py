@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -29,11 +30,11 @@ class Intrinsics:
         return self.height, self.width
 
     def unit_rays(self) -> np.ndarray:
-        """(H, W, 3) float64 unit direction of each pixel's ray in the camera frame (x right, y down, z forward)."""
-        u = (np.arange(self.width) - self.cx) / self.fx
-        v = (np.arange(self.height) - self.cy) / self.fy
-        rays = np.stack(np.broadcast_arrays(u[None, :], v[:, None], np.ones((1, 1))), axis=-1)
-        return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+        """(H, W, 3) float64 unit direction of each pixel's ray in the camera frame (x right, y down, z forward).
+
+        Computed once per intrinsics and shared (read-only): segmentation and detection ask for it every frame.
+        """
+        return _unit_rays(self)
 
     def backproject(self, range_m: np.ndarray) -> np.ndarray:
         """(H, W, 3) camera-frame points in metres from a radial range map (metres along each pixel's ray)."""
@@ -56,3 +57,13 @@ class Intrinsics:
         if unknown:
             raise ValueError(f"unknown intrinsics key(s): {', '.join(sorted(unknown))}")
         return cls(**d)
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_rays(intrinsics: Intrinsics) -> np.ndarray:
+    u = (np.arange(intrinsics.width) - intrinsics.cx) / intrinsics.fx
+    v = (np.arange(intrinsics.height) - intrinsics.cy) / intrinsics.fy
+    rays = np.stack(np.broadcast_arrays(u[None, :], v[:, None], np.ones((1, 1))), axis=-1)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    rays.setflags(write=False)
+    return rays

@@ -184,7 +184,8 @@ def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationCo
     if intrinsics.shape != range_m.shape:
         raise ValueError(f"range_m has shape {range_m.shape}, intrinsics {intrinsics.shape}")
     rays = intrinsics.unit_rays()
-    depth = range_m * rays[..., 2]
+    ray_z = rays[..., 2]
+    depth = range_m * ray_z
     mask = amplitude_foreground(amplitude, valid)
     smooth = filtered(depth, valid, cfg.median_px)
     mask &= smooth < FAR_M
@@ -192,12 +193,12 @@ def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationCo
         return Foreground(mask, rotation)
     head = head_band(mask, smooth, cfg, intrinsics.fy)
     if cfg.plane_iterations > 0:
-        per_depth = rays / rays[..., 2:]  # camera-frame point per metre of depth
-        direction = face_direction(per_depth[head] * smooth[head, None], cfg)
+        direction = face_direction(rays[head] * (smooth[head] / ray_z[head])[:, None], cfg)
         rotation = rotation_to_z(direction)
-        smooth = (per_depth @ direction) * smooth  # depth along the face's viewing direction
+        along = rays @ direction  # range -> distance along the face's viewing direction
+        smooth = smooth * (along / ray_z)
         with np.errstate(invalid="ignore"):
-            depth = (rays @ direction) * range_m
+            depth = range_m * along
     reference = float(np.percentile(smooth[head], cfg.range_percentile))
     cut = reference + cfg.depth_margin_m
     mask &= smooth <= cut

@@ -105,9 +105,8 @@ def capped_disc(intrinsics: Intrinsics, distance_m: float, tilt_x_deg: float, ti
     top = np.array([0.0, 0.0, distance_m])
     base = top - cap_height_m * normal
     disc = plane(intrinsics, base, normal, gain)
-    offset = intrinsics.unit_rays() * disc.range_m[..., None] - base
-    in_plane = np.linalg.norm(offset - (offset @ normal)[..., None] * normal, axis=-1)
+    from_base = np.linalg.norm(intrinsics.unit_rays() * disc.range_m[..., None] - base, axis=-1)  # in the plane
     with np.errstate(invalid="ignore"):
-        outside = ~(in_plane <= disc_radius_m)
+        outside = ~(from_base <= disc_radius_m)
     disc = SyntheticImage(np.where(outside, np.nan, disc.range_m), np.where(outside, 0.0, disc.amplitude))
     return sphere_at(intrinsics, top - cap_radius_m * normal, cap_radius_m, gain).over(disc)
