@@ -8,7 +8,8 @@ its foreground median (FFTFeatures.amplitude_features), so they do not follow th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -20,6 +21,9 @@ FAMILIES = ("range_fft", "range_nfft", "amp_fft")
 """Groups of maps computed together: each family is one filter pass giving <family>_eps0 and <family>_eps2."""
 
 MAP_NAMES = tuple(f"{fam}_{eps}" for fam in FAMILIES for eps in ("eps0", "eps2"))
+
+STAGE_OF_FAMILY = {"range_fft": "fft", "amp_fft": "fft", "range_nfft": "nfft"}
+"""Family -> the timing stage it is counted in (tofd.pipeline.stats.TIMED_STAGES)."""
 
 
 def families_for(names: tuple[str, ...] | list[str]) -> tuple[str, ...]:
@@ -37,6 +41,8 @@ class FrameFeatures:
     mask: np.ndarray  # (H, W) bool
     maps: dict[str, np.ndarray]  # name -> (H, W) float32, NaN outside the foreground
     nfft_iterations: int = 0
+    nfft_residual: float = float("nan")  # final relative CG residual (NaN: no NFFT family or no foreground)
+    timings_ms: dict[str, float] = field(default_factory=dict)  # "segmentation", "fft", "nfft" (if computed)
 
 
 class FeatureExtractor:
@@ -54,17 +60,22 @@ class FeatureExtractor:
         self._nfft = NFFTFeatures(intrinsics, features) if "range_nfft" in families else None
 
     def __call__(self, range_m: np.ndarray, amplitude: np.ndarray) -> FrameFeatures:
+        t0 = time.perf_counter()
         fg = segment_face(range_m, amplitude, self.segmentation, self.intrinsics)
         mask = fg.mask
-        maps: dict[str, np.ndarray] = {}
-        iterations = 0
+        t1 = time.perf_counter()
+        timings = {"segmentation": (t1 - t0) * 1e3}
+        out = FrameFeatures(mask, {}, timings_ms=timings)
         for family in self.families:
             if family == "range_fft":
                 fm = self._fft.range_features(range_m, mask, fg.rotation)
             elif family == "range_nfft":
                 fm = self._nfft.range_features(range_m, mask, fg.rotation)
-                iterations = fm.iterations
+                out.nfft_iterations, out.nfft_residual = fm.iterations, fm.residual
             else:
                 fm = self._fft.amplitude_features(amplitude, mask)
-            maps[f"{family}_eps0"], maps[f"{family}_eps2"] = fm.eps0, fm.eps2
-        return FrameFeatures(mask, maps, iterations)
+            out.maps[f"{family}_eps0"], out.maps[f"{family}_eps2"] = fm.eps0, fm.eps2
+            t0, t1 = t1, time.perf_counter()
+            stage = STAGE_OF_FAMILY[family]
+            timings[stage] = timings.get(stage, 0.0) + (t1 - t0) * 1e3
+        return out
