@@ -14,8 +14,8 @@ Layout (keys of the .npz; F frames of H x W pixels, SR3000: H = 144, W = 176):
 | `subject`      | (F,)      | str     | subject name (a numpy unicode array, never an object array)      |
 | `nose_xyz_m`   | (F, 3)    | float   | optional: nose tip, camera frame (x right, y down, z forward), m |
 
-Without `nose_xyz_m` the nose tip is back-projected from `range` at `nose_px` (nearest valid range of the
-3x3 neighbourhood).
+Without `nose_xyz_m` the nose tip is back-projected from `range` at `nose_px` (median valid range of the
+3x3 neighbourhood, over the pixels within 2 cm of its nearest).
 
 Intrinsics: optional sidecar `<stem>.json` next to `<stem>.npz` holding {"intrinsics": {width, height, fx, fy,
 cx, cy}} (drivers.camera.Intrinsics.to_dict); the SR3000 default when there is none.
@@ -83,22 +83,35 @@ class Dataset:
         return _nose_from_range(self.range_m, self.nose_px, self.intrinsics)
 
 
+TIP_WINDOW_DEPTH_M = 0.02  # _nose_from_range: window pixels this far behind the nearest are not the tip
+
+
 def _nose_from_range(range_m: np.ndarray, nose_px: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
-    """Back-project the nose pixel with the minimum valid range of its 3x3 neighbourhood (the tip is nearest)."""
+    """Back-project the nose pixel with the median valid range of its 3x3 neighbourhood, over the pixels within
+    TIP_WINDOW_DEPTH_M of its nearest (not the background or a flying pixel beside the tip).
+
+    The median, not the nearest: the minimum of nine noisy ranges sits ~1.5 sigma in front of the surface
+    (5.5 mm at 0.7 m on the rendered test split, p90 error 12 mm, against a true-nose radius of 15 mm), while
+    the tip's own curvature moves the median by < 1 mm within one pixel.
+    """
     f, h, w = range_m.shape
     col = np.clip(np.rint(nose_px[:, 0]).astype(np.int64), 0, w - 1)
     row = np.clip(np.rint(nose_px[:, 1]).astype(np.int64), 0, h - 1)
     dr, dc = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
     rr = np.clip(row[:, None] + dr.ravel(), 0, h - 1)
     cc = np.clip(col[:, None] + dc.ravel(), 0, w - 1)
-    window = range_m[np.arange(f)[:, None], rr, cc]
-    nearest = np.where(np.isfinite(window), window, np.inf).min(axis=1)
-    nearest = np.where(np.isfinite(nearest), nearest, np.nan)
+    window = range_m[np.arange(f)[:, None], rr, cc].astype(np.float64)
+    nearest = np.where(np.isfinite(window), window, np.inf).min(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore"):
+        tip = np.where(window <= nearest + TIP_WINDOW_DEPTH_M, window, np.nan)
+    has_tip = np.isfinite(tip).any(axis=1)
+    tip_range = np.full(f, np.nan)
+    tip_range[has_tip] = np.nanmedian(tip[has_tip], axis=1)
     u = (nose_px[:, 0] - intrinsics.cx) / intrinsics.fx
     v = (nose_px[:, 1] - intrinsics.cy) / intrinsics.fy
     ray = np.stack([u, v, np.ones_like(u)], axis=1)
     ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-    return ray * nearest[:, None]
+    return ray * tip_range[:, None]
 
 
 def _check_arrays(d: dict[str, np.ndarray], intrinsics: Intrinsics, where: str) -> None:
