@@ -1,9 +1,10 @@
-"""The detector's named feature maps of one frame: segmentation, then FFT/NFFT eccentricities of range and
-FFT eccentricities of amplitude.
+"""The detector's named feature maps of one frame: segmentation, then FFT and NFFT eccentricities of range and
+of amplitude.
 
-Map names: range_fft_eps0, range_fft_eps2, range_nfft_eps0, range_nfft_eps2, amp_fft_eps0, amp_fft_eps2
-(each (H, W) float32, NaN outside the foreground). Amplitude features are those of the amplitude divided by
-its foreground median (FFTFeatures.amplitude_features), so they do not follow the 1/r^2 fall-off with distance.
+Map names: <family>_eps0, <family>_eps2 for the families range_fft, range_nfft, amp_fft, amp_nfft (each (H, W)
+float32, NaN outside the foreground). Amplitude features are those of the amplitude divided by its foreground
+median (FFTFeatures.amplitude_features, NFFTFeatures.features), so they do not follow the 1/r^2 fall-off with
+distance; the NFFT ones are also scale-invariant (same physical filter at every distance).
 """
 
 from __future__ import annotations
@@ -17,13 +18,10 @@ from drivers.camera import Intrinsics
 from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.segmentation import segment_face
 
-FAMILIES = ("range_fft", "range_nfft", "amp_fft")
+FAMILIES = ("range_fft", "range_nfft", "amp_fft", "amp_nfft")
 """Groups of maps computed together: each family is one filter pass giving <family>_eps0 and <family>_eps2."""
 
 MAP_NAMES = tuple(f"{fam}_{eps}" for fam in FAMILIES for eps in ("eps0", "eps2"))
-
-STAGE_OF_FAMILY = {"range_fft": "fft", "amp_fft": "fft", "range_nfft": "nfft"}
-"""Family -> the timing stage it is counted in (tofd.pipeline.stats.TIMED_STAGES)."""
 
 
 def families_for(names: tuple[str, ...] | list[str]) -> tuple[str, ...]:
@@ -57,7 +55,7 @@ class FeatureExtractor:
             raise ValueError(f"unknown feature family {', '.join(unknown)} (known: {', '.join(FAMILIES)})")
         self.intrinsics, self.segmentation, self.families = intrinsics, segmentation, tuple(families)
         self._fft = FFTFeatures(intrinsics, features)
-        self._nfft = NFFTFeatures(intrinsics, features) if "range_nfft" in families else None
+        self._nfft = NFFTFeatures(intrinsics, features) if {"range_nfft", "amp_nfft"} & set(families) else None
 
     def __call__(self, range_m: np.ndarray, amplitude: np.ndarray) -> FrameFeatures:
         t0 = time.perf_counter()
@@ -66,16 +64,22 @@ class FeatureExtractor:
         t1 = time.perf_counter()
         timings = {"segmentation": (t1 - t0) * 1e3}
         out = FrameFeatures(mask, {}, timings_ms=timings)
-        for family in self.families:
+        fft_families = [f for f in ("range_fft", "amp_fft") if f in self.families]
+        for family in fft_families:
             if family == "range_fft":
                 fm = self._fft.range_features(range_m, mask, fg.rotation)
-            elif family == "range_nfft":
-                fm = self._nfft.range_features(range_m, mask, fg.rotation)
-                out.nfft_iterations, out.nfft_residual = fm.iterations, fm.residual
             else:
                 fm = self._fft.amplitude_features(amplitude, mask)
             out.maps[f"{family}_eps0"], out.maps[f"{family}_eps2"] = fm.eps0, fm.eps2
-            t0, t1 = t1, time.perf_counter()
-            stage = STAGE_OF_FAMILY[family]
-            timings[stage] = timings.get(stage, 0.0) + (t1 - t0) * 1e3
+        t2 = time.perf_counter()
+        if fft_families:
+            timings["fft"] = (t2 - t1) * 1e3
+        if self._nfft is not None:  # range and amplitude share the points and the Toeplitz kernel
+            rng, amp = self._nfft.features(range_m, mask, fg.rotation,
+                                           amplitude if "amp_nfft" in self.families else None)
+            for family, fm in (("range_nfft", rng), ("amp_nfft", amp)):
+                if family in self.families:
+                    out.maps[f"{family}_eps0"], out.maps[f"{family}_eps2"] = fm.eps0, fm.eps2
+            out.nfft_iterations, out.nfft_residual = rng.iterations, rng.residual
+            timings["nfft"] = (time.perf_counter() - t2) * 1e3
         return out

@@ -31,6 +31,10 @@ iteration is a circulant convolution, i.e. one real FFT pair of size 2N x 2N. Th
 column (k = -N/2) are held at zero, so the unknowns, kernel and fields are Hermitian/real: CG works on the
 half spectrum (kx >= 0) with real FFTs. A forward type-2 NUFFT (n_trans=2) evaluates c0 + i c2 and s2.
 finufft plans are made once (nthreads=1) and only get new points per frame.
+
+Amplitude (`features(..., amplitude=...)`): the amplitude at the same points, normalised like the FFT path's,
+is a second surface on the same kernel (one more CG solve): scale-invariant amplitude features for the NFFT
+detector variant.
 """
 
 from __future__ import annotations
@@ -84,9 +88,17 @@ class NFFTFeatures:
         self._padded = np.zeros((2 * n, n + 1), self._complex)  # half spectrum of the 2N circulant
         self._neg_rows = (-np.arange(n)) % n
         self._neg_cols_src = n - np.arange(n - self._h + 1, n)
-        opts = dict(eps=cfg.nufft_eps, modeord=1, nthreads=1, upsampfac=_upsampfac(cfg.nufft_eps))
-        self._type1 = finufft.Plan(1, (2 * n, 2 * n), n_trans=2, isign=-1, **opts)
-        self._type2 = finufft.Plan(2, (n, n), n_trans=2, isign=1, **opts)
+        self._plan_options = dict(eps=cfg.nufft_eps, modeord=1, nthreads=1, upsampfac=_upsampfac(cfg.nufft_eps))
+        self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
+
+    def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
+        """finufft plans (made once) for `surfaces` value sets on shared points: type 1 onto the 2N grid (the
+        kernel and each right-hand side), type 2 back to the points (c0 + i c2 and s2 of each)."""
+        if surfaces not in self._plans:
+            n, opts = self._n, self._plan_options
+            self._plans[surfaces] = (finufft.Plan(1, (2 * n, 2 * n), n_trans=1 + surfaces, isign=-1, **opts),
+                                     finufft.Plan(2, (n, n), n_trans=2 * surfaces, isign=1, **opts))
+        return self._plans[surfaces]
 
     def unit_square_points(self, range_m: np.ndarray, mask: np.ndarray,
                            rotation: np.ndarray | None = None) -> UnitSquarePoints:
@@ -112,38 +124,66 @@ class NFFTFeatures:
     def range_features(self, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray | None = None) -> FeatureMaps:
         """eps0, eps2 (metres^2) per foreground pixel of a radial range map; NaN elsewhere (rotation: see
         unit_square_points)."""
+        return self.features(range_m, mask, rotation)[0]
+
+    def features(self, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray | None = None,
+                 amplitude: np.ndarray | None = None) -> tuple[FeatureMaps, FeatureMaps | None]:
+        """Range features (range_features) and, given the amplitude image, its features at the same points.
+
+        Amplitude: divided by its median over the points and offset so its minimum is 0 (the FFT path's
+        normalisation and background, tofd.features.fft.FFTFeatures.amplitude_features), then filtered like
+        z(x, y): scale-invariant like the range features, where the FFT amplitude features change with distance.
+        Both surfaces share the points, hence one Toeplitz kernel; each has its own CG solve.
+        """
         check_frame(range_m, mask, self.intrinsics, "range_m")
-        shape = self.intrinsics.shape
-        if not mask.any():
-            return FeatureMaps.empty(shape)
-        pts = self.unit_square_points(range_m, mask, rotation)
-        if pts.index.size == 0:
-            return FeatureMaps.empty(shape)
-        c0, c2, s2, iterations, residual = self.fields(pts.x, pts.y, pts.z, pts.damping)
-        eps0 = np.full(shape, np.nan, np.float32)
-        eps2 = np.full(shape, np.nan, np.float32)
-        eps0.reshape(-1)[pts.index] = c0 * c0
-        eps2.reshape(-1)[pts.index] = c2 * c2 + s2 * s2
+        if amplitude is not None:
+            check_frame(amplitude, mask, self.intrinsics, "amplitude")
+        empty = FeatureMaps.empty(self.intrinsics.shape)
+        pts = self.unit_square_points(range_m, mask, rotation) if mask.any() else None
+        if pts is None or pts.index.size == 0:
+            return empty, (None if amplitude is None else FeatureMaps.empty(self.intrinsics.shape))
+        values = [pts.z]
+        if amplitude is not None:
+            a = amplitude.reshape(-1)[pts.index].astype(np.float64)
+            scale = float(np.median(a))
+            values.append((a - a.min()) / scale if scale > 0 else np.zeros_like(a))
+        fields = self.fields(pts.x, pts.y, np.stack(values), pts.damping)
+        maps = [self._maps(pts.index, *f) for f in fields]
+        return maps[0], (maps[1] if amplitude is not None else None)
+
+    def _maps(self, index: np.ndarray, c0: np.ndarray, c2: np.ndarray, s2: np.ndarray, iterations: int,
+              residual: float) -> FeatureMaps:
+        """(H, W) eps0, eps2 maps from the fields at the points `index` (flat pixel indices); NaN elsewhere."""
+        eps0 = np.full(self.intrinsics.shape, np.nan, np.float32)
+        eps2 = np.full(self.intrinsics.shape, np.nan, np.float32)
+        eps0.reshape(-1)[index] = c0 * c0
+        eps2.reshape(-1)[index] = c2 * c2 + s2 * s2
         return FeatureMaps(eps0, eps2, iterations, residual)
 
-    def fields(self, x: np.ndarray, y: np.ndarray, z: np.ndarray,
-               lam: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float]:
-        """Steps 3-4 on points in [-1/2, 1/2)^2 with damping lam: c0, c2, s2 at the points, iterations, residual."""
+    def fields(self, x: np.ndarray, y: np.ndarray, values: np.ndarray,
+               lam: float) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int, float]]:
+        """Steps 3-4 for each row of `values` (V, M) sampled at the points x, y in [-1/2, 1/2)^2, damping lam:
+        per row (c0, c2, s2 at the points, CG iterations, final relative residual)."""
         n, h = self._n, self._h
+        values = np.atleast_2d(values)
+        type1, type2 = self._plans_for(len(values))
         ty, tx = 2 * np.pi * y, 2 * np.pi * x
-        self._type1.setpts(ty, tx)
-        strengths = np.ones((2, x.size), np.complex128)
-        strengths[1] = z
-        kernel_and_rhs = self._type1.execute(strengths)
+        type1.setpts(ty, tx)
+        strengths = np.ones((1 + len(values), x.size), np.complex128)
+        strengths[1:] = values
+        kernel_and_rhs = type1.execute(strengths)
         kernel = kernel_and_rhs[0, :, : n + 1].copy()
         kernel[n, :] = 0  # the unpaired -N row and column never enter (A^H A f)_k for |k| < N/2
         kernel[:, n] = 0
         circulant = (sfft.irfft2(kernel, s=(2 * n, 2 * n), workers=1) * float(4 * n * n)).astype(self._real)
-        rhs = np.concatenate((kernel_and_rhs[1, :h, :h], kernel_and_rhs[1, 2 * n - h + 1:, :h])).astype(self._complex)
-        coeffs, iterations, residual = self._solve(circulant, rhs, lam)
-        self._type2.setpts(ty, tx)
-        out = self._type2.execute(self._filters * self._hermitian_full(coeffs))
-        return out[0].real, out[0].imag, out[1].real, iterations, residual
+        solved = []
+        for rhs_grid in kernel_and_rhs[1:]:
+            rhs = np.concatenate((rhs_grid[:h, :h], rhs_grid[2 * n - h + 1:, :h])).astype(self._complex)
+            solved.append(self._solve(circulant, rhs, lam))
+        type2.setpts(ty, tx)
+        out = type2.execute(np.concatenate([self._filters * self._hermitian_full(f) for f, _, _ in solved]))
+        return [(out[2 * i].real, out[2 * i].imag, out[2 * i + 1].real, it, res)
+                for i, (_, it, res) in enumerate(solved)]
 
     def _normal(self, circulant: np.ndarray, v: np.ndarray, lam: float, out: np.ndarray) -> np.ndarray:
         """out = (A^H A + lam I) v on the compact half spectrum, via the 2N circulant (one real FFT pair)."""

@@ -18,6 +18,8 @@ SLOT_FIELDS: tuple[tuple[str, type], ...] = (
     ("amp_fft_eps2", np.float32),
     ("range_nfft_eps0", np.float32),
     ("range_nfft_eps2", np.float32),
+    ("amp_nfft_eps0", np.float32),
+    ("amp_nfft_eps2", np.float32),
 )
 FEATURE_FIELDS = tuple(name for name, _ in SLOT_FIELDS[3:])
 
