@@ -163,4 +163,4 @@ def test_shipped_model_matches_the_bundled_config():
         det = NoseDetector(load_config())
     except ModelMismatch as exc:
         pytest.fail(f"config/nose_model.json is stale, retrain: tofd train --out config/nose_model.json ({exc})")
-    assert det.scale > 0 and det.box.features == VARIANTS["nfft_range_amp"]
+    assert det.scale > 0 and det.box.features == VARIANTS["nfft_range"]

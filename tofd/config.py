@@ -196,7 +196,7 @@ class DetectorConfig:
     """Nose detector (tofd.detect): the model file, which of its variants to use, and the box scale."""
 
     model_path: str = "nose_model.json"  # JSON model; a relative path not found from the cwd is looked up in config/
-    variant: str = "nfft_range_amp"  # fft_range, fft_range_amp, nfft_range or nfft_range_amp
+    variant: str = "nfft_range"  # fft_range, fft_range_amp, nfft_range or nfft_range_amp
     box_scale: float = 0.0  # box half-widths times this (> 0); 0 = the model's operating scale (training EER)
     border_margin_m: float = 0.006  # metres: pixels nearer than this to the mask border are never the nose
 
