@@ -15,6 +15,7 @@ from tofd.detect import NoseDetector
 from tofd.feature_maps import FeatureExtractor
 from tofd.pipeline import DropLedger, Pipeline
 from tofd.pipeline.queues import StageQueue
+from tofd.pipeline.stages import pipeline_families
 
 CFG = Config()
 
@@ -90,12 +91,13 @@ def test_lossless_delivers_every_frame_in_order_with_the_in_process_features():
     assert summary["gaps"] == [{"after_counter": 9, "next_counter": 11, "kind": "counter_gap"}]
     assert sink.results[10].gap_before == "counter_gap"
 
-    reference = FeatureExtractor(CFG.intrinsics, CFG.features, CFG.segmentation)
+    reference = FeatureExtractor(CFG.intrinsics, CFG.features, CFG.segmentation, pipeline_families(CFG, False))
     for r in sink.results[:3]:  # shared-memory worker result == direct computation, bit for bit
         ref = reference(r.frame.range_m, r.frame.amplitude)
         np.testing.assert_array_equal(r.mask, ref.mask)
         for name, ref_map in ref.maps.items():
             np.testing.assert_array_equal(r.features[name], ref_map, err_msg=name)
+        assert all(np.isnan(r.features[n]).all() for n in r.features if n not in ref.maps)  # not computed
         assert r.mask.sum() > 300  # a face, not an empty frame
     assert {"capture", "queue", "segmentation", "fft", "nfft", "latency"} <= set(sink.results[0].timings_ms)
     assert not pipeline.running

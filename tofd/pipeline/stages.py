@@ -11,16 +11,30 @@ from drivers.camera import Intrinsics
 from tofd.config import Config
 from tofd.pipeline.slots import FEATURE_FIELDS
 
+VIEWED_FAMILIES = ("range_fft", "range_nfft")
+"""Feature families the pipeline always computes (the viewer shows them, tofd.viewer.blueprint)."""
+
+
+def pipeline_families(cfg: Config, detect: bool) -> tuple[str, ...]:
+    """The feature families a worker computes: the viewed ones plus those of the detector's variant (the NFFT
+    amplitude solve costs ~6.6 ms per frame, spent only when the variant uses it)."""
+    from tofd.detect import VARIANTS
+    from tofd.feature_maps import FAMILIES, families_for
+
+    needed = set(VIEWED_FAMILIES) | (set(families_for(VARIANTS[cfg.detector.variant])) if detect else set())
+    return tuple(f for f in FAMILIES if f in needed)
+
 
 class FeatureStage:
-    """Segmentation, FFT (range and amplitude) and NFFT (range) features, the detector on them; plans made once
-    per worker. The maps are tofd.feature_maps.FeatureExtractor's, i.e. what the detector is trained on."""
+    """Segmentation, the features of pipeline_families, the detector on them; plans made once per worker. The
+    maps are tofd.feature_maps.FeatureExtractor's, i.e. what the detector is trained on; maps of families not
+    computed are NaN in the slot."""
 
     def __init__(self, cfg: Config, intrinsics: Intrinsics, detect: bool):
         from tofd.detect import NoseDetector
         from tofd.feature_maps import FeatureExtractor
 
-        self._extractor = FeatureExtractor(intrinsics, cfg.features, cfg.segmentation)
+        self._extractor = FeatureExtractor(intrinsics, cfg.features, cfg.segmentation, pipeline_families(cfg, detect))
         self._detector = NoseDetector(cfg) if detect else None
 
     def run(self, slot: dict[str, np.ndarray]) -> dict:
@@ -28,7 +42,7 @@ class FeatureStage:
         ff = self._extractor(slot["range_m"], slot["amplitude"])
         slot["mask"][...] = ff.mask
         for name in FEATURE_FIELDS:
-            slot[name][...] = ff.maps[name]
+            slot[name][...] = ff.maps.get(name, np.nan)
         timings = ff.timings_ms
         reply = {"timings_ms": timings, "nfft_iterations": int(ff.nfft_iterations),
                  "nfft_residual": float(ff.nfft_residual)}
