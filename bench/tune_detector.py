@@ -24,12 +24,14 @@ import numpy as np
 from report import write_json
 
 from tofd.config import Config
-from tofd.detect import VARIANTS
+from tofd.detect import VARIANTS, Candidates
 from tofd.evaluate import evaluate_model, extract_samples, train_model
 from tofd.synth_faces import CV_SUBJECTS, TEST_DISTANCES_M, TRAIN_DISTANCES_M, render_frames
 
 GRIDS = {
-    "quick": {"quantile": [0.05], "border_margin_m": [0.006]},  # the current defaults
+    "quick": {"quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001]},  # the current defaults
+    "front": {"quantile": [0.05], "border_margin_m": [0.006],
+              "front_depth_m": [0.0, 0.0005, 0.001, 0.0015, 0.002, 0.003, 0.005, 0.008]},
     "plane_fine": {"plane_iterations": [1, 2, 3], "plane_depth_m": [0.03, 0.04], "depth_margin_m": [0.025, 0.03],
                    "quantile": [0.05], "border_margin_m": [0.006]},
     "band": {"tuning_frequency_per_m": [20.0, 25.0, 30.0, 35.0], "lowpass_sigma_per_m": [30.0, 40.0, 50.0, 70.0],
@@ -59,7 +61,8 @@ GRIDS = {
 }
 SEGMENTATION_KEYS = ("depth_margin_m", "range_percentile", "median_px", "morphology_px", "head_height_m",
                      "plane_iterations", "plane_depth_m", "plane_max_tilt_deg")
-BOX_KEYS = ("quantile", "positive_radius_m", "border_margin_m")  # cheap: no feature recomputation
+CANDIDATE_KEYS = ("border_margin_m", "front_depth_m")  # tofd.detect.Candidates
+BOX_KEYS = ("quantile", "positive_radius_m", *CANDIDATE_KEYS)  # cheap: no feature recomputation
 
 
 def render_subjects(frames: int, seed: int) -> dict[str, dict[str, object]]:
@@ -90,9 +93,10 @@ def cross_validate(data: dict, cfg: Config, box: dict, cache: dict, workers: int
     folds = {}
     for held in data:
         train = [s for name in data if name != held for s in samples[name]["train"]]
-        model = train_model(train, cfg.features, cfg.segmentation, **box)
-        res = evaluate_model(model, samples[held]["test"], data[held]["test"].distance_m,
-                             border_margin_m=box.get("border_margin_m", 0.0))
+        candidates = Candidates(**{k: v for k, v in box.items() if k in CANDIDATE_KEYS})
+        model = train_model(train, cfg.features, cfg.segmentation, candidates=candidates,
+                            **{k: v for k, v in box.items() if k not in CANDIDATE_KEYS})
+        res = evaluate_model(model, samples[held]["test"], data[held]["test"].distance_m, candidates=candidates)
         folds[held] = {v: r.overall.eer for v, r in res.items()}
     return folds
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from tofd.detect import VARIANTS, Box, learn_box
+from tofd.detect import VARIANTS, Box, Candidates, learn_box
 from tofd.evaluate import FrameSamples, PixelTable, _columns, shape_box
 from tofd.feature_maps import MAP_NAMES
 from tofd.roc import roc_from_min_distances
@@ -21,7 +21,8 @@ def frames(rng, n_frames=200, n_pixels=40, n_true=1, informative_gap=0.02):
         feats[:n_true, 0] = rng.uniform(-0.1, 0.1, n_true)
         feats[n_true:, 0] = np.where(rng.random(n_pixels - n_true) < 0.5, -1, 1) * rng.uniform(
             0.1 + informative_gap, 2.0, n_pixels - n_true)
-        out.append(FrameSamples(feats, tip, rng.uniform(0, 0.02, n_pixels).astype(np.float32)))
+        border = rng.uniform(0, 0.02, n_pixels).astype(np.float32)
+        out.append(FrameSamples(feats, tip, border, np.zeros(n_pixels, np.float32)))
     return out
 
 
@@ -30,7 +31,7 @@ def test_pixel_table_minima_match_a_loop_over_frames():
     samples = frames(rng, n_frames=12)
     samples[3].tip_distance_m[:] = 0.05  # a frame without nose pixels
     box = Box(VARIANTS[VARIANT], np.zeros(4), np.ones(4))
-    table = PixelTable(samples, VARIANT, radius_m=0.015, border_margin_m=0.006)
+    table = PixelTable(samples, VARIANT, radius_m=0.015, candidates=Candidates(border_margin_m=0.006))
     true_min, false_min = table.min_distances(box.distance(table.features))
     for i, s in enumerate(samples):
         d = np.where(s.border_m < 0.006, np.inf, box.distance(s.log_features[:, _columns(VARIANT)]))

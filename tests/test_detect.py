@@ -12,12 +12,14 @@ from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.detect import (
     VARIANTS,
     Box,
+    Candidates,
     ModelError,
     ModelMismatch,
     NoseModel,
     VariantModel,
     border_distance_m,
     detect,
+    front_gap_m,
     learn_box,
     load_model,
     save_model,
@@ -105,8 +107,45 @@ def test_detect_never_picks_a_pixel_near_the_mask_border():
     range_m = np.full((h, w), 0.5)
     assert detect(maps, range_m, intrinsics, box, 1.0).nose_px == (20, 5)
     # 0.5 m / 100 px: 5 mm per pixel; a 2 cm margin excludes the 4 outer pixel rings, not the centre
-    det = detect(maps, range_m, intrinsics, box, 1.0, border_margin_m=0.02)
+    det = detect(maps, range_m, intrinsics, box, 1.0, Candidates(border_margin_m=0.02))
     assert det.accepted and det.nose_px == (20, 20)
+
+
+@pytest.mark.parametrize("depth", [0.35, 0.7])
+def test_front_gap_is_the_depth_behind_the_nearest_pixel_within_the_radius(depth):
+    """A wall with a 2 cm step, noisy (sigma 2 mm): behind the step the gap is 2 cm within 12 mm of it and 0
+    beyond (at any distance); in front of it 0 everywhere (the median filter keeps noise from opening a gap)."""
+    intrinsics = Intrinsics()
+    rays_z = intrinsics.unit_rays()[..., 2]
+    z = np.full(intrinsics.shape, depth)
+    z[:, 88:] += 0.02
+    rng = np.random.default_rng(0)
+    range_m = (z + 0.002 * rng.standard_normal(z.shape)) / rays_z
+    mask = np.ones(z.shape, bool)
+    gap = front_gap_m(mask, range_m, intrinsics)
+    px_per_cm = 0.01 * intrinsics.fx / (depth + 0.01)
+    near, far = 88 + int(0.6 * px_per_cm), 88 + int(2.0 * px_per_cm)  # 6 mm and 20 mm behind the step's edge
+    assert np.median(gap[20:120, near]) == pytest.approx(0.02, abs=0.002)
+    assert np.median(gap[20:120, far]) < 0.002
+    assert np.percentile(gap[20:120, 10:85], 99) < 0.004
+    assert np.all(front_gap_m(~mask, range_m, intrinsics) == 0)
+
+
+def test_detect_front_test_rejects_a_pixel_behind_a_nearer_neighbour():
+    """The best box pixel lies 2 cm behind its neighbours (the lip under a nose seen from above): with the front
+    test the detector takes the second best, on the front surface."""
+    h, w = 40, 40
+    intrinsics = Intrinsics(width=w, height=h, fx=100.0, fy=100.0, cx=19.5, cy=19.5)
+    maps = {n: np.full((h, w), 1e-3, np.float32) for n in VARIANTS["nfft_range"]}
+    maps["range_nfft_eps0"][24, 20] = 1.0  # best pixel
+    maps["range_nfft_eps0"][15, 20] = 0.5  # second best
+    box = Box(VARIANTS["nfft_range"], np.array([0.0, -3.0]), np.array([0.5, 0.5]))
+    depth = np.full((h, w), 0.5)
+    depth[23:, :] = 0.52  # rows from 23 on: 2 cm behind the rest (5 mm per pixel, front radius 2 px)
+    range_m = depth / intrinsics.unit_rays()[..., 2]
+    assert detect(maps, range_m, intrinsics, box, 1.0).nose_px == (20, 24)
+    assert detect(maps, range_m, intrinsics, box, 1.0, Candidates(front_depth_m=0.008)).nose_px == (20, 15)
+    assert detect(maps, range_m, intrinsics, box, 1.0, Candidates(front_depth_m=0.03)).nose_px == (20, 24)
 
 
 def test_stack_features_names_missing_map():

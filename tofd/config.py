@@ -199,6 +199,8 @@ class DetectorConfig:
     variant: str = "nfft_range"  # fft_range, fft_range_amp, nfft_range or nfft_range_amp
     box_scale: float = 0.0  # box half-widths times this (> 0); 0 = the model's operating scale (training EER)
     border_margin_m: float = 0.006  # metres: pixels nearer than this to the mask border are never the nose
+    front_depth_m: float = 0.001  # metres: pixels this far behind the front-most one within 12 mm are never the
+    # nose (0 = no front test; tofd/detect.py)
 
     def validate(self) -> None:
         variants = ("fft_range", "fft_range_amp", "nfft_range", "nfft_range_amp")
@@ -208,6 +210,8 @@ class DetectorConfig:
             raise ValueError(f"box_scale: {self.box_scale} must be >= 0 (0 = the model's operating scale)")
         if not self.border_margin_m >= 0:
             raise ValueError(f"border_margin_m: {self.border_margin_m} must be >= 0 (0 = no exclusion)")
+        if not self.front_depth_m >= 0:
+            raise ValueError(f"front_depth_m: {self.front_depth_m} must be >= 0 (0 = no front test)")
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,9 +8,9 @@ not those of the nose's flanks, which also sit 15 mm away from it), and its half
 all training pixels, nose and not (`shape_box`). Measured (bench/tune_detector.py, leave-one-training-subject-
 out, no border exclusion): mean EER NFFT range 8.9 -> 7.5 %, NFFT range+amplitude 13.6 -> 6.1 %, FFT
 range+amplitude 24.4 -> 20.8 % against the plain quantile box (before the segmentation's face frame and
-rho0 = 35 /m; with them and border exclusion, --grid quick: NFFT range 1.7 %, FFT range 10.8 %). Pixels nearer
-than `border_margin_m` to the mask border are never classified nose (tofd.detect.border_distance_m), neither in
-training nor in testing.
+rho0 = 35 /m; with them and border exclusion, --grid quick: NFFT range 1.7 %, FFT range 10.8 %). Only the
+candidate pixels (tofd.detect.Candidates: border margin, front test) are ever classified nose, in training as in
+testing, as in the pipeline.
 """
 
 from __future__ import annotations
@@ -26,7 +26,18 @@ import numpy as np
 from drivers.camera import Intrinsics
 from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.dataset import Dataset
-from tofd.detect import VARIANTS, Box, NoseModel, VariantModel, border_distance_m, learn_box, to_log_features
+from tofd.detect import (
+    ALL_FOREGROUND,
+    VARIANTS,
+    Box,
+    Candidates,
+    NoseModel,
+    VariantModel,
+    border_distance_m,
+    front_gap_m,
+    learn_box,
+    to_log_features,
+)
 from tofd.feature_maps import MAP_NAMES, FeatureExtractor
 from tofd.roc import RocCurve, roc_from_min_distances
 
@@ -40,6 +51,7 @@ class FrameSamples:
     log_features: np.ndarray  # (P, len(MAP_NAMES)) float32 log10 eccentricities, columns MAP_NAMES
     tip_distance_m: np.ndarray  # (P,) float32 3-D distance to the ground-truth nose tip (NaN if unknown)
     border_m: np.ndarray  # (P,) float32 distance to the mask border, metres (tofd.detect.border_distance_m)
+    front_gap: np.ndarray  # (P,) float32 metres behind the front-most pixel nearby (tofd.detect.front_gap_m)
     nfft_iterations: int = 0
 
 
@@ -51,7 +63,8 @@ def frame_samples(extractor: FeatureExtractor, range_m: np.ndarray, amplitude: n
     tip = np.linalg.norm(points - np.asarray(nose_xyz_m, dtype=np.float64), axis=1).astype(np.float32)
     feats = np.stack([ff.maps[n][ff.mask] for n in MAP_NAMES], axis=1)
     border = border_distance_m(ff.mask, range_m, extractor.intrinsics)[ff.mask]
-    return FrameSamples(to_log_features(feats).astype(np.float32), tip, border, ff.nfft_iterations)
+    front = front_gap_m(ff.mask, range_m, extractor.intrinsics, ff.rotation[2])[ff.mask]
+    return FrameSamples(to_log_features(feats).astype(np.float32), tip, border, front, ff.nfft_iterations)
 
 
 _worker_extractor: FeatureExtractor | None = None
@@ -97,13 +110,14 @@ def _columns(variant: str) -> list[int]:
 class PixelTable:
     """All frames' foreground pixels of one variant in one array, for fast per-image minima over many boxes.
 
-    Rows are frames' pixels in frame order; pixels nearer than border_margin_m to the mask border are left out
-    (never classified nose). true: pixels within radius_m of the ground-truth tip.
+    Rows are frames' candidate pixels (tofd.detect.Candidates) in frame order; the others are never classified
+    nose. true: pixels within radius_m of the ground-truth tip.
     """
 
-    def __init__(self, samples: list[FrameSamples], variant: str, radius_m: float, border_margin_m: float = 0.0):
+    def __init__(self, samples: list[FrameSamples], variant: str, radius_m: float,
+                 candidates: Candidates = ALL_FOREGROUND):
         cols = _columns(variant)
-        keep = [s.border_m >= border_margin_m for s in samples]
+        keep = [candidates.keep(s.border_m, s.front_gap) for s in samples]
         self.n_frames = len(samples)
         self.features = np.concatenate([s.log_features[k][:, cols] for s, k in zip(samples, keep, strict=True)]
                                         or [np.empty((0, len(cols)), np.float32)]).astype(np.float64)
@@ -126,10 +140,10 @@ class PixelTable:
 
 
 def min_distances(samples: list[FrameSamples], variant: str, box: Box, radius_m: float,
-                  border_margin_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                  candidates: Candidates = ALL_FOREGROUND) -> tuple[np.ndarray, np.ndarray]:
     """Per frame: smallest box distance of its true nose pixels and of its other foreground pixels (inf: none);
-    pixels nearer than border_margin_m to the mask border count as inf (never classified nose)."""
-    table = PixelTable(samples, variant, radius_m, border_margin_m)
+    pixels that are not candidates count as inf (never classified nose)."""
+    table = PixelTable(samples, variant, radius_m, candidates)
     return table.min_distances(box.distance(table.features))
 
 
@@ -176,21 +190,21 @@ def _has_nose(samples: list[FrameSamples], radius_m: float) -> np.ndarray:
 def train_model(samples: list[FrameSamples], features: FeatureConfig, segmentation: SegmentationConfig,
                 quantile: float = 0.05, positive_radius_m: float = 0.005, radius_m: float = 0.015,
                 variants: tuple[str, ...] = tuple(VARIANTS), training: dict | None = None,
-                border_margin_m: float = 0.0) -> NoseModel:
-    """Learn each variant's box: the quantile box of the pixels within positive_radius_m of the nose tips (and
-    at least border_margin_m from the mask border), its half-widths then shaped on the training frames
-    (shape_box, true nose radius radius_m); the operating scale is the training equal-error scale. The margin is
-    recorded in the model's training info."""
-    positive = [s.log_features[(s.tip_distance_m <= positive_radius_m) & (s.border_m >= border_margin_m)]
+                candidates: Candidates = ALL_FOREGROUND) -> NoseModel:
+    """Learn each variant's box: the quantile box of the candidate pixels within positive_radius_m of the nose
+    tips, its half-widths then shaped on the training frames
+    (shape_box, true nose radius radius_m); the operating scale is the training equal-error scale. The candidate
+    rule is recorded in the model's training info."""
+    positive = [s.log_features[(s.tip_distance_m <= positive_radius_m) & candidates.keep(s.border_m, s.front_gap)]
                 for s in samples]
     pos = np.concatenate(positive) if positive else np.empty((0, len(MAP_NAMES)), np.float32)
     has_nose = _has_nose(samples, radius_m)
     out = {}
     for variant in variants:
         box = learn_box(pos[:, _columns(variant)], VARIANTS[variant], quantile)
-        box, roc = shape_box(box, PixelTable(samples, variant, radius_m, border_margin_m), has_nose)
+        box, roc = shape_box(box, PixelTable(samples, variant, radius_m, candidates), has_nose)
         out[variant] = VariantModel(variant, box, round(roc.eer_scale, 6), round(roc.eer, 6))
-    info = {"frames": len(samples), "positive_pixels": int(len(pos)), "border_margin_m": border_margin_m,
+    info = {"frames": len(samples), "positive_pixels": int(len(pos)), **dataclasses.asdict(candidates),
             **(training or {})}
     return NoseModel(out, dataclasses.asdict(features), dataclasses.asdict(segmentation), quantile,
                      positive_radius_m * 1e3, info)
@@ -211,13 +225,13 @@ def distance_bins(distance_m: np.ndarray) -> np.ndarray:
 
 
 def evaluate_model(model: NoseModel, samples: list[FrameSamples], distance_m: np.ndarray,
-                   radius_m: float = 0.015, border_margin_m: float = 0.0) -> dict[str, VariantResult]:
+                   radius_m: float = 0.015, candidates: Candidates = ALL_FOREGROUND) -> dict[str, VariantResult]:
     """ROC curves of every variant of the model on test samples, overall and per distance bin."""
     has_nose = _has_nose(samples, radius_m)
     bins = distance_bins(distance_m)
     results = {}
     for name, vm in model.variants.items():
-        tmin, fmin = min_distances(samples, name, vm.box, radius_m, border_margin_m)
+        tmin, fmin = min_distances(samples, name, vm.box, radius_m, candidates)
         res = VariantResult(name, roc_from_min_distances(tmin, fmin, has_nose))
         for b in np.unique(bins):
             sel = bins == b

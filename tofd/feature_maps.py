@@ -41,6 +41,7 @@ class FrameFeatures:
     nfft_iterations: int = 0
     nfft_residual: float = float("nan")  # final relative CG residual (NaN: no NFFT family or no foreground)
     timings_ms: dict[str, float] = field(default_factory=dict)  # "segmentation", "fft", "nfft" (if computed)
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # camera -> face frame (segmentation)
 
 
 class FeatureExtractor:
@@ -63,7 +64,7 @@ class FeatureExtractor:
         mask = fg.mask
         t1 = time.perf_counter()
         timings = {"segmentation": (t1 - t0) * 1e3}
-        out = FrameFeatures(mask, {}, timings_ms=timings)
+        out = FrameFeatures(mask, {}, timings_ms=timings, rotation=fg.rotation)
         fft_families = [f for f in ("range_fft", "amp_fft") if f in self.families]
         for family in fft_families:
             if family == "range_fft":

@@ -26,7 +26,7 @@ def main(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from tofd.config import load_config
-    from tofd.detect import load_model, save_model
+    from tofd.detect import Candidates, load_model, save_model
     from tofd.eval_args import dataset_for, samples_for
     from tofd.evaluate import evaluate_model, train_model
     from tofd.evaluation_report import eer_table, plot_roc, write_json
@@ -46,12 +46,12 @@ def main(args: argparse.Namespace) -> int:
         model = train_model(samples, cfg.features, cfg.segmentation, args.quantile, args.positive_radius_mm / 1e3,
                             radius_m, training={"data": args.train or f"rendered train split seed {args.seed}",
                                                 "subjects": sorted(set(train.subject.tolist()))},
-                            border_margin_m=cfg.detector.border_margin_m)
+                            candidates=Candidates.from_config(cfg.detector))
         del samples
     test = dataset_for(args, "test", timing)
     samples = samples_for(test, cfg, args, "test", timing)
     sweep = time.monotonic()
-    results = evaluate_model(model, samples, test.distance_m, radius_m, cfg.detector.border_margin_m)
+    results = evaluate_model(model, samples, test.distance_m, radius_m, Candidates.from_config(cfg.detector))
     timing["roc_sweep_s"] = round(time.monotonic() - sweep, 3)
     timing["total_s"] = round(time.monotonic() - start, 3)
 

@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from tofd.config import load_config
-    from tofd.detect import save_model
+    from tofd.detect import Candidates, save_model
     from tofd.eval_args import dataset_for, samples_for
     from tofd.evaluate import train_model
 
@@ -34,7 +34,7 @@ def main(args: argparse.Namespace) -> int:
     model = train_model(samples, cfg.features, cfg.segmentation, args.quantile, args.positive_radius_mm / 1e3,
                         args.radius_mm / 1e3, training={"data": args.train or f"rendered train split seed {args.seed}",
                                                         "subjects": sorted(set(ds.subject.tolist()))},
-                        border_margin_m=cfg.detector.border_margin_m)
+                        candidates=Candidates.from_config(cfg.detector))
     path = save_model(model, args.out)
     for name, vm in model.variants.items():
         print(f"{name:<16} operating scale {vm.operating_scale:.3f}  training EER {100 * vm.train_eer:.1f} %")

@@ -48,7 +48,7 @@ class FeatureStage:
                  "nfft_residual": float(ff.nfft_residual)}
         if self._detector is not None:
             t0 = time.perf_counter()
-            det = self._detector.detect_maps(ff.maps, slot["range_m"])
+            det = self._detector.detect_maps(ff.maps, slot["range_m"], ff.rotation[2])
             timings["detection"] = (time.perf_counter() - t0) * 1e3
             reply["detection"] = {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score,
                                   "accepted": det.accepted}
