@@ -319,13 +319,13 @@ class Candidates:
 
     def mask(self, foreground: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
              direction: np.ndarray | None = None) -> np.ndarray:
-        """(H, W) bool: the candidate pixels of a frame's foreground (direction: the face's, see front_gap_m)."""
-        out = np.asarray(foreground, dtype=bool).copy()
-        if self.border_margin_m > 0:
-            out &= border_distance_m(foreground, range_m, intrinsics) >= self.border_margin_m
-        if self.front_depth_m > 0:
-            out &= front_gap_m(foreground, range_m, intrinsics, direction) <= self.front_depth_m
-        return out
+        """(H, W) bool: the candidate pixels of a frame's foreground (direction: the face's, see front_gap_m).
+
+        Only the tests that are on are computed; `keep` applies them.
+        """
+        border = border_distance_m(foreground, range_m, intrinsics) if self.border_margin_m > 0 else np.inf
+        gap = front_gap_m(foreground, range_m, intrinsics, direction) if self.front_depth_m > 0 else 0.0
+        return np.asarray(foreground, dtype=bool) & self.keep(border, gap)
 
 
 ALL_FOREGROUND = Candidates()
