@@ -1,14 +1,17 @@
 """Evaluation end to end on a tiny rendered split, the CLI outputs, and the NoseDetector on a frame."""
 
 import dataclasses
+import itertools
 import json
 
 import numpy as np
 import pytest
 
+from drivers.camera import Intrinsics
+from drivers.render import Pose, render_face
 from tofd.config import Config, DetectorConfig
 from tofd.detect import VARIANTS, NoseDetector, save_model
-from tofd.evaluate import distance_bins, evaluate_model, extract_samples, train_model
+from tofd.evaluate import distance_bins, evaluate_model, extract_samples, label_points, train_model
 from tofd.feature_maps import MAP_NAMES
 from tofd.synth_faces import SUBJECTS, TEST_SUBJECTS, TRAIN_SUBJECTS, generate, make_subject
 
@@ -90,3 +93,23 @@ def test_cli_evaluate_writes_table_json_and_png(tmp_path, capsys):
     report = json.loads((tmp_path / "out" / "evaluation.json").read_text())
     assert set(report["results"]) == set(VARIANTS) and report["test"]["frames"] == 8
     assert (tmp_path / "out" / "roc.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_labels_follow_the_noise_free_surface_closer_than_the_raw_range():
+    """label_points: at 0.6-0.7 m range noise moves pixels across the 15 mm true-nose radius; the labels' filtered
+    range flips fewer of them (against the noise-free render of the same pose) than the raw range would
+    (measured: 254 -> 160 flips over these 36 poses)."""
+    intrinsics, rng = Intrinsics(), np.random.default_rng(0)
+    flips = {"raw": 0, "labels": 0}
+    for name in ("lps", "lps_long", "mp"):
+        mesh = make_subject(SUBJECTS[name])
+        for yaw, pitch, distance in itertools.product((-20.0, 0.0, 20.0), (-10.0, 10.0), (0.6, 0.7)):
+            pose = Pose(distance, yaw, pitch)
+            noisy, clean = render_face(mesh, pose, intrinsics, rng), render_face(mesh, pose, intrinsics, None)
+            truth = np.linalg.norm(intrinsics.backproject(clean.range_m) - clean.nose_xyz_m, axis=-1)
+            region = truth < 0.03
+            for key, points in (("raw", intrinsics.backproject(noisy.range_m)),
+                                ("labels", label_points(noisy.range_m, intrinsics))):
+                labelled = np.linalg.norm(points - clean.nose_xyz_m, axis=-1) <= 0.015
+                flips[key] += int(np.sum(labelled[region] != (truth[region] <= 0.015)))
+    assert flips["labels"] < 0.8 * flips["raw"], flips
