@@ -25,7 +25,8 @@ def add_data_arguments(parser: argparse.ArgumentParser, splits: tuple[str, ...])
     parser.add_argument("--config", default=None, help="config file (default config/tofd.toml)")
     parser.add_argument("--workers", type=int, default=2, help="feature-extraction processes (default 2)")
     parser.add_argument("--radius-mm", type=float, default=15.0,
-                        help="true nose pixels: 3-D distance to the ground-truth tip at most this (default 15)")
+                        help="true nose pixels: 3-D distance (on the 3x3-median range) to the ground-truth tip "
+                             "at most this (default 15)")
 
 
 def dataset_for(args: argparse.Namespace, split: str, timing: dict) -> Dataset:
