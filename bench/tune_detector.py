@@ -29,7 +29,7 @@ from tofd.evaluate import evaluate_model, extract_samples, train_model
 from tofd.synth_faces import CV_SUBJECTS, TEST_DISTANCES_M, TRAIN_DISTANCES_M, render_frames
 
 GRIDS = {
-    "quick": {"quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.0015]},  # the current defaults
+    "quick": {"quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001]},  # the current defaults
     "front": {"quantile": [0.05], "border_margin_m": [0.006],
               "front_depth_m": [0.0, 0.0005, 0.001, 0.0015, 0.002, 0.003, 0.005, 0.008]},
     "plane_fine": {"plane_iterations": [1, 2, 3], "plane_depth_m": [0.03, 0.04], "depth_margin_m": [0.025, 0.03],

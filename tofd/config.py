@@ -199,7 +199,7 @@ class DetectorConfig:
     variant: str = "nfft_range"  # fft_range, fft_range_amp, nfft_range or nfft_range_amp
     box_scale: float = 0.0  # box half-widths times this (> 0); 0 = the model's operating scale (training EER)
     border_margin_m: float = 0.006  # metres: pixels nearer than this to the mask border are never the nose
-    front_depth_m: float = 0.0015  # metres: pixels this far behind the front-most one within 12 mm are never the
+    front_depth_m: float = 0.001  # metres: pixels this far behind the front-most one within 12 mm are never the
     # nose (0 = no front test; tofd/detect.py)
 
     def validate(self) -> None:

@@ -29,9 +29,10 @@ per-pixel features cannot: pixels 15-27 mm from the tip on the nose, e.g. with t
 lip just below the tip in the image, 2 cm behind it, to which the filters (6 mm wide) give the tip's response.
 Measured (bench/tune_detector.py --grid front, leave-one-training-subject-out, mean of three draws), EER % FFT
 range / NFFT range / NFFT range+amplitude: off 7.3 / 1.4 / 1.6; 0.5 mm 1.0 / 0.8 / 0.9; 1 mm 1.1 / 0.7 / 0.6;
-1.5 mm 1.2 / 0.4 / 0.4; 2 mm 1.3 / 0.4 / 0.3; 3 mm 3.0 / 0.8 / 0.7; 8 mm 7.3 / 1.1 / 1.6. Default 1.5 mm, the
-selection rule's pick (best NFFT range, then NFFT range+amplitude) on two of the three draws. (Before the
-labels were measured on the filtered range, tofd.evaluate.label_points, the same grid picked 1 mm.)
+1.5 mm 1.2 / 0.4 / 0.4; 2 mm 1.3 / 0.4 / 0.3; 3 mm 3.0 / 0.8 / 0.7; 8 mm 7.3 / 1.1 / 1.6 (labels on the
+filtered range, tofd.evaluate.label_points). Default 1 mm: 0.5-2 mm differ by about one frame per fold; 1.5 mm
+was not better when each rendered identity was held out in turn (lps_flat / lps_long, 160 frames each: NFFT
+range 0.6 / 4.4 % at 1 mm, 1.2 / 5.0 % at 1.5 mm), and 1 mm leaves twice the room for depth noise of 0.5 mm.
 
 `Candidates` bundles both tests; training and evaluation apply the same ones as the pipeline.
 
