@@ -32,6 +32,8 @@ GRIDS = {
     "quick": {"quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001]},  # the current defaults
     "front": {"quantile": [0.05], "border_margin_m": [0.006],
               "front_depth_m": [0.0, 0.0005, 0.001, 0.0015, 0.002, 0.003, 0.005, 0.008]},
+    "plane_iter": {"plane_iterations": [2, 4, 8], "plane_depth_m": [0.04, 0.05], "quantile": [0.05],
+                   "border_margin_m": [0.006], "front_depth_m": [0.001]},
     "plane_fine": {"plane_iterations": [1, 2, 3], "plane_depth_m": [0.03, 0.04], "depth_margin_m": [0.025, 0.03],
                    "quantile": [0.05], "border_margin_m": [0.006]},
     "band": {"tuning_frequency_per_m": [20.0, 25.0, 30.0, 35.0], "lowpass_sigma_per_m": [30.0, 40.0, 50.0, 70.0],

@@ -28,10 +28,17 @@
      points within `plane_depth_m` (0.04 m) of the nearest one, refitted along the new direction. A nodding
      head otherwise makes its chin or forehead the nearest point, the cut a slab around it and the nose tip
      sit on the slab's border, where the clamped background dominates its features (the misses at 0.6-0.7 m
-     before). The fit follows pitch (a face is flat from brow to chin) but hardly yaw (it is round across),
-     and a tilted disc's direction comes back within 0.1 deg (tests). Both range feature paths then filter
-     the surface in this frame (`Foreground.rotation`): the NFFT features of a tilted disc with a cap equal
-     the frontal ones (tests/test_features_nfft.py). Measured (bench/tune_detector.py --grid plane): mean
+     before). The fit follows pitch (a face is flat from brow to chin) better than yaw (it is round across;
+     each refit moves the front slab, and the direction, further towards the turned face: estimated against
+     true angle over 240 rendered test frames, yaw slope 0.41 / 0.63 / 0.91 after 2 / 4 / 8 fits, pitch
+     0.76 / 0.84 / 0.82, residuals 2.4-3.6 deg), and a tilted disc's direction comes back within 0.1 deg
+     (tests). More fits did not help robustly (bench/tune_detector.py --grid plane_iter, 3 draws, mean EER
+     % FFT range / NFFT range / NFFT range+amplitude: 2 fits 1.1 / 0.7 / 0.6, 4 fits 0.8 / 0.5 / 0.4, 8 fits
+     1.3 / 1.0 / 1.0; but with 4 fits the default split's NFFT range EER rose 0.6 -> 1.8 % and 0.4 -> 1.7 % on
+     two draws, and holding out each identity in turn NFFT range was 0.8 vs 1.0 % but NFFT range+amplitude
+     1.1 vs 0.6 %, 4 vs 2 fits), so 2 stay. Both range feature paths then filter the surface in this frame
+     (`Foreground.rotation`): the NFFT features of a tilted disc with a cap equal the frontal ones
+     (tests/test_features_nfft.py). Measured (bench/tune_detector.py --grid plane): mean
      leave-one-subject-out EER NFFT range 5.3 -> 3.3 %, FFT range 14.2 -> 9.7 % at rho0 = 30 /m;
    - keep step-1 pixels whose filtered depth is <= reference + `depth_margin_m` (default 0.025 m: the
      nose and the face around it, chosen by cross-validation on the training subjects,
