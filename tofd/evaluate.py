@@ -1,6 +1,6 @@
 """The paper's evaluation: train the box detector on one dataset, trace per-image ROC curves on another.
 
-Features are computed once per frame (all three families: range FFT, range NFFT, amplitude FFT), reduced to
+Features are computed once per frame (all four families: range and amplitude, FFT and NFFT), reduced to
 the foreground pixels' log10 features and their 3-D distance to the ground-truth nose tip, and reused by all
 four variants and every box scale. True nose pixels: foreground pixels within `radius_m` (15 mm) of the tip,
 each pixel's 3-D point taken from the 3x3-median-filtered range (`label_points`);
