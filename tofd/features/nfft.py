@@ -19,6 +19,11 @@ the bias is the same for every patch size and distance (scale-invariant), the sy
 is ~1/damping whatever the patch, and the field is pulled to 0 (= max z, like the FFT path's background)
 where there are no points. nfft_notes' lambda = 0.01 M shrinks less on small patches and needed 50-100
 CG iterations on 250-1800-point face patches where this needs 12-30 (measured, rendered faces).
+Larger damping smooths range noise more but shrinks the features unevenly: sphere apex eps0 spread over
+0.3-0.9 m 1.9 / 4.3 / 12.4 % and FFT/NFFT at e 1.009 / 1.015 / 1.038 at damping 0.01 / 0.03 / 0.1
+(`tofd experiment sphere`), while the detector's cross-validated EER moved by about one frame
+(bench/tune_detector.py --grid damping, 72 frames per subject: NFFT range 0.7 / 0.4 / 0.4 / 0.3 / 0.3 % at
+0.003 / 0.01 / 0.03 / 0.1 / 0.3), so 0.01 stays.
 
 Stopping. CG stops when the residual weighted by A(rho) (the filters' band) falls below cg_tolerance
 relative to the weighted right-hand side: smooth surfaces put most of A^H z at low frequencies that
