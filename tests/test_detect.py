@@ -201,5 +201,5 @@ def test_shipped_model_matches_the_bundled_config():
     try:
         det = NoseDetector(load_config())
     except ModelMismatch as exc:
-        pytest.fail(f"config/nose_model.json is stale, retrain: tofd train --out config/nose_model.json ({exc})")
+        pytest.fail(f"config/nose_model.json is stale, retrain with the command in tofd/commands/train.py ({exc})")
     assert det.scale > 0 and det.box.features == VARIANTS["nfft_range"]

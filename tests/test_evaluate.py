@@ -13,7 +13,15 @@ from tofd.config import Config, DetectorConfig
 from tofd.detect import VARIANTS, NoseDetector, save_model
 from tofd.evaluate import distance_bins, evaluate_model, extract_samples, label_points, train_model
 from tofd.feature_maps import MAP_NAMES
-from tofd.synth_faces import SUBJECTS, TEST_SUBJECTS, TRAIN_SUBJECTS, generate, make_subject
+from tofd.synth_faces import (
+    CV_SUBJECTS,
+    HOLDOUT_SUBJECTS,
+    SUBJECTS,
+    TEST_SUBJECTS,
+    TRAIN_SUBJECTS,
+    generate,
+    make_subject,
+)
 
 
 @pytest.fixture(scope="module")
@@ -28,6 +36,7 @@ def tiny():
 
 def test_split_subjects_are_disjoint_and_identities_differ():
     assert set(TRAIN_SUBJECTS).isdisjoint(TEST_SUBJECTS) and len(set(TRAIN_SUBJECTS) | set(TEST_SUBJECTS)) >= 4
+    assert set(HOLDOUT_SUBJECTS).isdisjoint({*CV_SUBJECTS, *TEST_SUBJECTS})
     base, varied = make_subject(SUBJECTS["lps"]), make_subject(SUBJECTS["lps_long"])
     moved = np.linalg.norm(varied.vertices - base.vertices, axis=1)
     assert moved.max() > 0.005 and varied.faces.shape == base.faces.shape
@@ -67,6 +76,11 @@ def test_end_to_end_roc(tiny):
         assert roc.detection_rate[-1] == 1.0
         assert set(r.per_distance) == set(distance_bins(test.distance_m).tolist())
         assert sum(p.n_images for p in r.per_distance.values()) == len(test)
+        # the pipeline's answers: one per image at most, and the distance bins add up to the whole
+        assert r.answers.found + r.answers.wrong <= 1 and set(r.answers_per_distance) == set(r.per_distance)
+        found = sum(a.found * r.per_distance[d].n_images for d, a in r.answers_per_distance.items())
+        assert found == pytest.approx(r.answers.found * len(test))
+        assert r.answers.scale == model.variant(r.variant).operating_scale
 
 
 def test_nose_detector_on_a_frame(tiny, tmp_path):
@@ -89,10 +103,25 @@ def test_cli_evaluate_writes_table_json_and_png(tmp_path, capsys):
                "--out", str(tmp_path / "out"), "--workers", "1"])
     assert rc == 0
     out = capsys.readouterr().out
-    assert "NFFT range+amp" in out and "0.35m" in out
+    assert "NFFT range+amp" in out and "0.35m" in out and "nose found / a wrong pixel accepted" in out
     report = json.loads((tmp_path / "out" / "evaluation.json").read_text())
     assert set(report["results"]) == set(VARIANTS) and report["test"]["frames"] == 8
+    answers = report["results"]["nfft_range"]["overall"]["answers"]
+    assert answers["scale"] == report["model"]["variants"]["nfft_range"]["operating_scale"]
     assert (tmp_path / "out" / "roc.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cli_renders_the_named_subjects_and_names_unknown_ones(tmp_path, capsys):
+    from tofd.cli import main
+
+    rc = main(["evaluate", "--train-subjects", "mp_chin", "--train-frames", "2", "--test-subjects",
+               HOLDOUT_SUBJECTS[0], "--test-frames", "2", "--out", str(tmp_path), "--workers", "1"])
+    assert rc == 0
+    report = json.loads((tmp_path / "evaluation.json").read_text())
+    assert report["test"]["subjects"] == [HOLDOUT_SUBJECTS[0]]
+    assert report["model"]["training"]["subjects"] == ["mp_chin"]
+    with pytest.raises(SystemExit, match="unknown subject.*nobody"):
+        main(["train", "--train-subjects", "mp,nobody", "--out", str(tmp_path / "m.json")])
 
 
 def test_labels_follow_the_noise_free_surface_closer_than_the_raw_range():

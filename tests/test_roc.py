@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tofd.roc import equal_error_rate, roc_from_min_distances
+from tofd.roc import answers_at, equal_error_rate, margin_scale, roc_from_min_distances
 
 
 def test_perfect_separation_has_zero_eer():
@@ -51,3 +51,22 @@ def test_frames_without_nose_count_only_for_false_positives():
 def test_shape_mismatch_is_rejected():
     with pytest.raises(ValueError, match="true_min"):
         roc_from_min_distances(np.zeros(3), np.zeros(4))
+
+
+def test_margin_scale_is_the_geometric_middle_of_the_zero_error_interval():
+    true_min = np.array([0.5, 1.0, np.inf])  # the third image has no nose
+    false_min = np.array([4.0, 9.0, 6.0])
+    has_nose = np.array([True, True, False])
+    assert margin_scale(true_min, false_min, has_nose, eer_scale=1.0) == pytest.approx(2.0)  # sqrt(1 * 4)
+    # overlapping: no zero-error interval, the EER scale is kept
+    assert margin_scale(np.array([3.0, 1.0]), np.array([2.0, 5.0]), np.array([True, True]), 2.5) == 2.5
+
+
+def test_answers_follow_the_best_pixel_and_the_scale():
+    # image 0: nose best (1 < 3); image 1: other pixel best (2 < 4); image 2: nose best but beyond the scale
+    true_min, false_min = np.array([1.0, 4.0, 6.0]), np.array([3.0, 2.0, 8.0])
+    a = answers_at(true_min, false_min, scale=5.0)
+    assert a.found == pytest.approx(1 / 3) and a.wrong == pytest.approx(1 / 3)
+    b = answers_at(true_min, false_min, scale=1.5)  # only image 0's nose is inside
+    assert b.found == pytest.approx(1 / 3) and b.wrong == 0.0
+    assert answers_at(true_min, false_min, scale=10.0).found == pytest.approx(2 / 3)

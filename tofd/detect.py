@@ -153,7 +153,8 @@ def learn_box(samples: np.ndarray, features: tuple[str, ...], quantile: float = 
 
 @dataclass(frozen=True, slots=True)
 class VariantModel:
-    """The learned box of one variant and its operating scale (the training-set equal-error scale)."""
+    """The learned box of one variant and its operating scale (tofd.evaluate.train_model: the middle of the
+    training frames' zero-error scales, else their equal-error scale)."""
 
     variant: str
     box: Box

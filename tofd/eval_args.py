@@ -21,6 +21,9 @@ def add_data_arguments(parser: argparse.ArgumentParser, splits: tuple[str, ...])
                                  f"(default: render the {split} split of tofd/synth_faces.py)")
         parser.add_argument(f"--{split}-frames", type=int, default=DEFAULT_FRAMES[split],
                             help=f"frames of the rendered {split} split (default {DEFAULT_FRAMES[split]})")
+        parser.add_argument(f"--{split}-subjects", default=None, metavar="NAME,...",
+                            help=f"subjects of the rendered {split} split, comma-separated (default: the split's; "
+                                 "known: tofd.synth_faces.SUBJECTS)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the rendered splits (test uses seed + 1)")
     parser.add_argument("--config", default=None, help="config file (default config/tofd.toml)")
     parser.add_argument("--workers", type=int, default=2, help="feature-extraction processes (default 2)")
@@ -31,7 +34,7 @@ def add_data_arguments(parser: argparse.ArgumentParser, splits: tuple[str, ...])
 
 def dataset_for(args: argparse.Namespace, split: str, timing: dict) -> Dataset:
     """The --<split> file, or the rendered default split; records seconds spent in timing[f'{split}_data_s']."""
-    from tofd.synth_faces import generate
+    from tofd.synth_faces import SUBJECTS, generate
 
     start = time.monotonic()
     path = getattr(args, split)
@@ -41,8 +44,14 @@ def dataset_for(args: argparse.Namespace, split: str, timing: dict) -> Dataset:
         frames = getattr(args, f"{split}_frames")
         if frames < 1:
             raise SystemExit(f"tofd: --{split}-frames must be >= 1, got {frames}")
+        names = getattr(args, f"{split}_subjects")
+        subjects = tuple(n.strip() for n in names.split(",") if n.strip()) if names is not None else None
+        unknown = [n for n in subjects or () if n not in SUBJECTS]
+        if unknown or subjects == ():
+            raise SystemExit(f"tofd: --{split}-subjects: unknown subject(s) {', '.join(unknown) or '(none given)'} "
+                             f"(known: {', '.join(SUBJECTS)})")
         progress = Progress(f"rendering {split} split", frames)
-        ds = generate(split, frames, args.seed + (split == "test"), progress=progress.update)
+        ds = generate(split, frames, args.seed + (split == "test"), progress=progress.update, subjects=subjects)
         progress.done()
     timing[f"{split}_data_s"] = round(time.monotonic() - start, 3)
     return ds

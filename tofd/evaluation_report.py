@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 from tofd.evaluate import VariantResult
@@ -15,23 +16,42 @@ LABELS = {
 }
 
 
+def _distance_table(title: str, results: dict[str, VariantResult],
+                    cell: Callable[[VariantResult, float | None], str]) -> str:
+    """Rows: variants; columns: all test frames (distance None), then per distance bin; cells right-aligned."""
+    distances = sorted({d for r in results.values() for d in r.per_distance})
+    head = f"{'variant':<16}{'overall':>11}" + "".join(f"{d:>10.2f}m" for d in distances)
+    lines = [title, head, "-" * len(head)]
+    for name, r in results.items():
+        cells = "".join(f"{cell(r, d) if d in r.per_distance else '-':>11}" for d in distances)
+        lines.append(f"{LABELS.get(name, name):<16}{cell(r, None):>11}{cells}")
+    return "\n".join(lines)
+
+
 def eer_table(results: dict[str, VariantResult]) -> str:
     """Rows: variants; columns: EER in percent overall and per distance bin."""
-    distances = sorted({d for r in results.values() for d in r.per_distance})
-    head = f"{'variant':<16}{'overall':>9}" + "".join(f"{d:>8.2f}m" for d in distances)
-    lines = ["EER % (per-image ROC; columns: all test frames, then per nose distance)", head, "-" * len(head)]
-    for name, r in results.items():
-        cells = "".join(f"{100 * r.per_distance[d].eer:>9.1f}" if d in r.per_distance else f"{'-':>9}"
-                        for d in distances)
-        lines.append(f"{LABELS.get(name, name):<16}{100 * r.overall.eer:>9.1f}{cells}")
-    return "\n".join(lines)
+    def cell(r: VariantResult, d: float | None) -> str:
+        return f"{100 * (r.overall if d is None else r.per_distance[d]).eer:.1f}"
+
+    return _distance_table("EER % (per-image ROC; columns: all test frames, then per nose distance)", results, cell)
+
+
+def answers_table(results: dict[str, VariantResult]) -> str:
+    """Per variant, in percent of the frames: nose found / wrong pixel accepted at the model's operating scale."""
+    def cell(r: VariantResult, d: float | None) -> str:
+        a = r.answers if d is None else r.answers_per_distance[d]
+        return f"{100 * a.found:.1f}/{100 * a.wrong:.1f}"
+
+    return _distance_table("what the pipeline reports, % of frames: nose found / a wrong pixel accepted (the best "
+                           "candidate pixel, at the model's operating scale)", results, cell)
 
 
 def results_to_dict(results: dict[str, VariantResult]) -> dict:
     return {
         name: {
-            "overall": r.overall.to_dict(),
-            "per_distance": {f"{d:.2f}": roc.to_dict() for d, roc in sorted(r.per_distance.items())},
+            "overall": {**r.overall.to_dict(), "answers": r.answers.to_dict()},
+            "per_distance": {f"{d:.2f}": {**roc.to_dict(), "answers": r.answers_per_distance[d].to_dict()}
+                             for d, roc in sorted(r.per_distance.items())},
         }
         for name, r in results.items()
     }

@@ -10,8 +10,9 @@ from typing import TextIO
 class Progress:
     """Rewrites one stderr line at most every `interval_s` seconds; done() ends the line."""
 
-    def __init__(self, label: str, total: int, stream: TextIO = sys.stderr, interval_s: float = 0.5) -> None:
-        self.label, self.total, self.stream, self.interval_s = label, total, stream, interval_s
+    def __init__(self, label: str, total: int, stream: TextIO | None = None, interval_s: float = 0.5) -> None:
+        # sys.stderr looked up per instance, not bound at import (it may be replaced, e.g. by a test's capture)
+        self.label, self.total, self.stream, self.interval_s = label, total, stream or sys.stderr, interval_s
         self.start = time.monotonic()
         self._last = -float("inf")
         self.count = 0

@@ -80,3 +80,42 @@ def equal_error_rate(scale: np.ndarray, detection_rate: np.ndarray, fpr: np.ndar
     lam = -gap[a] / (gap[b] - gap[a])
     eer = fpr[a] + lam * (fpr[b] - fpr[a])
     return float(eer), float(scale[a] + lam * (scale[b] - scale[a]))
+
+
+def margin_scale(true_min: np.ndarray, false_min: np.ndarray, has_nose: np.ndarray, eer_scale: float) -> float:
+    """The box scale halfway (geometrically) between the images' noses and everything else, if the box separates them.
+
+    Zero-error interval: every image's nose is in the box (scale >= the largest true_min of the images with a
+    nose) and no image's other pixel is (scale < the smallest false_min). Its geometric middle leaves the same
+    factor of room on both sides; without such an interval, `eer_scale`.
+    """
+    true_min, false_min = np.asarray(true_min, np.float64), np.asarray(false_min, np.float64)
+    has_nose = np.asarray(has_nose, dtype=bool)
+    lo = float(np.max(true_min[has_nose])) if has_nose.any() else 0.0
+    hi = float(np.min(false_min)) if false_min.size else np.inf
+    if not (0 < lo < hi < np.inf):
+        return eer_scale
+    return float(np.sqrt(lo * hi))
+
+
+@dataclass(frozen=True, slots=True)
+class Answers:
+    """What the detector reports at one box scale: each image's best candidate pixel, accepted iff its box
+    distance <= scale (tofd.detect.detect), as shares of the images."""
+
+    scale: float
+    found: float  # the accepted pixel is a true nose pixel
+    wrong: float  # a pixel is accepted and it is not a true nose pixel
+
+    def to_dict(self) -> dict:
+        return {"scale": self.scale, "found_rate": self.found, "wrong_rate": self.wrong}
+
+
+def answers_at(true_min: np.ndarray, false_min: np.ndarray, scale: float) -> Answers:
+    """Answers from per-image minimal box distances (roc_from_min_distances); a tie goes to the nose."""
+    true_min, false_min = np.asarray(true_min, np.float64), np.asarray(false_min, np.float64)
+    n = max(len(true_min), 1)
+    nose_first = true_min <= false_min
+    found = nose_first & (true_min <= scale)
+    wrong = ~nose_first & (false_min <= scale)
+    return Answers(float(scale), float(found.sum() / n), float(wrong.sum() / n))

@@ -6,7 +6,9 @@ cheeks, chin -- found on each mesh by their position relative to the nose tip.
 
 Default split (the paper's experiment): train on three subjects at 0.60 m, test on a fourth subject at
 0.35-0.70 m; yaw uniform in +-30 deg, pitch in +-15 deg, the nose tip a few pixels off the image centre;
-range noise and flying pixels from the renderer's sensor model.
+range noise and flying pixels from the renderer's sensor model. Other subjects can take either role
+(`tofd train --train-subjects`, `tofd evaluate --test-subjects`); HOLDOUT_SUBJECTS, a larger and a smaller
+nose, are for unseen-face checks and are never trained or tuned on.
 """
 
 from __future__ import annotations
@@ -64,11 +66,17 @@ SUBJECTS: dict[str, Subject] = {s.name: s for s in (
     Subject("lps_flat", "lee_perry_smith", (1.03, 0.98, 0.95), (  # flatter nose, fuller cheeks
         Bump("nose", (0.0, 0.0, -0.004), 0.012),
         Bump("cheek_left", (0.0, 0.0, 0.003), 0.02), Bump("cheek_right", (0.0, 0.0, 0.003), 0.02))),
+    Subject("mp_bignose", "mediapipe_canonical", (0.93, 1.04, 1.08), (  # narrow face, nose 6 mm further out
+        Bump("nose", (0.0, -0.002, 0.006), 0.010), Bump("chin", (0.0, 0.0, -0.004), 0.02))),
+    Subject("lps_smallnose", "lee_perry_smith", (1.02, 0.97, 0.92), (  # nose 6 mm shallower, fuller cheeks
+        Bump("nose", (0.0, 0.001, -0.006), 0.010),
+        Bump("cheek_left", (0.0, 0.0, 0.005), 0.022), Bump("cheek_right", (0.0, 0.0, 0.005), 0.022))),
 )}
 
 TRAIN_SUBJECTS = ("lps", "mp", "mp_broad")
 CV_SUBJECTS = (*TRAIN_SUBJECTS, "mp_chin", "lps_flat")  # bench/tune_detector.py: never the test subject
 TEST_SUBJECTS = ("lps_long",)
+HOLDOUT_SUBJECTS = ("mp_bignose", "lps_smallnose")  # unseen-face checks only: never trained or tuned on
 TRAIN_DISTANCES_M = (0.60,)
 TEST_DISTANCES_M = (0.35, 0.40, 0.45, 0.50, 0.55, 0.60, 0.65, 0.70)
 YAW_DEG, PITCH_DEG = 30.0, 15.0  # poses uniform in +-these
@@ -115,10 +123,12 @@ def generate(
     seed: int = 0,
     intrinsics: Intrinsics | None = None,
     progress: Callable[[int, int], None] | None = None,
+    subjects: tuple[str, ...] | None = None,
 ) -> Dataset:
-    """Render `frames` labelled frames of a split, cycling through its subjects and distances evenly."""
-    subjects, distances = _split(split)
-    return render_frames(subjects, distances, frames, seed, intrinsics, progress)
+    """Render `frames` labelled frames of a split (its distances; its subjects unless `subjects` are given),
+    cycling through subjects and distances evenly."""
+    split_subjects, distances = _split(split)
+    return render_frames(subjects or split_subjects, distances, frames, seed, intrinsics, progress)
 
 
 def render_frames(

@@ -29,7 +29,7 @@ def main(args: argparse.Namespace) -> int:
     from tofd.detect import Candidates, load_model, save_model
     from tofd.eval_args import dataset_for, samples_for
     from tofd.evaluate import evaluate_model, train_model
-    from tofd.evaluation_report import eer_table, plot_roc, write_json
+    from tofd.evaluation_report import answers_table, eer_table, plot_roc, write_json
 
     start = time.monotonic()
     cfg = load_config(args.config)
@@ -56,6 +56,7 @@ def main(args: argparse.Namespace) -> int:
     timing["total_s"] = round(time.monotonic() - start, 3)
 
     print(eer_table(results))
+    print(answers_table(results))
     save_model(model, out / "model.json")
     plot_roc(out / "roc.png", results)
     write_json(out / "evaluation.json", results, radius_mm=args.radius_mm, timing=timing,

@@ -1,9 +1,14 @@
 """Train the nose detector's boxes (all four variants) and write the model JSON.
 
 Trains on TRAIN (a dataset .npz or a recording with ground truth), by default the rendered train split: three
-subjects at 0.60 m. The box of each variant spans the [q, 1 - q] quantiles of the log10 features of the
-pixels within --positive-radius-mm of the nose tip, its half-widths then rescaled per feature to minimise the
-training per-image EER (tofd.evaluate.shape_box); its operating scale is the training equal-error scale.
+subjects at 0.60 m (--train-subjects names others). The box of each variant spans the [q, 1 - q] quantiles of
+the log10 features of the pixels within --positive-radius-mm of the nose tip, its half-widths then rescaled per
+feature to minimise the training per-image EER (tofd.evaluate.shape_box); its operating scale is the middle of
+the training frames' zero-error scales, else their equal-error scale (tofd.evaluate.train_model).
+
+The shipped config/nose_model.json is trained on all five identities that are neither the evaluation's test
+subject nor held out (README, Detector): tofd train --train-subjects lps,mp,mp_broad,mp_chin,lps_flat
+--train-frames 200 --out config/nose_model.json
 """
 
 from __future__ import annotations
