@@ -1,8 +1,10 @@
 """The paper's evaluation: train on TRAIN, per-image ROC and EER of the four detector variants on TEST.
 
 Without --train/--test it renders the default split (train: three subjects at 0.60 m; test: a fourth subject
-at 0.35-0.70 m). With --model it skips training and evaluates that model. Prints the EER table (overall and
-per distance) and writes DIR/evaluation.json, DIR/roc.png and DIR/model.json.
+at 0.35-0.70 m; --train-subjects / --test-subjects render others). With --model it skips training and
+evaluates that model. Prints the EER table (overall and per distance) and what the pipeline would report at the
+model's operating scale (nose found / wrong pixel accepted), and writes DIR/evaluation.json, DIR/roc.png and
+DIR/model.json.
 """
 
 from __future__ import annotations
