@@ -11,7 +11,14 @@ from drivers.camera import Intrinsics
 from drivers.render import Pose, render_face
 from tofd.config import Config, DetectorConfig
 from tofd.detect import VARIANTS, NoseDetector, save_model
-from tofd.evaluate import distance_bins, evaluate_model, extract_samples, label_points, train_model
+from tofd.evaluate import (
+    distance_bins,
+    evaluate_model,
+    extract_samples,
+    label_points,
+    min_distances,
+    train_model,
+)
 from tofd.feature_maps import MAP_NAMES
 from tofd.synth_faces import (
     CV_SUBJECTS,
@@ -81,6 +88,16 @@ def test_end_to_end_roc(tiny):
         found = sum(a.found * r.per_distance[d].n_images for d, a in r.answers_per_distance.items())
         assert found == pytest.approx(r.answers.found * len(test))
         assert r.answers.scale == model.variant(r.variant).operating_scale
+
+
+def test_operating_scale_makes_no_training_error_when_one_exists(tiny):
+    cfg, _, _, s_train, _ = tiny
+    model = train_model(s_train, cfg.features, cfg.segmentation)
+    separable = [name for name, vm in model.variants.items() if vm.train_eer == 0]
+    assert separable  # six frames: the boxes separate them (measured: all four variants)
+    for name in separable:  # strictly inside the zero-error interval, not on its lower end
+        true_min, false_min = min_distances(s_train, name, model.variant(name).box, 0.015)
+        assert np.max(true_min) < model.variant(name).operating_scale < np.min(false_min)
 
 
 def test_nose_detector_on_a_frame(tiny, tmp_path):
