@@ -139,6 +139,9 @@ def test_cli_renders_the_named_subjects_and_names_unknown_ones(tmp_path, capsys)
     assert report["model"]["training"]["subjects"] == ["mp_chin"]
     with pytest.raises(SystemExit, match="unknown subject.*nobody"):
         main(["train", "--train-subjects", "mp,nobody", "--out", str(tmp_path / "m.json")])
+    with pytest.raises(SystemExit, match="cannot be combined with --train"):
+        main(["train", "--train", str(tmp_path / "absent.npz"), "--train-subjects", "mp",
+              "--out", str(tmp_path / "m.json")])
 
 
 def test_labels_follow_the_noise_free_surface_closer_than_the_raw_range():

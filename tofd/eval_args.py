@@ -39,6 +39,9 @@ def dataset_for(args: argparse.Namespace, split: str, timing: dict) -> Dataset:
     start = time.monotonic()
     path = getattr(args, split)
     if path is not None:
+        if getattr(args, f"{split}_subjects") is not None:
+            raise SystemExit(f"tofd: --{split}-subjects renders the {split} split; "
+                             f"it cannot be combined with --{split}")
         ds = load_labelled(path)
     else:
         frames = getattr(args, f"{split}_frames")

@@ -214,7 +214,8 @@ def train_model(samples: list[FrameSamples], features: FeatureConfig, segmentati
     equal-error scale: the interval's lower end, the training EER scale, fits the training noses with no room,
     and the pipeline then rejected noses of new faces (3-subject default model, NFFT range, share of 960 frames
     found: lps_long 95.7 -> 99.4 %, mp_bignose 89.8 -> 97.8 %, lps_smallnose 4.4 -> 33.5 %; wrong answers
-    0.0 % at both scales; `tofd evaluate [--test-subjects S]`). The candidate rule is recorded in the model's training info."""
+    0.0 % at both scales; `tofd evaluate [--test-subjects S]`). The candidate rule is recorded in the model's
+    training info."""
     positive = [s.log_features[(s.tip_distance_m <= positive_radius_m) & candidates.keep(s.border_m, s.front_gap)]
                 for s in samples]
     pos = np.concatenate(positive) if positive else np.empty((0, len(MAP_NAMES)), np.float32)
