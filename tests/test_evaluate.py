@@ -139,6 +139,8 @@ def test_cli_renders_the_named_subjects_and_names_unknown_ones(tmp_path, capsys)
     assert report["model"]["training"]["subjects"] == ["mp_chin"]
     with pytest.raises(SystemExit, match="unknown subject.*nobody"):
         main(["train", "--train-subjects", "mp,nobody", "--out", str(tmp_path / "m.json")])
+    with pytest.raises(SystemExit, match=r"none given"):
+        main(["train", "--train-subjects", ",", "--out", str(tmp_path / "m.json")])
     with pytest.raises(SystemExit, match="cannot be combined with --train"):
         main(["train", "--train", str(tmp_path / "absent.npz"), "--train-subjects", "mp",
               "--out", str(tmp_path / "m.json")])

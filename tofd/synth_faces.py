@@ -128,7 +128,8 @@ def generate(
     """Render `frames` labelled frames of a split (its distances; its subjects unless `subjects` are given),
     cycling through subjects and distances evenly."""
     split_subjects, distances = _split(split)
-    return render_frames(subjects or split_subjects, distances, frames, seed, intrinsics, progress)
+    return render_frames(split_subjects if subjects is None else subjects, distances, frames, seed, intrinsics,
+                         progress)
 
 
 def render_frames(
@@ -141,8 +142,8 @@ def render_frames(
 ) -> Dataset:
     """Render `frames` labelled frames of these SUBJECTS at these nose distances (metres), cycling evenly."""
     unknown = [s for s in subjects if s not in SUBJECTS]
-    if unknown:
-        raise ValueError(f"unknown subject(s) {', '.join(unknown)} (known: {', '.join(SUBJECTS)})")
+    if unknown or not subjects:
+        raise ValueError(f"unknown subject(s) {', '.join(unknown) or '(none given)'} (known: {', '.join(SUBJECTS)})")
     if frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames}")
     intrinsics = intrinsics or Intrinsics()
