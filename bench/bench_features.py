@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 from report import write_json
 
-from drivers.camera import Intrinsics
-from drivers.render import Pose, load_face, render_face
-from tofd import synthetic
+from drivers.emulator.render import Pose, load_face, render_face
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.features import FFTFeatures, NFFTFeatures
+from tofd.algorithm.segmentation import segment
 from tofd.config import FeatureConfig, SegmentationConfig
-from tofd.features import FFTFeatures, NFFTFeatures
-from tofd.segmentation import segment
+from tofd.lab import shapes as synthetic
 
 DISTANCES_M = (0.35, 0.5, 0.7)
 FACE_DEPTH_M = 0.08  # metres: segmentation depth margin for the face scenes, the whole face (a worst case: 1,700-5,600

@@ -25,12 +25,12 @@ from pathlib import Path
 import numpy as np
 from report import write_json
 
-from drivers.emulator import open_emulated_camera
-from drivers.replay import ReplaySource
+from drivers.emulator.backend import open_emulated_camera
+from drivers.recording.replay import ReplaySource
 from tofd.config import load_config
-from tofd.pipeline import Pipeline
-from tofd.pipeline.service import load_detector
-from tofd.viewer import RerunLogger, RerunTarget
+from tofd.service.model import load_service_model
+from tofd.service.pipeline import Pipeline
+from tofd.service.viewer import RerunLogger, RerunTarget
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -64,7 +64,7 @@ def with_detector(cfg, tmp: Path):
     from tofd.config import ConfigError
 
     try:
-        if load_detector(cfg) is not None:
+        if load_service_model(cfg) is not None:
             return cfg
         reason = "no shipped model"
     except ConfigError as exc:
@@ -82,7 +82,7 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     target = RerunTarget(cfg.rerun, "save", path=str(tmp / f"{policy}-{time.monotonic_ns()}.rrd")) if rerun else None
     lat = Latencies()
     pipeline = Pipeline(cfg, policy, viewer=RerunLogger(target.rec, cfg.intrinsics) if target else None,
-                        writers=(lat,), detect=True, live_source=live)
+                        writers=(lat,), model=load_service_model(cfg), live_source=live)
     rss, rss_parent, stop_sampling = [], [], threading.Event()
 
     def sample() -> None:

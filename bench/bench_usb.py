@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 from report import write_json
 
-from drivers import protocol as p
-from drivers.emulator import EmulatedCamera, EmulatedSR3000, FaceScene, Motion
+from drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, FaceScene, Motion
+from drivers.usb import protocol as p
 
 CASES = [  # name, INT_TIME code, readout_s, test pattern
     ("30fps_scene", 30, 0.0085, False),

@@ -1,6 +1,6 @@
 """Choose segmentation/feature/box parameters by leave-one-subject-out cross-validation on the TRAINING subjects.
 
-The subjects are tofd.synth_faces.CV_SUBJECTS: the training subjects plus two variants (forward chin, flatter
+The subjects are tofd.lab.faces.CV_SUBJECTS: the training subjects plus two variants (forward chin, flatter
 nose); the test subject of the default split (TEST_SUBJECTS) is never rendered here. Each fold
 mirrors the paper's protocol inside the training subjects: learn the boxes on two subjects at the training
 distance (0.60 m), evaluate on the held-out third one at the test distances (0.35-0.70 m). Per grid point the
@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 from report import write_json
 
+from tofd.algorithm.detector import VARIANTS, Candidates
 from tofd.config import Config
-from tofd.detect import VARIANTS, Candidates
-from tofd.evaluate import evaluate_model, extract_samples, train_model
-from tofd.synth_faces import CV_SUBJECTS, TEST_DISTANCES_M, TRAIN_DISTANCES_M, render_frames
+from tofd.lab.evaluation import evaluate_model, extract_samples, train_model
+from tofd.lab.faces import CV_SUBJECTS, TEST_DISTANCES_M, TRAIN_DISTANCES_M, render_frames
 
 GRIDS = {
     "quick": {"quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001]},  # the current defaults
@@ -65,7 +65,7 @@ GRIDS = {
 }
 SEGMENTATION_KEYS = ("depth_margin_m", "range_percentile", "median_px", "morphology_px", "head_height_m",
                      "plane_iterations", "plane_depth_m", "plane_max_tilt_deg")
-CANDIDATE_KEYS = ("border_margin_m", "front_depth_m")  # tofd.detect.Candidates
+CANDIDATE_KEYS = ("border_margin_m", "front_depth_m")  # tofd.algorithm.detector.Candidates
 BOX_KEYS = ("quantile", "positive_radius_m", *CANDIDATE_KEYS)  # cheap: no feature recomputation
 
 

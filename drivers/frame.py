@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.camera import Intrinsics
+from drivers.intrinsics import Intrinsics
 
 MOD_FREQS_MHZ = (40.0, 30.0, 21.0, 20.0, 19.0)
 """MOD_FREQ register index -> modulation frequency in MHz (SR3000)."""

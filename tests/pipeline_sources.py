@@ -1,4 +1,4 @@
-"""Frame sources for the pipeline tests: rendered faces (drivers.render), optionally paced, with injected gaps."""
+"""Frame sources for the pipeline tests: rendered faces, optionally paced, with injected gaps."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.camera import Intrinsics
+from drivers.emulator.render import Pose, load_face, render_face
 from drivers.frame import DeviceInfo, Frame, GroundTruth
-from drivers.render import Pose, load_face, render_face
+from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.config import Config, load_config
 
@@ -59,8 +59,8 @@ class RenderedSource(FrameSource):
 def write_test_model(path: Path, cfg: Config) -> Path:
     """A nose model for the current feature settings, learned on the 3x3 pixels around the true nose tip of a
     few rendered frames (so pipeline tests do not depend on the shipped model being in sync)."""
-    from tofd.detect import VARIANTS, NoseModel, VariantModel, learn_box, save_model, stack_features
-    from tofd.feature_maps import FeatureExtractor
+    from tofd.algorithm.detector import VARIANTS, NoseModel, VariantModel, learn_box, save_model, stack_features
+    from tofd.algorithm.extract import FeatureExtractor
 
     extract = FeatureExtractor(cfg.intrinsics, cfg.features, cfg.segmentation)
     frames = [extract(r, a) for r, a, _ in rendered_frames(3)]

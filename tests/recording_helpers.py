@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers import protocol
-from drivers.camera import Intrinsics
 from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
-from drivers.recording import RecordingWriter
+from drivers.intrinsics import Intrinsics
+from drivers.recording.writer import RecordingWriter
+from drivers.usb import protocol
 
 DEVICE = DeviceInfo(serial="0A1B2C3D", firmware="1.0", backend="emulated")
 FRAME_PERIOD_S = 1 / 30
@@ -20,7 +20,7 @@ DEFAULT_INTRINSICS = Intrinsics()
 def make_frame(counter: int, *, quantized: bool = True, registers: Registers = DEFAULT_REGISTERS,
                intrinsics: Intrinsics = DEFAULT_INTRINSICS, t0: float = 1000.0) -> Frame:
     """A frame like the USB backend delivers (quantized=True: range and amplitude from uint16 raw values via
-    drivers.protocol) or arbitrary float32 planes (quantized=False, with NaN, -0.0 and inf), 30 fps timing,
+    drivers.usb.protocol) or arbitrary float32 planes (quantized=False, with NaN, -0.0 and inf), 30 fps timing,
     and ground truth on every frame but each 5th (none) and 7th (not visible, no 3-D point)."""
     rng = np.random.default_rng(counter)
     shape = intrinsics.shape

@@ -5,7 +5,7 @@ import pyarrow as pa
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from tofd.viewer import blueprint as bp
+from tofd.service.viewer import blueprint as bp
 
 PER_FRAME = [bp.RANGE, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(), f"{bp.TIMINGS}/nfft",
              f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from tofd.detect import VARIANTS, Box, Candidates, learn_box
-from tofd.evaluate import FrameSamples, PixelTable, _columns, shape_box
-from tofd.feature_maps import MAP_NAMES
-from tofd.roc import roc_from_min_distances
+from tofd.algorithm.detector import VARIANTS, Box, Candidates, learn_box
+from tofd.algorithm.names import MAP_NAMES
+from tofd.lab.evaluation import FrameSamples, PixelTable, _columns, shape_box
+from tofd.lab.roc import roc_from_min_distances
 
 VARIANT = "fft_range_amp"  # 4 features: columns 0, 1, 4, 5 of the samples
 

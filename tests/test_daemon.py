@@ -12,8 +12,8 @@ from pathlib import Path
 from pipeline_sources import write_config
 from rrd_helpers import check_rrd
 
-from drivers.replay import read_recording_info
-from tofd.viewer import blueprint as bp
+from drivers.recording.replay import read_recording_info
+from tofd.service.viewer import blueprint as bp
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"

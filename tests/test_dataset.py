@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from drivers.camera import Intrinsics
 from drivers.frame import Frame, GroundTruth
-from tofd.dataset import Dataset, DatasetError, dataset_from_frames, load_dataset, save_dataset
+from drivers.intrinsics import Intrinsics
+from tofd.lab.dataset import Dataset, DatasetError, dataset_from_frames, load_dataset, save_dataset
 
 
 def _arrays(f: int = 3, h: int = 144, w: int = 176) -> dict:

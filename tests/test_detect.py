@@ -7,9 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.camera import Intrinsics
-from tofd.config import FeatureConfig, SegmentationConfig
-from tofd.detect import (
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.detector import (
     VARIANTS,
     Box,
     Candidates,
@@ -25,6 +24,7 @@ from tofd.detect import (
     save_model,
     stack_features,
 )
+from tofd.config import FeatureConfig, SegmentationConfig
 
 
 def test_box_of_uniform_cloud_matches_its_quantiles():
@@ -196,10 +196,10 @@ def test_bad_model_file_names_the_key(tmp_path):
 
 def test_shipped_model_matches_the_bundled_config():
     from tofd.config import load_config
-    from tofd.detect import NoseDetector
+    from tofd.service.model import load_detector
 
     try:
-        det = NoseDetector(load_config())
+        det = load_detector(load_config())
     except ModelMismatch as exc:
         pytest.fail(f"config/nose_model.json is stale, retrain with the command in tofd/commands/train.py ({exc})")
     assert det.scale > 0 and det.box.features == VARIANTS["nfft_range"]

@@ -7,11 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from drivers.camera import Intrinsics
-from drivers.render import Pose, render_face
+from drivers.emulator.render import Pose, render_face
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.detector import VARIANTS, save_model
+from tofd.algorithm.names import MAP_NAMES
 from tofd.config import Config, DetectorConfig
-from tofd.detect import VARIANTS, NoseDetector, save_model
-from tofd.evaluate import (
+from tofd.lab.evaluation import (
     distance_bins,
     evaluate_model,
     extract_samples,
@@ -19,8 +20,7 @@ from tofd.evaluate import (
     min_distances,
     train_model,
 )
-from tofd.feature_maps import MAP_NAMES
-from tofd.synth_faces import (
+from tofd.lab.faces import (
     CV_SUBJECTS,
     HOLDOUT_SUBJECTS,
     SUBJECTS,
@@ -29,6 +29,7 @@ from tofd.synth_faces import (
     generate,
     make_subject,
 )
+from tofd.service.model import load_detector
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +105,7 @@ def test_nose_detector_on_a_frame(tiny, tmp_path):
     cfg, _, test, s_train, _ = tiny
     path = save_model(train_model(s_train, cfg.features, cfg.segmentation), tmp_path / "m.json")
     cfg = dataclasses.replace(cfg, detector=DetectorConfig(model_path=str(path), variant="nfft_range", box_scale=1e6))
-    det = NoseDetector(cfg).detect_frame(test.range_m[0], test.amplitude[0])
+    det = load_detector(cfg).detect_frame(test.range_m[0], test.amplitude[0])
     assert det.accepted and det.nose_px is not None  # a huge box accepts the best foreground pixel
     u, v = det.nose_px
     assert np.linalg.norm(det.nose_xyz_m) == pytest.approx(test.range_m[0][v, u], rel=1e-5)
@@ -112,7 +113,7 @@ def test_nose_detector_on_a_frame(tiny, tmp_path):
 
 def test_cli_evaluate_writes_table_json_and_png(tmp_path, capsys):
     from tofd.cli import main
-    from tofd.dataset import save_dataset
+    from tofd.lab.dataset import save_dataset
 
     save_dataset(generate("train", 4, seed=5), tmp_path / "train.npz")
     save_dataset(generate("test", 8, seed=6), tmp_path / "test.npz")

@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
-from drivers.camera import Intrinsics
-from tofd import synthetic
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.features import Eccentricities, FFTFeatures
 from tofd.config import FeatureConfig
-from tofd.features import FeatureMaps, FFTFeatures
+from tofd.lab import shapes as synthetic
 
 INTR = Intrinsics()
 FFT = FFTFeatures(INTR, FeatureConfig())
@@ -13,7 +13,7 @@ FFT = FFTFeatures(INTR, FeatureConfig())
 def test_maps_are_float32_nan_outside_mask():
     s = synthetic.sphere(INTR, 0.5, 0.15)
     maps = FFT.range_features(s.range_m, s.mask)
-    assert isinstance(maps, FeatureMaps) and maps.iterations == 0 and np.isnan(maps.residual)
+    assert isinstance(maps, Eccentricities) and maps.iterations == 0 and np.isnan(maps.residual)
     for m in (maps.eps0, maps.eps2):
         assert m.dtype == np.float32 and m.shape == INTR.shape
         assert np.all(np.isnan(m[~s.mask])) and np.all(np.isfinite(m[s.mask]))

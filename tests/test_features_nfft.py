@@ -3,11 +3,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from drivers.camera import Intrinsics
-from tofd import synthetic
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.features import FFTFeatures, NFFTFeatures
+from tofd.algorithm.features.transfer import transfer_functions, unit_square_m
 from tofd.config import FeatureConfig
-from tofd.features import FFTFeatures, NFFTFeatures
-from tofd.features.transfer import transfer_functions, unit_square_m
+from tofd.lab import shapes as synthetic
 
 INTR = Intrinsics()
 CFG = FeatureConfig()
@@ -139,8 +139,8 @@ def test_face_frame_makes_a_tilted_face_look_frontal(tilt):
     """A disc with a spherical cap, tilted: with the segmentation's face frame the NFFT features at the cap's
     top equal those of the frontal disc (eps2 ~ 0 by symmetry); in the camera frame the tilt shears the
     height field (eps2 > 0, eps0 off)."""
+    from tofd.algorithm.segmentation import segment_face
     from tofd.config import SegmentationConfig
-    from tofd.segmentation import segment_face
 
     nfft = NFFTFeatures(INTR, CFG)
     wall = synthetic.tilted_plane(INTR, 1.5, 0.0, 0.0)

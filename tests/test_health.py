@@ -10,8 +10,8 @@ import urllib.request
 from pipeline_sources import RenderedSource
 
 from tofd.config import Config
-from tofd.health import HealthServer, sd_notify, watchdog_interval_s
-from tofd.pipeline import Pipeline
+from tofd.service.health import HealthServer, sd_notify, watchdog_interval_s
+from tofd.service.pipeline import Pipeline
 
 
 def get(url):

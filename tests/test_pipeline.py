@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from pipeline_sources import RenderedSource, write_config
 
+from tofd.algorithm.extract import FeatureExtractor
 from tofd.config import Config, load_config
-from tofd.detect import NoseDetector
-from tofd.feature_maps import FeatureExtractor
-from tofd.pipeline import DropLedger, Pipeline
-from tofd.pipeline.queues import StageQueue
-from tofd.pipeline.stages import pipeline_families
+from tofd.service.model import load_detector
+from tofd.service.pipeline import DropLedger, Pipeline
+from tofd.service.pipeline.queues import StageQueue
+from tofd.service.pipeline.stages import pipeline_families
 
 CFG = Config()
 
@@ -144,9 +144,9 @@ def test_live_policy_drops_instead_of_blocking_and_never_goes_back_in_time():
 
 def test_detection_in_the_workers_equals_the_detector_on_the_frame(tmp_path):
     cfg = load_config(write_config(tmp_path))
-    detector = NoseDetector(cfg)
+    detector = load_detector(cfg)
     sink = Collect()
-    pipeline = Pipeline(cfg, "lossless", writers=(sink,), detect=True)
+    pipeline = Pipeline(cfg, "lossless", writers=(sink,), model=detector.model)
     pipeline.start(RenderedSource(6, n_distinct=3))
     assert pipeline.wait(60)
     pipeline.close()

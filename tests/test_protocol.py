@@ -1,4 +1,4 @@
-"""drivers.protocol against the literal values of ../shared/design/sr3000_usb_protocol.md."""
+"""drivers.usb.protocol against the literal values of ../shared/design/sr3000_usb_protocol.md."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import zlib
 import numpy as np
 import pytest
 
-from drivers import protocol as p
+from drivers.usb import protocol as p
 
 C = 299_792_458.0
 

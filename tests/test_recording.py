@@ -14,11 +14,11 @@ from mcap.reader import make_reader
 from recording_helpers import DEVICE, assert_frames_equal, make_frame, write_recording
 
 import tofd
-from drivers import recording_format as fmt
-from drivers.camera import Intrinsics
 from drivers.frame import Registers
-from drivers.recording import RecordingWriter
-from drivers.replay import ReplaySource, iter_frames, read_recording_info
+from drivers.intrinsics import Intrinsics
+from drivers.recording import format as fmt
+from drivers.recording.replay import ReplaySource, iter_frames, read_recording_info
+from drivers.recording.writer import RecordingWriter
 from tofd import cli
 
 
@@ -111,8 +111,8 @@ def test_writer_rejects_bad_fsync_interval(tmp_path):
 
 def test_realistic_face_frames_stay_small(tmp_path):
     """Rendered SR3000-like frames (noise, flying pixels) as the USB backend delivers them: <= 100 kB each."""
-    from drivers import protocol
-    from drivers.render import Pose, load_face, render_face
+    from drivers.emulator.render import Pose, load_face, render_face
+    from drivers.usb import protocol
 
     mesh, rng = load_face("lee_perry_smith"), np.random.default_rng(1)
     path = tmp_path / "face.mcap"

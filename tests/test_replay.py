@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 from recording_helpers import FRAME_PERIOD_S, assert_frames_equal, write_recording
 
 from drivers.frame import Frame
-from drivers.replay import ReplaySource, read_recording_info
+from drivers.recording.replay import ReplaySource, read_recording_info
 from drivers.source import DriverError
 
 
@@ -179,7 +179,7 @@ def test_truncated_file_replays_its_prefix_and_says_where_it_stopped(clip, tmp_p
         cut_path = tmp_path / f"cut{cut}.mcap"
         cut_path.write_bytes(data[:cut])
         source = ReplaySource(cut_path)
-        with caplog.at_level(logging.WARNING, logger="drivers.replay"):
+        with caplog.at_level(logging.WARNING, logger="drivers.recording.replay"):
             caplog.clear()
             replayed = collect(source)
         expected = sum(end <= cut for end in ends)

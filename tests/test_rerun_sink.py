@@ -8,9 +8,9 @@ from rerun.chunk import RrdReader
 from rrd_helpers import check_rrd
 
 from tofd.config import Config
-from tofd.pipeline import Pipeline
-from tofd.viewer import RerunLogger, RerunTarget
-from tofd.viewer import blueprint as bp
+from tofd.service.pipeline import Pipeline
+from tofd.service.viewer import RerunLogger, RerunTarget
+from tofd.service.viewer import blueprint as bp
 
 
 def test_saved_rrd_holds_every_frame(tmp_path):
@@ -39,7 +39,7 @@ def test_bad_sink_is_rejected():
 
 
 def test_results_lines_match_delivered_frames(tmp_path):
-    from tofd.pipeline import ResultsWriter
+    from tofd.service.pipeline import ResultsWriter
 
     writer = ResultsWriter(tmp_path / "r.jsonl")
     pipeline = Pipeline(Config(), "lossless", writers=(writer,))

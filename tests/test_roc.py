@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tofd.roc import answers_at, equal_error_rate, margin_scale, roc_from_min_distances
+from tofd.lab.roc import answers_at, equal_error_rate, margin_scale, roc_from_min_distances
 
 
 def test_perfect_separation_has_zero_eer():

@@ -4,11 +4,11 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.camera import Intrinsics
-from drivers.render import Pose, load_face, render_face
-from tofd import synthetic
+from drivers.emulator.render import Pose, load_face, render_face
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.segmentation import component_at, fill_holes, otsu_threshold, rotation_to_z, segment, segment_face
 from tofd.config import ConfigError, SegmentationConfig, config_from_dict
-from tofd.segmentation import component_at, fill_holes, otsu_threshold, rotation_to_z, segment, segment_face
+from tofd.lab import shapes as synthetic
 
 INTR = Intrinsics()
 

@@ -3,10 +3,10 @@ import json
 import numpy as np
 import pytest
 
-from drivers.camera import Intrinsics
-from tofd import experiment_sphere
+from drivers.intrinsics import Intrinsics
 from tofd.cli import main
 from tofd.config import FeatureConfig
+from tofd.lab import sphere_experiment as experiment_sphere
 
 CFG = FeatureConfig()
 

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import scipy.fft as sfft
 
-from drivers.camera import Intrinsics
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.features.transfer import pixel_frequencies_per_m, radial_tuning, transfer_functions, unit_square_m
 from tofd.config import ConfigError, FeatureConfig, config_from_dict
-from tofd.features.transfer import pixel_frequencies_per_m, radial_tuning, transfer_functions, unit_square_m
 
 CFG = FeatureConfig()
 

@@ -7,10 +7,10 @@ import threading
 import numpy as np
 import pytest
 
-from drivers.emulator import EmulatedCamera, EmulatedSR3000, EmulatorBackend
-from drivers.protocol import Register
-from drivers.usb_camera import UsbCamera, list_devices
-from drivers.usb_errors import AccessDenied, DeviceNotFound
+from drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, EmulatorBackend
+from drivers.usb.camera import UsbCamera, list_devices
+from drivers.usb.errors import AccessDenied, DeviceNotFound
+from drivers.usb.protocol import Register
 
 C = 299_792_458.0
 

@@ -9,9 +9,9 @@ import typing
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Literal
 
-from drivers.camera import Intrinsics
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
 
 
 def default_file(name: str) -> Path:
@@ -31,9 +31,9 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class CameraConfig:
-    """Which camera to attach to, the registers to apply, and how to ride out faults (drivers.usb_camera).
+    """Which camera to attach to, the registers to apply, and how to ride out faults (drivers.usb.camera).
 
-    Field names match drivers.usb_camera.UsbCamera's keywords: UsbCamera(**dataclasses.asdict(cfg)).
+    Field names match drivers.usb.camera.UsbCamera's keywords: UsbCamera(**dataclasses.asdict(cfg)).
     """
 
     serial: str = ""  # 8 hex digits; empty = first camera found
@@ -61,75 +61,8 @@ class CameraConfig:
 
 
 @dataclass(frozen=True, slots=True)
-class SegmentationConfig:
-    """Foreground segmentation: adaptive amplitude threshold, then an iso-range cut of the head (tofd.segmentation)."""
-
-    amplitude_method: str = "otsu"  # the only method: Otsu's threshold on the finite log amplitudes
-    range_percentile: float = 1.0  # percent: reference (robust nearest) range = this percentile of the filtered ranges
-    depth_margin_m: float = 0.025  # metres: keep pixels whose filtered range <= reference + this
-    median_px: int = 5  # pixels: median filter of the range before the cut (1 = none; 3 or 5)
-    morphology_px: int = 3  # pixels: ellipse of the opening + closing of the mask (1 = none)
-    nearest_component: bool = True  # keep only the 8-connected region holding the nearest kept pixel
-    head_height_m: float = 0.18  # metres: nearest point / component searched this far below the top (0 = anywhere)
-    plane_iterations: int = 2  # fits of the face plane the cut is made along (0 = cut along the camera's z axis)
-    plane_depth_m: float = 0.04  # metres: the face front the plane is fitted to, behind the nearest point
-    plane_max_tilt_deg: float = 45.0  # degrees: largest tilt of the face frame from the camera's z axis
-
-    def validate(self) -> None:
-        if self.amplitude_method != "otsu":
-            raise ValueError(f"amplitude_method: {self.amplitude_method!r} is not one of 'otsu'")
-        if not 0.0 <= self.range_percentile <= 100.0:
-            raise ValueError(f"range_percentile: {self.range_percentile} is not in [0, 100]")
-        if not self.depth_margin_m > 0:
-            raise ValueError(f"depth_margin_m: {self.depth_margin_m} must be > 0")
-        if self.median_px not in (1, 3, 5):
-            raise ValueError(f"median_px: {self.median_px} is not one of 1, 3, 5")
-        if self.morphology_px < 1:
-            raise ValueError(f"morphology_px: {self.morphology_px} must be >= 1")
-        if not self.head_height_m >= 0:
-            raise ValueError(f"head_height_m: {self.head_height_m} must be >= 0 (0 = no head band)")
-        if self.plane_iterations < 0:
-            raise ValueError(f"plane_iterations: {self.plane_iterations} must be >= 0 (0 = camera z axis)")
-        if not self.plane_depth_m > 0:
-            raise ValueError(f"plane_depth_m: {self.plane_depth_m} must be > 0")
-        if not 0.0 <= self.plane_max_tilt_deg < 90.0:
-            raise ValueError(f"plane_max_tilt_deg: {self.plane_max_tilt_deg} is not in [0, 90)")
-
-
-@dataclass(frozen=True, slots=True)
-class FeatureConfig:
-    """Generalized-eccentricity features (FFT and NFFT paths, tofd.features); frequencies in cycles/metre."""
-
-    equivalence_range_m: float = 0.5  # e: the NFFT features equal the FFT features of an object at e
-    tuning_frequency_per_m: float = 35.0  # rho0: peak of the radial tuning A(rho), cycles/m
-    lowpass_sigma_per_m: float = 50.0  # Gaussian low-pass width, cycles/m (anti-aliasing for the NFFT grid)
-    fft_padding_px: int = 16  # FFT path: background margin per side against wrap-around, pixels
-    grid_size: int = 80  # NFFT path: N, frequency grid N x N (even)
-    damping: float = 0.01  # NFFT path: lambda = damping * points per unit area, (A^H A + lambda I) f = A^H z
-    cg_tolerance: float = 1e-4  # NFFT path: stop CG at this relative band-weighted residual
-    cg_max_iterations: int = 100  # NFFT path: CG iteration cap
-    nufft_eps: float = 1e-6  # NFFT path: finufft requested relative precision
-    cg_precision: Literal["single", "double"] = "single"  # NFFT path: float width of the CG's FFTs
-
-    def validate(self) -> None:
-        positive = ("equivalence_range_m", "tuning_frequency_per_m", "lowpass_sigma_per_m", "damping",
-                    "cg_tolerance", "nufft_eps")
-        for key in positive:
-            if not getattr(self, key) > 0:
-                raise ValueError(f"{key}: {getattr(self, key)} must be > 0")
-        if self.grid_size < 8 or self.grid_size % 2:
-            raise ValueError(f"grid_size: {self.grid_size} must be even and >= 8")
-        if self.fft_padding_px < 0:
-            raise ValueError(f"fft_padding_px: {self.fft_padding_px} must be >= 0")
-        if self.cg_max_iterations < 1:
-            raise ValueError(f"cg_max_iterations: {self.cg_max_iterations} must be >= 1")
-        if not 1e-14 <= self.nufft_eps < 1e-1:
-            raise ValueError(f"nufft_eps: {self.nufft_eps} is not in [1e-14, 0.1)")
-
-
-@dataclass(frozen=True, slots=True)
 class PipelineConfig:
-    """Threads, worker processes and queue policies of the pipeline (tofd.pipeline)."""
+    """Threads, worker processes and queue policies of the pipeline (tofd.service.pipeline)."""
 
     workers: int = 2  # feature worker processes (segmentation + FFT + NFFT per frame)
     tasks_per_worker: int = 2  # frames in flight per worker (shared-memory slots = workers * this)
@@ -156,7 +89,7 @@ class PipelineConfig:
 
 @dataclass(frozen=True, slots=True)
 class RerunConfig:
-    """Where the Rerun stream goes (tofd.viewer); anything served listens on `bind`."""
+    """Where the Rerun stream goes (tofd.service.viewer); anything served listens on `bind`."""
 
     sink: str = "none"  # "none", "save" (file `path`), "web" (web viewer), "connect" (to `url`), "spawn"
     path: str = "tofd.rrd"  # .rrd file of the "save" sink
@@ -177,7 +110,7 @@ class RerunConfig:
 
 @dataclass(frozen=True, slots=True)
 class HealthConfig:
-    """The /healthz and /metrics HTTP endpoint (tofd.health) and the systemd watchdog."""
+    """The /healthz and /metrics HTTP endpoint (tofd.service.health) and the systemd watchdog."""
 
     enabled: bool = True  # serve /healthz and /metrics
     bind: str = "127.0.0.1"  # listen address
@@ -189,29 +122,6 @@ class HealthConfig:
             raise ValueError(f"port: {self.port} is not a TCP port")
         if not self.stale_after_s > 0:
             raise ValueError(f"stale_after_s: {self.stale_after_s} must be > 0")
-
-
-@dataclass(frozen=True, slots=True)
-class DetectorConfig:
-    """Nose detector (tofd.detect): the model file, which of its variants to use, and the box scale."""
-
-    model_path: str = "nose_model.json"  # JSON model; a relative path not found from the cwd is looked up in config/
-    variant: str = "nfft_range"  # fft_range, fft_range_amp, nfft_range or nfft_range_amp
-    box_scale: float = 0.0  # box half-widths times this (> 0); 0 = the model's operating scale (training EER)
-    border_margin_m: float = 0.006  # metres: pixels nearer than this to the mask border are never the nose
-    front_depth_m: float = 0.001  # metres: pixels this far behind the front-most one within 12 mm are never the
-    # nose (0 = no front test; tofd/detect.py)
-
-    def validate(self) -> None:
-        variants = ("fft_range", "fft_range_amp", "nfft_range", "nfft_range_amp")
-        if self.variant not in variants:
-            raise ValueError(f"variant: {self.variant!r} is not one of {', '.join(variants)}")
-        if not self.box_scale >= 0:
-            raise ValueError(f"box_scale: {self.box_scale} must be >= 0 (0 = the model's operating scale)")
-        if not self.border_margin_m >= 0:
-            raise ValueError(f"border_margin_m: {self.border_margin_m} must be >= 0 (0 = no exclusion)")
-        if not self.front_depth_m >= 0:
-            raise ValueError(f"front_depth_m: {self.front_depth_m} must be >= 0 (0 = no front test)")
 
 
 @dataclass(frozen=True, slots=True)

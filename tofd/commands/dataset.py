@@ -1,6 +1,6 @@
 """Labelled face datasets for the nose detector: `tofd dataset generate OUT.npz` renders one.
 
-The file layout is documented in tofd/dataset.py (one .npz, no pickle, plus an intrinsics JSON sidecar).
+The file layout is documented in tofd/lab/dataset.py (one .npz, no pickle, plus an intrinsics JSON sidecar).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
-    gen = sub.add_parser("generate", help="render a labelled train or test split (tofd/synth_faces.py)")
+    gen = sub.add_parser("generate", help="render a labelled train or test split (tofd/lab/faces.py)")
     gen.add_argument("out", metavar="OUT.npz", help="dataset file to write (and OUT.json, the intrinsics)")
     gen.add_argument("--split", choices=("train", "test"), default="train",
                      help="train: three subjects at 0.60 m; test: a fourth subject at 0.35-0.70 m")
@@ -20,9 +20,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tofd.dataset import save_dataset
+    from tofd.lab.dataset import save_dataset
+    from tofd.lab.faces import generate
     from tofd.progress import Progress
-    from tofd.synth_faces import generate
 
     if args.frames < 1:
         print(f"tofd dataset: --frames must be >= 1, got {args.frames}", file=sys.stderr)

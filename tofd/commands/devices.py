@@ -14,12 +14,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.usb_camera import list_devices
-    from drivers.usb_errors import UsbCameraError
+    from drivers.usb.camera import list_devices
+    from drivers.usb.errors import UsbCameraError
 
     backend = None
     if args.emulate:
-        from drivers.emulator import EmulatorBackend
+        from drivers.emulator.backend import EmulatorBackend
 
         backend = EmulatorBackend()
     try:

@@ -13,7 +13,7 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from tofd.eval_args import add_data_arguments
+    from tofd.lab.data_args import add_data_arguments
 
     add_data_arguments(parser, ("train", "test"))
     parser.add_argument("--model", default=None, help="evaluate this model JSON instead of training one")
@@ -27,11 +27,11 @@ def main(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
+    from tofd.algorithm.detector import Candidates, load_model, save_model
     from tofd.config import load_config
-    from tofd.detect import Candidates, load_model, save_model
-    from tofd.eval_args import dataset_for, samples_for
-    from tofd.evaluate import evaluate_model, train_model
-    from tofd.evaluation_report import answers_table, eer_table, plot_roc, write_json
+    from tofd.lab.data_args import dataset_for, samples_for
+    from tofd.lab.evaluation import evaluate_model, train_model
+    from tofd.lab.report import answers_table, eer_table, plot_roc, write_json
 
     start = time.monotonic()
     cfg = load_config(args.config)
@@ -48,12 +48,13 @@ def main(args: argparse.Namespace) -> int:
         model = train_model(samples, cfg.features, cfg.segmentation, args.quantile, args.positive_radius_mm / 1e3,
                             radius_m, training={"data": args.train or f"rendered train split seed {args.seed}",
                                                 "subjects": sorted(set(train.subject.tolist()))},
-                            candidates=Candidates.from_config(cfg.detector))
+                            candidates=Candidates.from_config(cfg.detector, cfg.segmentation))
         del samples
     test = dataset_for(args, "test", timing)
     samples = samples_for(test, cfg, args, "test", timing)
     sweep = time.monotonic()
-    results = evaluate_model(model, samples, test.distance_m, radius_m, Candidates.from_config(cfg.detector))
+    candidates = Candidates.from_config(cfg.detector, cfg.segmentation)
+    results = evaluate_model(model, samples, test.distance_m, radius_m, candidates)
     timing["roc_sweep_s"] = round(time.monotonic() - sweep, 3)
     timing["total_s"] = round(time.monotonic() - start, 3)
 

@@ -15,8 +15,8 @@ def main(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
-    from tofd import experiment_sphere
     from tofd.config import load_config
+    from tofd.lab import sphere_experiment as experiment_sphere
 
     cfg = load_config(args.config)
     points = experiment_sphere.run(cfg.intrinsics, cfg.features)

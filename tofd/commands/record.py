@@ -51,12 +51,12 @@ def open_camera(config: Config, emulate: bool) -> FrameSource:
     """The camera the config names (UsbCamera), or with `emulate` the emulated one (same code path)."""
     kwargs = dataclasses.asdict(config.camera)
     if emulate:
-        from drivers.emulator import open_emulated_camera
+        from drivers.emulator.backend import open_emulated_camera
 
         serial = kwargs.pop("serial")
         return open_emulated_camera(**({"serial": serial} if serial else {}), intrinsics=config.intrinsics,
                                     **kwargs)
-    from drivers.usb_camera import UsbCamera
+    from drivers.usb.camera import UsbCamera
 
     return UsbCamera(**kwargs, intrinsics=config.intrinsics)
 
@@ -93,7 +93,7 @@ def _status(frames: int, elapsed_s: float, nbytes: int, counters: dict[str, int]
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.recording import RecordingWriter
+    from drivers.recording.writer import RecordingWriter
     from drivers.source import DriverError
     from tofd.config import load_config
 

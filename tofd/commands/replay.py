@@ -14,7 +14,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from tofd.pipeline.service import RERUN_SPEC_HELP
+from tofd.service.daemon import RERUN_SPEC_HELP
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,12 +31,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.replay import ReplaySource, read_recording_info
+    from drivers.recording.replay import ReplaySource, read_recording_info
     from drivers.source import DriverError
     from tofd.config import load_config
-    from tofd.pipeline import PipelineError, ResultsWriter
-    from tofd.pipeline.service import Progress, parse_rerun_spec, serve
-    from tofd.viewer import ViewerError
+    from tofd.service.daemon import Progress, parse_rerun_spec, serve
+    from tofd.service.pipeline import PipelineError, ResultsWriter
+    from tofd.service.viewer import ViewerError
 
     logging.basicConfig(level=logging.INFO, format="tofd: %(message)s")
     stem = args.file.name.split(".")[0]

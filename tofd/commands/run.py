@@ -13,7 +13,7 @@ import sys
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from tofd.pipeline.service import RERUN_SPEC_HELP
+from tofd.service.daemon import RERUN_SPEC_HELP
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,12 +32,12 @@ def open_camera(cfg, emulate: bool):
     """The configured USB camera, or the emulated one."""
     camera_kwargs = asdict(cfg.camera)
     if emulate:
-        from drivers.emulator import open_emulated_camera
+        from drivers.emulator.backend import open_emulated_camera
 
         serial = camera_kwargs.pop("serial") or "30000001"
         logging.getLogger(__name__).info("rendering the emulated camera's scene (a few seconds)")
         return open_emulated_camera(serial=serial, prerender=True, intrinsics=cfg.intrinsics, **camera_kwargs)
-    from drivers.usb_camera import UsbCamera
+    from drivers.usb.camera import UsbCamera
 
     return UsbCamera(intrinsics=cfg.intrinsics, **camera_kwargs)
 
@@ -45,9 +45,9 @@ def open_camera(cfg, emulate: bool):
 def main(args: argparse.Namespace) -> int:
     from drivers.source import DriverError
     from tofd.config import load_config
-    from tofd.pipeline import PipelineError
-    from tofd.pipeline.service import parse_rerun_spec, serve
-    from tofd.viewer import ViewerError
+    from tofd.service.daemon import parse_rerun_spec, serve
+    from tofd.service.pipeline import PipelineError
+    from tofd.service.viewer import ViewerError
 
     logging.basicConfig(level=logging.INFO, format="tofd: %(message)s")
     if args.frames is not None and args.frames < 1:

@@ -3,8 +3,8 @@
 Trains on TRAIN (a dataset .npz or a recording with ground truth), by default the rendered train split: three
 subjects at 0.60 m (--train-subjects names others). The box of each variant spans the [q, 1 - q] quantiles of
 the log10 features of the pixels within --positive-radius-mm of the nose tip, its half-widths then rescaled per
-feature to minimise the training per-image EER (tofd.evaluate.shape_box); its operating scale is the middle of
-the training frames' zero-error scales, else their equal-error scale (tofd.evaluate.train_model).
+feature to minimise the training per-image EER (tofd.lab.evaluation.shape_box); its operating scale is the middle of
+the training frames' zero-error scales, else their equal-error scale (tofd.lab.evaluation.train_model).
 
 The shipped config/nose_model.json is trained on all five identities that are neither the evaluation's test
 subject nor held out (README, Detector): tofd train --train-subjects lps,mp,mp_broad,mp_chin,lps_flat
@@ -17,7 +17,7 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from tofd.eval_args import add_data_arguments
+    from tofd.lab.data_args import add_data_arguments
 
     add_data_arguments(parser, ("train",))
     parser.add_argument("--out", default="nose_model.json", help="model file to write (default nose_model.json)")
@@ -27,10 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from tofd.algorithm.detector import Candidates, save_model
     from tofd.config import load_config
-    from tofd.detect import Candidates, save_model
-    from tofd.eval_args import dataset_for, samples_for
-    from tofd.evaluate import train_model
+    from tofd.lab.data_args import dataset_for, samples_for
+    from tofd.lab.evaluation import train_model
 
     cfg = load_config(args.config)
     timing: dict = {}
@@ -39,7 +39,7 @@ def main(args: argparse.Namespace) -> int:
     model = train_model(samples, cfg.features, cfg.segmentation, args.quantile, args.positive_radius_mm / 1e3,
                         args.radius_mm / 1e3, training={"data": args.train or f"rendered train split seed {args.seed}",
                                                         "subjects": sorted(set(ds.subject.tolist()))},
-                        candidates=Candidates.from_config(cfg.detector))
+                        candidates=Candidates.from_config(cfg.detector, cfg.segmentation))
     path = save_model(model, args.out)
     for name, vm in model.variants.items():
         print(f"{name:<16} operating scale {vm.operating_scale:.3f}  training EER {100 * vm.train_eer:.1f} %")

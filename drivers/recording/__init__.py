@@ -1,0 +1,1 @@
+"""Recordings of frames: the MCAP record layout, the crash-safe writer, the replay source."""

@@ -1,0 +1,34 @@
+"""The layer contracts (import-linter, pyproject.toml), mypy on the algorithm and ruff hold for the tree."""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = Path(sys.executable).parent
+
+
+def run_tool(name: str, *args: str) -> subprocess.CompletedProcess:
+    exe = BIN / name if (BIN / name).exists() else shutil.which(name)
+    if exe is None:
+        pytest.fail(f"{name} is not installed (pip install '.[test]')")
+    return subprocess.run([str(exe), *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+
+
+def test_import_layers_hold():
+    out = run_tool("lint-imports")
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-2000:]
+    assert "broken" in out.stdout and " 0 broken" in out.stdout
+
+
+def test_algorithm_type_checks():
+    out = run_tool("mypy")
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-2000:]
+
+
+def test_ruff_is_clean():
+    out = run_tool("ruff", "check", ".")
+    assert out.returncode == 0, out.stdout[-3000:]

@@ -1,0 +1,90 @@
+"""Which foreground pixels may be the nose tip at all, before the box is consulted.
+
+Border test: pixels nearer than `border_margin_m` to the mask border are never candidates, because the filters'
+response within about one filter width of the border is the clamped background's. Front test: the tip is the
+front-most point of its surroundings, so a pixel more than `front_depth_m` behind the front-most foreground
+pixel within FRONT_RADIUS_M (depth along the face's viewing direction) is never a candidate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.params import DetectorConfig, SegmentationConfig
+from tofd.algorithm.segmentation import filtered
+
+
+def border_distance_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """(H, W) float32 distance in metres from each mask pixel to the mask border or image edge (0 off the mask).
+
+    Pixels: Euclidean distance to the nearest non-mask pixel (outside the image counts as non-mask) minus half a
+    pixel; metres: times the pixel's depth (range * z of its unit ray) / fx.
+    """
+    padded = np.pad(np.asarray(mask, dtype=np.uint8), 1)
+    px = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    with np.errstate(invalid="ignore"):
+        metres = np.maximum(px - 0.5, 0) * (np.asarray(range_m) * intrinsics.unit_rays()[..., 2]) / intrinsics.fx
+    return np.where(mask, np.nan_to_num(metres, nan=0.0), 0.0).astype(np.float32)
+
+
+FRONT_RADIUS_M = 0.012  # the front test's neighbourhood: about the nose tip's own radius of curvature
+
+
+def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None = None,
+                radius_m: float = FRONT_RADIUS_M, median_px: int = 5) -> np.ndarray:
+    """(H, W) float32 metres each mask pixel lies behind the front-most mask pixel within radius_m (0 off the mask).
+
+    Depth along `direction` (unit, camera frame; default the camera's z axis), median-filtered over median_px
+    pixels (the segmentation's filter: a minimum of unfiltered noisy depths lies in front of the surface);
+    the disc's radius in pixels is radius_m at the mask's median depth.
+    """
+    rays = intrinsics.unit_rays()
+    with np.errstate(invalid="ignore"):
+        depth = np.asarray(range_m) * (rays[..., 2] if direction is None else rays @ direction)
+    valid = np.asarray(mask, dtype=bool) & np.isfinite(depth)
+    if not valid.any():
+        return np.zeros(valid.shape, np.float32)
+    smooth = filtered(depth, valid, median_px)
+    r_px = max(1, round(radius_m * intrinsics.fx / float(np.median(depth[valid]))))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r_px + 1, 2 * r_px + 1))
+    return np.where(valid, smooth - cv2.erode(smooth, disc), 0.0).astype(np.float32)
+
+
+@dataclass(frozen=True, slots=True)
+class Candidates:
+    """Which foreground pixels may be the nose at all (module docstring); metres, 0 switches a test off."""
+
+    border_margin_m: float = 0.0  # at least this far from the mask border
+    front_depth_m: float = 0.0  # at most this far behind the front-most pixel within FRONT_RADIUS_M
+    median_px: int = 5  # depth median filter of the front test, pixels (the segmentation's median_px)
+
+    @classmethod
+    def from_config(cls, detector: DetectorConfig, segmentation: SegmentationConfig) -> Candidates:
+        return cls(detector.border_margin_m, detector.front_depth_m, segmentation.median_px)
+
+    def keep(self, border_m: np.ndarray, front_gap: np.ndarray) -> np.ndarray:
+        """Bool per pixel from its border distance and front gap (metres)."""
+        ok = np.asarray(border_m) >= self.border_margin_m
+        return ok & (np.asarray(front_gap) <= self.front_depth_m) if self.front_depth_m > 0 else ok
+
+    def mask(self, foreground: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
+             direction: np.ndarray | None = None) -> np.ndarray:
+        """(H, W) bool: the candidate pixels of a frame's foreground (direction: the face's, see front_gap_m).
+
+        Only the tests that are on are computed; `keep` applies them.
+        """
+        off = np.zeros(np.shape(foreground), np.float32)
+        border = border_distance_m(foreground, range_m, intrinsics) if self.border_margin_m > 0 else off + np.inf
+        gap = (front_gap_m(foreground, range_m, intrinsics, direction, median_px=self.median_px)
+               if self.front_depth_m > 0 else off)
+        return np.asarray(foreground, dtype=bool) & self.keep(border, gap)
+
+
+ALL_FOREGROUND = Candidates()
+"""No candidate test: every foreground pixel may be the nose."""
+
+

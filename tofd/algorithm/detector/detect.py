@@ -1,0 +1,82 @@
+"""Nose detection in one frame: the candidate pixel of smallest box distance, accepted iff within the scale."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.detector.box import Box, require_maps, stack_features
+from tofd.algorithm.detector.candidates import ALL_FOREGROUND, Candidates
+from tofd.algorithm.detector.model_file import NoseModel
+from tofd.algorithm.extract import FeatureExtractor
+from tofd.algorithm.names import families_for
+from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
+
+
+@dataclass(frozen=True, slots=True)
+class Detection:
+    """The detector's answer for one frame: the best pixel, its 3-D point, and whether it is in the box."""
+
+    nose_px: tuple[int, int] | None  # (u, v) = (column, row) of the accepted pixel, None if none accepted
+    nose_xyz_m: tuple[float, float, float] | None  # camera frame, metres
+    score: float  # box distance of the best foreground pixel (lower is better; inf if no foreground)
+    accepted: bool  # score <= scale
+
+
+def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrinsics, box: Box,
+           scale: float, candidates: Candidates = ALL_FOREGROUND, direction: np.ndarray | None = None) -> Detection:
+    """Detect the nose in one frame from its feature maps ((H, W), NaN outside the foreground).
+
+    range_m: (H, W) radial range in metres, for the 3-D point of the detected pixel and the candidate tests.
+    candidates: which foreground pixels (where all the box's features are finite) may be the nose (module
+    docstring); direction: the face's viewing direction for the front test (segmentation.Foreground.rotation
+    row 2). Only candidate pixels are scored (a few thousand of 25k).
+    """
+    require_maps(maps, box.features)
+    foreground = np.logical_and.reduce([np.isfinite(maps[n]) for n in box.features])
+    rows, cols = np.nonzero(candidates.mask(foreground, range_m, intrinsics, direction))
+    if rows.size == 0:
+        return Detection(None, None, float("inf"), False)
+    dist = box.distance(stack_features({n: maps[n][rows, cols] for n in box.features}, box.features))
+    best = int(np.argmin(dist))
+    score = float(dist[best])
+    if not score <= scale:
+        return Detection(None, None, score, False)
+    row, col = int(rows[best]), int(cols[best])
+    ray = np.array([(col - intrinsics.cx) / intrinsics.fx, (row - intrinsics.cy) / intrinsics.fy, 1.0])
+    xyz = ray / np.linalg.norm(ray) * float(range_m[row, col])
+    return Detection((col, row), (float(xyz[0]), float(xyz[1]), float(xyz[2])), score, True)
+
+
+class NoseDetector:
+    """One variant of a nose model at one box scale, with the candidate tests of `detector`.
+
+    `detect_maps` works on feature maps computed elsewhere (the pipeline's workers); `detect_frame` segments and
+    computes the variant's features itself (tofd.algorithm.extract).
+    """
+
+    def __init__(self, model: NoseModel, detector: DetectorConfig, features: FeatureConfig,
+                 segmentation: SegmentationConfig, intrinsics: Intrinsics) -> None:
+        model.check_compatible(features, segmentation)
+        vm = model.variant(detector.variant)
+        self.model, self.box, self.intrinsics = model, vm.box, intrinsics
+        self.scale = detector.box_scale if detector.box_scale > 0 else vm.operating_scale
+        self.candidates = Candidates.from_config(detector, segmentation)
+        self.families = families_for(self.box.features)
+        self._features, self._segmentation = features, segmentation
+        self._extractor: FeatureExtractor | None = None
+
+    def detect_maps(self, maps: dict[str, np.ndarray], range_m: np.ndarray,
+                    direction: np.ndarray | None = None) -> Detection:
+        """Detection from named feature maps (tofd.algorithm.names), the frame's (H, W) range in metres and the
+        face's viewing direction (FrameFeatures.rotation[2]; None: the camera's z axis)."""
+        return detect(maps, range_m, self.intrinsics, self.box, self.scale, self.candidates, direction)
+
+    def detect_frame(self, range_m: np.ndarray, amplitude: np.ndarray) -> Detection:
+        """Segment, compute this variant's features, detect."""
+        if self._extractor is None:
+            self._extractor = FeatureExtractor(self.intrinsics, self._features, self._segmentation, self.families)
+        ff = self._extractor(range_m, amplitude)
+        return self.detect_maps(ff.maps, range_m, ff.rotation[2])

@@ -1,0 +1,250 @@
+"""Labelled TOF frame datasets for the nose detector: one .npz file (no pickle) plus an optional JSON sidecar.
+
+Layout (keys of the .npz; F frames of H x W pixels, SR3000: H = 144, W = 176):
+
+| key            | shape     | dtype   | meaning                                                           |
+|----------------|-----------|---------|-------------------------------------------------------------------|
+| `range`        | (F, H, W) | float32 | radial range in metres along each pixel's ray; NaN or 0 = invalid |
+| `amplitude`    | (F, H, W) | float32 | amplitude, sensor units                                           |
+| `nose_px`      | (F, 2)    | float32 | ground-truth nose tip pixel (u = column, v = row)                 |
+| `nose_visible` | (F,)      | bool    | the nose tip is in the image and not occluded                     |
+| `distance_m`   | (F,)      | float   | range of the nose tip, metres (used to report results per distance) |
+| `yaw_deg`      | (F,)      | float   | head yaw, degrees                                                 |
+| `pitch_deg`    | (F,)      | float   | head pitch, degrees                                               |
+| `subject`      | (F,)      | str     | subject name (a numpy unicode array, never an object array)      |
+| `nose_xyz_m`   | (F, 3)    | float   | optional: nose tip, camera frame (x right, y down, z forward), m |
+
+Without `nose_xyz_m` the nose tip is back-projected from `range` at `nose_px` (median valid range of the
+3x3 neighbourhood, over the pixels within 2 cm of its nearest).
+
+Intrinsics: optional sidecar `<stem>.json` next to `<stem>.npz` holding {"intrinsics": {width, height, fx, fy,
+cx, cy}} (drivers.intrinsics.Intrinsics.to_dict); the SR3000 default when there is none.
+Recordings with ground truth (drivers.recording.replay) are read with `load_labelled` / `dataset_from_frames`.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from drivers.frame import Frame
+from drivers.intrinsics import Intrinsics
+
+
+class DatasetError(ValueError):
+    """A dataset file that cannot be used; the message names the file and the offending key."""
+
+
+_PER_FRAME_KEYS = ("nose_px", "nose_visible", "distance_m", "yaw_deg", "pitch_deg", "subject")
+
+
+@dataclass(slots=True)
+class Dataset:
+    """F labelled frames (see the module docstring for units); range_m has NaN wherever invalid."""
+
+    range_m: np.ndarray  # (F, H, W) float32 metres, NaN invalid
+    amplitude: np.ndarray  # (F, H, W) float32
+    nose_px: np.ndarray  # (F, 2) float32 (u, v)
+    nose_visible: np.ndarray  # (F,) bool
+    distance_m: np.ndarray  # (F,) float64
+    yaw_deg: np.ndarray  # (F,) float64
+    pitch_deg: np.ndarray  # (F,) float64
+    subject: np.ndarray  # (F,) unicode
+    intrinsics: Intrinsics = field(default_factory=Intrinsics)
+    nose_xyz_m: np.ndarray | None = None  # (F, 3) float64 camera frame, metres
+
+    def __post_init__(self) -> None:
+        _check_arrays(self._as_dict(), self.intrinsics, "dataset")
+
+    def __len__(self) -> int:
+        return int(self.range_m.shape[0])
+
+    def _as_dict(self) -> dict[str, np.ndarray]:
+        d = {"range": self.range_m, "amplitude": self.amplitude}
+        d.update({k: getattr(self, k) for k in _PER_FRAME_KEYS})
+        if self.nose_xyz_m is not None:
+            d["nose_xyz_m"] = self.nose_xyz_m
+        return d
+
+    def subset(self, index: np.ndarray) -> Dataset:
+        """The frames selected by a boolean mask or an index array."""
+        d = {k: v[index] for k, v in self._as_dict().items()}
+        return _from_dict(d, self.intrinsics, "subset")
+
+    def nose_points(self) -> np.ndarray:
+        """(F, 3) ground-truth nose tips in the camera frame, metres (NaN where it cannot be recovered)."""
+        if self.nose_xyz_m is not None:
+            return np.asarray(self.nose_xyz_m, dtype=np.float64)
+        return _nose_from_range(self.range_m, self.nose_px, self.intrinsics)
+
+
+TIP_WINDOW_DEPTH_M = 0.02  # _nose_from_range: window pixels this far behind the nearest are not the tip
+
+
+def _nose_from_range(range_m: np.ndarray, nose_px: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+    """Back-project the nose pixel with the median valid range of its 3x3 neighbourhood, over the pixels within
+    TIP_WINDOW_DEPTH_M of its nearest (not the background or a flying pixel beside the tip).
+
+    The median, not the nearest: the minimum of nine noisy ranges sits ~1.5 sigma in front of the surface
+    (5.5 mm at 0.7 m on the rendered test split, p90 error 12 mm, against a true-nose radius of 15 mm), while
+    the tip's own curvature moves the median by < 1 mm within one pixel.
+    """
+    f, h, w = range_m.shape
+    col = np.clip(np.rint(nose_px[:, 0]).astype(np.int64), 0, w - 1)
+    row = np.clip(np.rint(nose_px[:, 1]).astype(np.int64), 0, h - 1)
+    dr, dc = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2), indexing="ij")
+    rr = np.clip(row[:, None] + dr.ravel(), 0, h - 1)
+    cc = np.clip(col[:, None] + dc.ravel(), 0, w - 1)
+    window = range_m[np.arange(f)[:, None], rr, cc].astype(np.float64)
+    nearest = np.where(np.isfinite(window), window, np.inf).min(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore"):
+        tip = np.where(window <= nearest + TIP_WINDOW_DEPTH_M, window, np.nan)
+    has_tip = np.isfinite(tip).any(axis=1)
+    tip_range = np.full(f, np.nan)
+    tip_range[has_tip] = np.nanmedian(tip[has_tip], axis=1)
+    u = (nose_px[:, 0] - intrinsics.cx) / intrinsics.fx
+    v = (nose_px[:, 1] - intrinsics.cy) / intrinsics.fy
+    ray = np.stack([u, v, np.ones_like(u)], axis=1)
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    return ray * tip_range[:, None]
+
+
+def _check_arrays(d: dict[str, np.ndarray], intrinsics: Intrinsics, where: str) -> None:
+    """Raise DatasetError naming the first misshaped key."""
+    rng = d["range"]
+    shape = (intrinsics.height, intrinsics.width)
+    if rng.ndim != 3 or rng.shape[1:] != shape:
+        raise DatasetError(f"{where}: key 'range' has shape {rng.shape}, expected (F, {shape[0]}, {shape[1]})")
+    f = rng.shape[0]
+    expected = {"amplitude": (f, *shape), "nose_px": (f, 2), "nose_xyz_m": (f, 3)}
+    for key, value in d.items():
+        want = expected.get(key, (f,) if key != "range" else rng.shape)
+        if value.shape != want:
+            raise DatasetError(f"{where}: key {key!r} has shape {value.shape}, expected {want}")
+    if d["subject"].dtype.kind not in "US":
+        raise DatasetError(f"{where}: key 'subject' must be a string array, got dtype {d['subject'].dtype}")
+    for key in ("range", "amplitude", "nose_px", "distance_m", "yaw_deg", "pitch_deg"):
+        if d[key].dtype.kind not in "fiu":
+            raise DatasetError(f"{where}: key {key!r} must be numeric, got dtype {d[key].dtype}")
+
+
+def _from_dict(d: dict[str, np.ndarray], intrinsics: Intrinsics, where: str) -> Dataset:
+    _check_arrays(d, intrinsics, where)
+    rng = np.asarray(d["range"], dtype=np.float32)
+    rng = np.where(rng > 0, rng, np.nan).astype(np.float32)  # 0, negative and NaN are invalid
+    return Dataset(
+        range_m=rng,
+        amplitude=np.asarray(d["amplitude"], dtype=np.float32),
+        nose_px=np.asarray(d["nose_px"], dtype=np.float32),
+        nose_visible=np.asarray(d["nose_visible"], dtype=bool),
+        distance_m=np.asarray(d["distance_m"], dtype=np.float64),
+        yaw_deg=np.asarray(d["yaw_deg"], dtype=np.float64),
+        pitch_deg=np.asarray(d["pitch_deg"], dtype=np.float64),
+        subject=np.asarray(d["subject"]).astype(str),
+        intrinsics=intrinsics,
+        nose_xyz_m=None if d.get("nose_xyz_m") is None else np.asarray(d["nose_xyz_m"], dtype=np.float64),
+    )
+
+
+def sidecar_path(path: str | Path) -> Path:
+    """The JSON sidecar of a dataset file: same stem, .json."""
+    return Path(path).with_suffix(".json")
+
+
+def _load_intrinsics(path: Path) -> Intrinsics:
+    side = sidecar_path(path)
+    if not side.exists():
+        return Intrinsics()
+    try:
+        meta = json.loads(side.read_text())
+        return Intrinsics.from_dict(meta["intrinsics"])
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{side}: cannot read intrinsics sidecar: {exc}") from None
+    except KeyError:
+        raise DatasetError(f"{side}: missing key 'intrinsics'") from None
+    except (TypeError, ValueError) as exc:
+        raise DatasetError(f"{side}: key 'intrinsics': {exc}") from None
+
+
+def load_dataset(path: str | Path) -> Dataset:
+    """Read a dataset .npz (and its optional intrinsics sidecar); DatasetError names a missing/misshaped key."""
+    path = Path(path)
+    intrinsics = _load_intrinsics(path)
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            missing = [k for k in ("range", "amplitude", *_PER_FRAME_KEYS) if k not in npz.files]
+            if missing:
+                raise DatasetError(f"{path}: missing key(s) {', '.join(map(repr, missing))}")
+            keys = ["range", "amplitude", *_PER_FRAME_KEYS] + (["nose_xyz_m"] if "nose_xyz_m" in npz.files else [])
+            d = {}
+            for key in keys:
+                try:
+                    d[key] = npz[key]
+                except ValueError as exc:  # object arrays need pickle
+                    raise DatasetError(f"{path}: key {key!r} cannot be read without pickle: {exc}") from None
+    except (OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise DatasetError(f"{path}: cannot read dataset: {exc}") from None
+    return _from_dict(d, intrinsics, str(path))
+
+
+def save_dataset(dataset: Dataset, path: str | Path) -> Path:
+    """Write the .npz (range NaN for invalid) and the intrinsics sidecar; returns the .npz path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = dataset._as_dict()
+    arrays["subject"] = np.asarray(arrays["subject"]).astype(str)
+    with path.open("wb") as fh:
+        np.savez_compressed(fh, **arrays)
+    sidecar_path(path).write_text(json.dumps({"intrinsics": dataset.intrinsics.to_dict()}, indent=2) + "\n")
+    return path
+
+
+def load_labelled(path: str | Path) -> Dataset:
+    """A dataset from a .npz dataset file, or from any other file as a tofd recording with ground truth."""
+    path = Path(path)
+    if path.suffix == ".npz":
+        return load_dataset(path)
+    from drivers.recording.replay import iter_frames
+    from drivers.source import DriverError
+
+    try:
+        return dataset_from_frames(iter_frames(path), subject=path.stem)
+    except DriverError as exc:
+        raise DatasetError(f"{path}: cannot read recording: {exc}") from None
+
+
+def dataset_from_frames(frames: Iterable[Frame], subject: str = "recording") -> Dataset:
+    """A dataset from frames that carry ground truth (e.g. a replayed recording); frames without it are skipped.
+
+    distance_m is the range of the ground-truth nose tip (back-projected when the frame has no 3-D point);
+    yaw and pitch are unknown (NaN).
+    """
+    kept = [f for f in frames if f.ground_truth is not None]
+    if not kept:
+        raise DatasetError("recording: no frame carries ground truth (nose pixel)")
+    intrinsics = kept[0].intrinsics
+    nose_px = np.array([f.ground_truth.nose_px for f in kept], dtype=np.float32)
+    rng = np.stack([f.range_m for f in kept]).astype(np.float32)
+    xyz = np.array([f.ground_truth.nose_xyz_m if f.ground_truth.nose_xyz_m is not None else (np.nan,) * 3
+                    for f in kept], dtype=np.float64)
+    missing = ~np.all(np.isfinite(xyz), axis=1)
+    if missing.any():
+        xyz[missing] = _nose_from_range(rng[missing], nose_px[missing], intrinsics)
+    n = len(kept)
+    return Dataset(
+        range_m=np.where(rng > 0, rng, np.nan).astype(np.float32),
+        amplitude=np.stack([f.amplitude for f in kept]).astype(np.float32),
+        nose_px=nose_px,
+        nose_visible=np.array([f.ground_truth.visible for f in kept], dtype=bool),
+        distance_m=np.linalg.norm(xyz, axis=1),
+        yaw_deg=np.full(n, np.nan),
+        pitch_deg=np.full(n, np.nan),
+        subject=np.full(n, subject),
+        intrinsics=intrinsics,
+        nose_xyz_m=xyz,
+    )

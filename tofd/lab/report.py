@@ -1,0 +1,91 @@
+"""Presenting an evaluation: the EER table (text), everything as JSON, the ROC curves as a PNG."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+from tofd.lab.evaluation import VariantResult
+
+LABELS = {
+    "fft_range": "FFT range",
+    "fft_range_amp": "FFT range+amp",
+    "nfft_range": "NFFT range",
+    "nfft_range_amp": "NFFT range+amp",
+}
+
+
+def _distance_table(title: str, results: dict[str, VariantResult],
+                    cell: Callable[[VariantResult, float | None], str]) -> str:
+    """Rows: variants; columns: all test frames (distance None), then per distance bin; cells right-aligned."""
+    distances = sorted({d for r in results.values() for d in r.per_distance})
+    head = f"{'variant':<16}{'overall':>11}" + "".join(f"{d:>10.2f}m" for d in distances)
+    lines = [title, head, "-" * len(head)]
+    for name, r in results.items():
+        cells = "".join(f"{cell(r, d) if d in r.per_distance else '-':>11}" for d in distances)
+        lines.append(f"{LABELS.get(name, name):<16}{cell(r, None):>11}{cells}")
+    return "\n".join(lines)
+
+
+def eer_table(results: dict[str, VariantResult]) -> str:
+    """Rows: variants; columns: EER in percent overall and per distance bin."""
+    def cell(r: VariantResult, d: float | None) -> str:
+        return f"{100 * (r.overall if d is None else r.per_distance[d]).eer:.1f}"
+
+    return _distance_table("EER % (per-image ROC; columns: all test frames, then per nose distance)", results, cell)
+
+
+def answers_table(results: dict[str, VariantResult]) -> str:
+    """Per variant, in percent of the frames: nose found / wrong pixel accepted at the model's operating scale."""
+    def cell(r: VariantResult, d: float | None) -> str:
+        a = r.answers if d is None else r.answers_per_distance[d]
+        return f"{100 * a.found:.1f}/{100 * a.wrong:.1f}"
+
+    return _distance_table("what the pipeline reports, % of frames: nose found / a wrong pixel accepted (the best "
+                           "candidate pixel, at the model's operating scale)", results, cell)
+
+
+def results_to_dict(results: dict[str, VariantResult]) -> dict:
+    return {
+        name: {
+            "overall": {**r.overall.to_dict(), "answers": r.answers.to_dict()},
+            "per_distance": {f"{d:.2f}": {**roc.to_dict(), "answers": r.answers_per_distance[d].to_dict()}
+                             for d, roc in sorted(r.per_distance.items())},
+        }
+        for name, r in results.items()
+    }
+
+
+def write_json(path: Path, results: dict[str, VariantResult], **extra: object) -> Path:
+    """Everything: settings, timing, model, and per variant the ROC points and EERs (overall, per distance)."""
+    path.write_text(json.dumps({**extra, "results": results_to_dict(results)}, indent=1) + "\n")
+    return path
+
+
+def plot_roc(path: Path, results: dict[str, VariantResult]) -> Path:
+    """Left: ROC curves (detection rate vs false-positive rate) of all variants; right: EER per distance."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.6))
+    for name, r in results.items():
+        roc = r.overall
+        style = "-" if name.startswith("nfft") else "--"
+        ax.plot(roc.false_positive_rate, roc.detection_rate, style, drawstyle="steps-post",
+                label=f"{LABELS.get(name, name)} (EER {100 * roc.eer:.1f} %)")
+        ds = sorted(r.per_distance)
+        bx.plot(ds, [100 * r.per_distance[d].eer for d in ds], style, marker="o", label=LABELS.get(name, name))
+    ax.plot([0, 1], [1, 0], ":", color="grey", lw=0.8, label="EER line")
+    ax.set(xlabel="false-positive rate (images)", ylabel="detection rate (images)", xlim=(0, 1), ylim=(0, 1.01),
+           title="Nose detection, per-image ROC")
+    ax.legend(loc="lower right", fontsize=8)
+    bx.set(xlabel="nose distance (m)", ylabel="EER (%)", title="EER per distance", ylim=(-2, None))
+    bx.grid(alpha=0.3)
+    bx.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

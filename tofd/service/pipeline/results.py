@@ -1,0 +1,65 @@
+"""What the pipeline delivers per frame, and the per-frame results file (JSON Lines)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.frame import Frame
+
+
+@dataclass(slots=True)
+class FrameResult:
+    """One processed frame: the input, the mask and feature maps, the detection and the stage timings."""
+
+    seq: int  # pipeline sequence number
+    frame: Frame
+    mask: np.ndarray  # (H, W) bool foreground
+    features: dict[str, np.ndarray]  # tofd.algorithm.names.MAP_NAMES -> (H, W) float32, NaN outside the foreground
+    nfft_iterations: int
+    nfft_residual: float
+    arrival_s: float  # time.monotonic() when the capture thread received the frame
+    timings_ms: dict[str, float] = field(default_factory=dict)  # keys from stats.TIMED_STAGES
+    detection: Any = None  # tofd.algorithm.detector.Detection, or None without a detector model
+    gap_before: str = ""  # "counter_gap" or "reconnect" if the device skipped frames just before this one
+
+
+def _finite_or_none(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def result_record(r: FrameResult) -> dict:
+    """The JSON-ready per-frame record written to the results file."""
+    det = r.detection
+    return {
+        "frame_counter": r.frame.frame_counter,
+        "timestamp_us": r.frame.timestamp_us,
+        "foreground_px": int(np.count_nonzero(r.mask)),
+        "nose_px": list(det.nose_px) if det is not None and det.nose_px is not None else None,
+        "nose_xyz_m": [round(c, 5) for c in det.nose_xyz_m] if det is not None and det.nose_xyz_m else None,
+        "score": _finite_or_none(det.score) if det is not None else None,
+        "accepted": bool(det.accepted) if det is not None else None,
+        "ground_truth_px": list(r.frame.ground_truth.nose_px) if r.frame.ground_truth else None,
+        "nfft_iterations": r.nfft_iterations,
+        "timings_ms": {k: round(v, 3) for k, v in r.timings_ms.items()},
+    }
+
+
+class ResultsWriter:
+    """Appends one JSON object per delivered frame to a .jsonl file (line-buffered, so a crash keeps a prefix)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = self.path.open("w", buffering=1)
+
+    def __call__(self, result: FrameResult) -> None:
+        self._fh.write(json.dumps(result_record(result)) + "\n")
+
+    def close(self) -> None:
+        self._fh.close()

@@ -1,0 +1,91 @@
+"""A ring of frame slots in one shared-memory block: the parent writes range/amplitude, a worker writes the
+mask and feature maps back. Only slot indices cross the process boundary, never arrays."""
+
+from __future__ import annotations
+
+import threading
+from multiprocessing import shared_memory
+
+import numpy as np
+
+from tofd.algorithm.names import MAP_NAMES
+
+SLOT_FIELDS: tuple[tuple[str, type], ...] = (
+    ("range_m", np.float32),  # input: radial range, metres, NaN invalid
+    ("amplitude", np.float32),  # input: sensor units
+    ("mask", np.bool_),  # output: foreground
+    *((name, np.float32) for name in MAP_NAMES),  # outputs: feature maps, NaN outside the foreground
+)
+
+
+def _layout(shape: tuple[int, int]) -> tuple[dict[str, tuple[int, type]], int]:
+    """Byte offset of each field within a slot (64-byte aligned) and the slot size in bytes."""
+    offsets, offset = {}, 0
+    for name, dtype in SLOT_FIELDS:
+        offsets[name] = (offset, dtype)
+        offset += -(-shape[0] * shape[1] * np.dtype(dtype).itemsize // 64) * 64
+    return offsets, offset
+
+
+class SlotRing:
+    """`n_slots` frame slots of `shape` (rows, columns) in shared memory.
+
+    The creating process owns the block (`create`, then `close(unlink=True)`); workers `attach` by name.
+    Free-slot bookkeeping (`acquire`/`release`) lives in the creating process only.
+    """
+
+    def __init__(self, shm: shared_memory.SharedMemory, n_slots: int, shape: tuple[int, int], owner: bool):
+        self.shm, self.n_slots, self.shape, self._owner = shm, n_slots, tuple(shape), owner
+        offsets, slot_bytes = _layout(self.shape)
+        self._views = [
+            {name: np.ndarray(self.shape, dtype, shm.buf, k * slot_bytes + off)
+             for name, (off, dtype) in offsets.items()}
+            for k in range(n_slots)
+        ]
+        self._free = list(range(n_slots))
+        self._cond = threading.Condition()
+
+    @classmethod
+    def create(cls, n_slots: int, shape: tuple[int, int]) -> SlotRing:
+        if n_slots < 1:
+            raise ValueError(f"n_slots: must be >= 1, got {n_slots}")
+        size = n_slots * _layout(tuple(shape))[1]
+        return cls(shared_memory.SharedMemory(create=True, size=size), n_slots, shape, owner=True)
+
+    @classmethod
+    def attach(cls, name: str, n_slots: int, shape: tuple[int, int]) -> SlotRing:
+        return cls(shared_memory.SharedMemory(name=name), n_slots, shape, owner=False)
+
+    @property
+    def name(self) -> str:
+        return self.shm.name
+
+    def views(self, slot: int) -> dict[str, np.ndarray]:
+        """The arrays of one slot, by field name (writable views into shared memory)."""
+        return self._views[slot]
+
+    def acquire(self, timeout: float | None = None) -> int | None:
+        """A free slot index, waiting up to `timeout` seconds; None if none became free."""
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._free, timeout):
+                return None
+            return self._free.pop()
+
+    def release(self, slot: int) -> None:
+        with self._cond:
+            if slot in self._free:
+                raise RuntimeError(f"slot {slot} released twice")
+            self._free.append(slot)
+            self._cond.notify()
+
+    @property
+    def free(self) -> int:
+        with self._cond:
+            return len(self._free)
+
+    def close(self) -> None:
+        """Drop the views and detach; the owner also unlinks the block."""
+        self._views = []
+        self.shm.close()
+        if self._owner:
+            self.shm.unlink()

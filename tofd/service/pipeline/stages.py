@@ -1,0 +1,60 @@
+"""The stages of a worker process, kept thin: they adapt the features and detector APIs to shared-memory
+slots and to small JSON-ready results."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.detector import Detection, NoseDetector, NoseModel
+from tofd.algorithm.extract import FeatureExtractor
+from tofd.algorithm.names import FAMILIES, MAP_NAMES, VARIANTS, VIEWED_FAMILIES, families_for
+from tofd.config import Config
+
+
+def pipeline_families(cfg: Config, detect: bool) -> tuple[str, ...]:
+    """The feature families a worker computes: the viewed ones plus those of the detector's variant (an
+    amplitude family is computed only when the variant uses it)."""
+    needed = set(VIEWED_FAMILIES) | (set(families_for(VARIANTS[cfg.detector.variant])) if detect else set())
+    return tuple(f for f in FAMILIES if f in needed)
+
+
+class FeatureStage:
+    """Segmentation, the features of pipeline_families, the detector on them; plans made once per worker. The
+    maps are tofd.algorithm.extract.FeatureExtractor's, i.e. what the detector is trained on; maps of families not
+    computed are NaN in the slot."""
+
+    def __init__(self, cfg: Config, intrinsics: Intrinsics, model: NoseModel | None):
+        families = pipeline_families(cfg, model is not None)
+        self._extractor = FeatureExtractor(intrinsics, cfg.features, cfg.segmentation, families)
+        self._detector = None if model is None else NoseDetector(model, cfg.detector, cfg.features,
+                                                                  cfg.segmentation, intrinsics)
+
+    def run(self, slot: dict[str, np.ndarray]) -> dict:
+        """Read range_m/amplitude from `slot`, write mask and feature maps into it; timings in ms."""
+        ff = self._extractor(slot["range_m"], slot["amplitude"])
+        slot["mask"][...] = ff.mask
+        for name in MAP_NAMES:
+            slot[name][...] = ff.maps.get(name, np.nan)
+        timings = ff.timings_ms
+        reply = {"timings_ms": timings, "nfft_iterations": int(ff.nfft_iterations),
+                 "nfft_residual": float(ff.nfft_residual)}
+        if self._detector is not None:
+            t0 = time.perf_counter()
+            det = self._detector.detect_maps(ff.maps, slot["range_m"], ff.rotation[2])
+            timings["detection"] = (time.perf_counter() - t0) * 1e3
+            reply["detection"] = {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score,
+                                  "accepted": det.accepted}
+        return reply
+
+
+def detection_from(message: dict) -> Detection | None:
+    """The Detection in a worker's reply, or None (no detector)."""
+    d = message.get("detection")
+    if d is None:
+        return None
+    return Detection(tuple(d["nose_px"]) if d["nose_px"] else None,
+                     tuple(d["nose_xyz_m"]) if d["nose_xyz_m"] else None, float(d["score"]), bool(d["accepted"]))
+

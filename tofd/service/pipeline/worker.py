@@ -1,0 +1,122 @@
+"""Feature worker processes (multiprocessing "spawn" context) and their parent-side handles.
+
+Protocol, JSON over one-way pipes (small messages only; the arrays stay in the shared-memory SlotRing):
+  worker -> parent  {"ready": pid}                          once, after its plans are built
+  parent -> worker  {"seq": n, "slot": k}                   process the frame in slot k
+  worker -> parent  {"seq", "slot", "timings_ms", ...}      or {"seq", "slot", "error": "..."}
+  parent -> worker  {"stop": true}  (or the pipe closes)    exit
+Workers ignore SIGINT/SIGTERM: the parent decides when they stop (stop message, else SIGKILL).
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import signal
+import time
+from multiprocessing.connection import Connection
+
+from drivers.intrinsics import Intrinsics
+
+
+def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
+    """Entry point of a worker process."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    os.environ["OMP_NUM_THREADS"] = "1"  # one core per worker: finufft must not oversubscribe
+    from tofd.algorithm.detector import NoseModel
+    from tofd.config import config_from_dict
+    from tofd.service.pipeline.slots import SlotRing
+    from tofd.service.pipeline.stages import FeatureStage
+
+    spec = json.loads(spec_json)
+    ring = SlotRing.attach(spec["shm"], spec["n_slots"], tuple(spec["shape"]))
+    model = None if spec["model"] is None else NoseModel.from_dict(spec["model"])
+    stage = FeatureStage(config_from_dict(spec["config"]), Intrinsics.from_dict(spec["intrinsics"]), model)
+    results.send_bytes(json.dumps({"ready": os.getpid()}).encode())
+    try:
+        while True:
+            try:
+                msg = json.loads(tasks.recv_bytes())
+            except EOFError:
+                break
+            if msg.get("stop"):
+                break
+            reply = {"seq": msg["seq"], "slot": msg["slot"]}
+            try:
+                reply.update(stage.run(ring.views(msg["slot"])))
+            except Exception as exc:  # a bad frame must not kill the worker; the parent ledgers it
+                reply["error"] = f"{type(exc).__name__}: {exc}"
+            results.send_bytes(json.dumps(reply).encode())
+    finally:
+        ring.close()
+
+
+class WorkerHandle:
+    """Parent-side view of one worker: its process, pipes and the frames it holds (seq -> slot)."""
+
+    def __init__(self, index: int, spec_json: str):
+        self.index, self._spec_json = index, spec_json
+        self.process: mp.process.BaseProcess | None = None
+        self.tasks: Connection | None = None
+        self.results: Connection | None = None
+        self.ready = False
+        self.inflight: dict[int, tuple[int, float]] = {}  # seq -> (slot, monotonic send time)
+        self.started_s = 0.0
+
+    def start(self) -> None:
+        ctx = mp.get_context("spawn")
+        task_r, task_w = ctx.Pipe(duplex=False)
+        result_r, result_w = ctx.Pipe(duplex=False)
+        self.process = ctx.Process(
+            target=worker_main, args=(self._spec_json, task_r, result_w), name=f"tofd-worker-{self.index}", daemon=True
+        )
+        self.process.start()
+        task_r.close()
+        result_w.close()
+        self.tasks, self.results, self.ready, self.inflight = task_w, result_r, False, {}
+        self.started_s = time.monotonic()
+
+    @property
+    def pid(self) -> int | None:
+        return self.process.pid if self.process else None
+
+    @property
+    def sentinel(self) -> int:
+        return self.process.sentinel
+
+    def alive(self) -> bool:
+        return self.process is not None and self.process.is_alive()
+
+    def send(self, seq: int, slot: int) -> None:
+        """Hand the frame in `slot` to the worker (raises OSError if the worker is gone)."""
+        self.tasks.send_bytes(json.dumps({"seq": seq, "slot": slot}).encode())
+        self.inflight[seq] = (slot, time.monotonic())
+
+    def receive(self) -> dict:
+        """The next message from the worker (raises EOFError/OSError if it died)."""
+        return json.loads(self.results.recv_bytes())
+
+    def oldest_task_age_s(self) -> float:
+        return max((time.monotonic() - t for _, t in self.inflight.values()), default=0.0)
+
+    def kill(self) -> None:
+        if self.alive():
+            os.kill(self.process.pid, signal.SIGKILL)
+
+    def stop(self, timeout_s: float) -> None:
+        """Ask the worker to exit, wait up to `timeout_s`, then kill it; close the pipes."""
+        if self.process is None:
+            return
+        try:
+            self.tasks.send_bytes(b'{"stop": true}')
+        except OSError:
+            pass
+        self.process.join(timeout_s)
+        if self.process.is_alive():
+            self.kill()
+            self.process.join(5.0)
+        self.tasks.close()
+        self.results.close()
+        self.process = None

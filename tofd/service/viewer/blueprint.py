@@ -1,0 +1,43 @@
+"""The entity tree tofd logs to Rerun and the blueprint that lays its views out."""
+
+from __future__ import annotations
+
+import rerun.blueprint as rrb
+
+CAMERA = "/world/camera"  # Pinhole (intrinsics); x right, y down, z forward, metres
+IMAGE = f"{CAMERA}/image"  # the camera's image plane: 2-D views of range, amplitude, mask line up with 3-D
+RANGE = f"{IMAGE}/range"  # DepthImage: radial range, metres
+AMPLITUDE = f"{IMAGE}/amplitude"  # Image: amplitude, sensor units
+MASK = f"{IMAGE}/mask"  # SegmentationImage: 0 background, 1 foreground
+NOSE_2D = f"{IMAGE}/nose"  # Points2D: detected nose tip, pixels
+FOREGROUND = "/world/foreground"  # Points3D: foreground points, metres, coloured by NFFT eps0
+NOSE_3D = "/world/nose"  # Points3D: detected nose tip, metres
+FEATURES = {  # feature map name (tofd.algorithm.detector naming) -> entity; colour-mapped scalar images
+    "range_fft_eps0": "/features/fft/eps0",
+    "range_fft_eps2": "/features/fft/eps2",
+    "range_nfft_eps0": "/features/nfft/eps0",
+    "range_nfft_eps2": "/features/nfft/eps2",
+}
+TIMINGS = "/timings"  # Scalars per stage, milliseconds
+EVENTS = "/events"  # TextLog: device gaps and reconnects
+
+
+def build_blueprint() -> rrb.Blueprint:
+    """Camera images (left), feature maps (middle), 3-D scene and stage timings (right)."""
+
+    def image_view(name: str, entity: str) -> rrb.Spatial2DView:
+        return rrb.Spatial2DView(name=name, origin=IMAGE, contents=[entity, NOSE_2D])
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(image_view("range [m]", RANGE), image_view("amplitude", AMPLITUDE),
+                         image_view("foreground mask", MASK)),
+            rrb.Grid(*(rrb.Spatial2DView(name=f"{path.split('/')[2].upper()} {path.split('/')[3]}", origin=path)
+                       for path in FEATURES.values()), grid_columns=2),
+            rrb.Vertical(
+                rrb.Spatial3DView(name="3-D (camera frame)", origin="/world",
+                                  contents=["+ /world/**", f"- {IMAGE}/**"]),
+                rrb.TimeSeriesView(name="stage timings [ms]", origin=TIMINGS),
+                row_shares=[3, 2]),
+            column_shares=[1, 2, 2]),
+        collapse_panels=True)

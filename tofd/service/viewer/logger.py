@@ -1,0 +1,88 @@
+"""Logs one FrameResult to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
+
+Per frame (~0.5 MB): range, amplitude, mask, four feature maps, the foreground cloud (~3000 points), the
+nose in 2-D and 3-D, one scalar per stage timing. Timelines: `frame` (device frame counter) and
+`device_time` (device clock). set_time is thread-local in Rerun, so it is called here, on the logging thread.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import cache
+
+import numpy as np
+import rerun as rr
+
+from drivers.intrinsics import Intrinsics
+from tofd.service.pipeline.results import FrameResult
+from tofd.service.pipeline.stats import TIMED_STAGES
+from tofd.service.viewer import blueprint as bp
+
+NOSE_COLOR = (255, 0, 255)
+
+
+@cache
+def _viridis() -> np.ndarray:
+    """(256, 3) uint8 lookup table of the viridis colour map."""
+    from matplotlib import colormaps
+
+    return (colormaps["viridis"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint8)
+
+
+def colour_by(values: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 viridis colours of log10(values), scaled to their 2nd-98th percentile."""
+    lut = _viridis()
+    logv = np.log10(np.maximum(values, 1e-30))
+    finite = np.isfinite(values)
+    if not finite.any():
+        return np.zeros((len(values), 3), np.uint8)
+    lo, hi = np.percentile(logv[finite], [2, 98])
+    idx = np.clip((logv - lo) / max(hi - lo, 1e-12) * 255, 0, 255)
+    return lut[np.where(finite, idx, 0).astype(np.intp)]
+
+
+class RerunLogger:
+    """Callable sink: logs static entities once at construction, then every FrameResult it is given."""
+
+    def __init__(self, rec: rr.RecordingStream, intrinsics: Intrinsics, point_cloud: bool = True):
+        self.rec, self.point_cloud = rec, point_cloud
+        self._rays = intrinsics.unit_rays().astype(np.float32)
+        rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
+        rec.log(bp.CAMERA, rr.Pinhole(focal_length=[intrinsics.fx, intrinsics.fy],
+                                      principal_point=[intrinsics.cx + 0.5, intrinsics.cy + 0.5],
+                                      width=intrinsics.width, height=intrinsics.height), static=True)
+        rec.log(bp.MASK, rr.AnnotationContext([(0, "background", (0, 0, 0)), (1, "foreground", (230, 60, 40))]),
+                static=True)
+        for stage in TIMED_STAGES:
+            rec.log(f"{bp.TIMINGS}/{stage}", rr.SeriesLines(names=f"{stage} [ms]"), static=True)
+
+    def __call__(self, r: FrameResult) -> None:
+        t0 = time.perf_counter()
+        rec, frame = self.rec, r.frame
+        rec.set_time("frame", sequence=frame.frame_counter)
+        rec.set_time("device_time", duration=frame.timestamp_us * 1e-6)
+        if r.gap_before:
+            rec.log(bp.EVENTS, rr.TextLog(f"{r.gap_before} before frame {frame.frame_counter}",
+                                          level=rr.TextLogLevel.WARN))
+        rec.log(bp.RANGE, rr.DepthImage(np.nan_to_num(frame.range_m, nan=0.0), meter=1.0, colormap="turbo"))
+        rec.log(bp.AMPLITUDE, rr.Image(frame.amplitude))
+        rec.log(bp.MASK, rr.SegmentationImage(r.mask.view(np.uint8)))
+        for name, path in bp.FEATURES.items():
+            # a DepthImage is Rerun's colour-mapped scalar image; these are eccentricities, NaN (shown as 0)
+            # outside the foreground, not depths.
+            rec.log(path, rr.DepthImage(np.nan_to_num(r.features[name], nan=0.0), colormap="viridis"))
+        if self.point_cloud:
+            eps0 = r.features["range_nfft_eps0"][r.mask]
+            points = self._rays[r.mask] * frame.range_m[r.mask][:, None]
+            rec.log(bp.FOREGROUND, rr.Points3D(points, colors=colour_by(eps0), radii=0.002))
+        det = r.detection
+        if det is not None and det.nose_px is not None:
+            rec.log(bp.NOSE_2D, rr.Points2D([det.nose_px], radii=3, colors=[NOSE_COLOR], labels="nose"))
+            rec.log(bp.NOSE_3D, rr.Points3D([det.nose_xyz_m], radii=0.01, colors=[NOSE_COLOR]))
+        elif det is not None:
+            rec.log(bp.NOSE_2D, rr.Clear(recursive=False))
+            rec.log(bp.NOSE_3D, rr.Clear(recursive=False))
+        for stage, ms in r.timings_ms.items():
+            rec.log(f"{bp.TIMINGS}/{stage}", rr.Scalars(ms))
+        rec.log(f"{bp.TIMINGS}/logging", rr.Scalars((time.perf_counter() - t0) * 1e3))
+        rec.log(f"{bp.TIMINGS}/latency", rr.Scalars((time.monotonic() - r.arrival_s) * 1e3))

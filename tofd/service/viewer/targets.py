@@ -1,0 +1,121 @@
+"""Where the Rerun stream goes: an .rrd file, a running viewer, or a viewer child process we start.
+
+The Python SDK's serve_grpc/serve_web_viewer/spawn listen on 0.0.0.0 and have no bind argument, so the
+"web" and "spawn" sinks start the `rerun` CLI as a child process with `--bind` (127.0.0.1 by default) and
+connect to it over gRPC. Rerun's log calls can block while a connected viewer stalls; the pipeline only
+calls them from its sink thread, behind a queue that drops (live) instead of blocking the capture path.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import socket
+import subprocess
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+import rerun as rr
+
+from tofd.config import RerunConfig
+from tofd.service.viewer.blueprint import build_blueprint
+
+APPLICATION_ID = "tofd"
+
+
+class ViewerError(RuntimeError):
+    """A viewer that could not be started or reached."""
+
+
+def rerun_executable() -> str:
+    """The native `rerun` binary shipped in rerun-sdk's rerun_cli package.
+
+    Not the `rerun` console script: that Python shim runs the binary as ITS child, which would outlive a
+    terminate() of the shim.
+    """
+    spec = importlib.util.find_spec("rerun_cli")
+    binary = Path(spec.origin).with_name("rerun") if spec and spec.origin else None
+    if binary is None or not binary.exists():
+        raise ViewerError("the rerun viewer binary was not found (it ships with rerun-sdk, package rerun_cli)")
+    return str(binary)
+
+
+def port_open(host: str, port: int) -> bool:
+    with socket.socket() as s:
+        s.settimeout(0.2)
+        return s.connect_ex((host, port)) == 0
+
+
+def _client_host(bind: str) -> str:
+    return "127.0.0.1" if bind in ("0.0.0.0", "") else bind
+
+
+class RerunTarget:
+    """A RecordingStream connected to the configured sink, and the viewer child process if we started one.
+
+    `sink`: "save" (cfg.path or `path`), "connect" (cfg.url), "web" or "spawn" (child viewer on cfg.bind).
+    """
+
+    def __init__(self, cfg: RerunConfig, sink: str, path: str | None = None, url: str | None = None,
+                 recording_id: str | None = None, start_timeout_s: float = 20.0):
+        self.cfg, self.sink = cfg, sink
+        self.child: subprocess.Popen | None = None
+        self.web_url: str | None = None
+        self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or str(uuid.uuid4()))
+        blueprint = build_blueprint()
+        if sink == "save":
+            Path(path or cfg.path).parent.mkdir(parents=True, exist_ok=True)
+            self.rec.save(path or cfg.path, default_blueprint=blueprint)
+        elif sink == "connect":
+            self.rec.connect_grpc(url or cfg.url, default_blueprint=blueprint)
+        elif sink in ("web", "spawn"):
+            host = _client_host(cfg.bind)
+            args = ["--bind", cfg.bind, "--port", str(cfg.grpc_port), "--memory-limit", cfg.memory_limit]
+            if sink == "web":
+                args += ["--serve-web", "--web-viewer-port", str(cfg.web_port),
+                         "--server-memory-limit", cfg.memory_limit]
+            self._start_child(args, host, start_timeout_s)
+            grpc_url = f"rerun+http://{host}:{cfg.grpc_port}/proxy"
+            if sink == "web":
+                quoted = grpc_url.replace(":", "%3A").replace("/", "%2F").replace("+", "%2B")
+                self.web_url = f"http://{host}:{cfg.web_port}/?url={quoted}"
+            self.rec.connect_grpc(grpc_url, default_blueprint=blueprint)
+        else:
+            raise ValueError(f"sink: {sink!r} is not one of 'save', 'connect', 'web', 'spawn'")
+
+    def _start_child(self, args: list[str], host: str, timeout_s: float) -> None:
+        for port in (self.cfg.grpc_port, self.cfg.web_port if self.sink == "web" else None):
+            if port is not None and port_open(host, port):
+                raise ViewerError(f"port {port} on {host} is already in use (rerun.grpc_port / rerun.web_port)")
+        self._child_log = tempfile.TemporaryFile()  # a file, not a pipe: a full pipe would stall the viewer
+        # own session: a Ctrl-C or a signal to our process group must not kill the viewer before we drain
+        self.child = subprocess.Popen([rerun_executable(), *args], stdin=subprocess.DEVNULL,
+                                      stdout=subprocess.DEVNULL, stderr=self._child_log, start_new_session=True)
+        deadline = time.monotonic() + timeout_s
+        while not port_open(host, self.cfg.grpc_port):
+            if self.child.poll() is not None:
+                self._child_log.seek(0)
+                err = self._child_log.read().decode(errors="replace").strip().splitlines()[-3:]
+                raise ViewerError(f"the rerun viewer exited with code {self.child.returncode}"
+                                  f" (no display for `spawn`?): {' | '.join(err)}")
+            if time.monotonic() > deadline:
+                self.close(0)
+                raise ViewerError(f"the rerun viewer did not listen on {host}:{self.cfg.grpc_port} "
+                                  f"in {timeout_s:g} s")
+            time.sleep(0.1)
+
+    def close(self, flush_timeout_s: float = 5.0) -> None:
+        """Flush (bounded), disconnect, and stop a child viewer we started (SIGTERM, then SIGKILL)."""
+        try:
+            self.rec.flush(timeout_sec=flush_timeout_s)
+        except RuntimeError:
+            pass  # an unreachable gRPC sink: what is still queued is lost, as Rerun reports
+        self.rec.disconnect()
+        if self.child is not None and self.child.poll() is None:
+            self.child.terminate()
+            try:
+                self.child.wait(5)
+            except subprocess.TimeoutExpired:
+                self.child.kill()
+                self.child.wait(5)

@@ -1,7 +1,0 @@
-"""Rerun streaming of pipeline results: entity tree and blueprint, per-frame logger, sinks (file/viewers)."""
-
-from tofd.viewer.blueprint import build_blueprint
-from tofd.viewer.logger import RerunLogger
-from tofd.viewer.targets import RerunTarget, ViewerError
-
-__all__ = ["RerunLogger", "RerunTarget", "ViewerError", "build_blueprint"]
