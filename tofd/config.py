@@ -73,6 +73,7 @@ class PipelineConfig:
     worker_start_timeout_s: float = 60.0  # seconds allowed for the workers to build their plans at start
     max_worker_failures: int = 5  # consecutive worker deaths without a processed frame before giving up
     drain_timeout_s: float = 10.0  # seconds to drain the queues on shutdown before dropping the rest
+    shutdown_timeout_s: float = 10.0  # seconds from SIGTERM to exit, whatever the viewer does (bounds the drain)
     stats_window: int = 600  # frames in the rolling timing/fps window
 
     def validate(self) -> None:
@@ -80,7 +81,7 @@ class PipelineConfig:
                     "stats_window"):
             if getattr(self, key) < 1:
                 raise ValueError(f"{key}: {getattr(self, key)} must be >= 1")
-        for key in ("worker_timeout_s", "worker_start_timeout_s", "drain_timeout_s"):
+        for key in ("worker_timeout_s", "worker_start_timeout_s", "drain_timeout_s", "shutdown_timeout_s"):
             if not getattr(self, key) > 0:
                 raise ValueError(f"{key}: {getattr(self, key)} must be > 0")
         if self.policy not in ("auto", "latest", "lossless"):

@@ -59,6 +59,9 @@ def render_metrics(snap: dict) -> str:
     metric("tofd_frames_out_total", "counter", "Frames delivered to every sink.", [({}, snap["frames_out"])])
     metric("tofd_frames_dropped_total", "counter", "Frames dropped, by stage and reason.",
            [({"stage": s, "reason": r}, n) for (s, r), n in sorted(snap["drops"].items())])
+    metric("tofd_viewer_frames_dropped_total", "counter",
+           "Delivered frames the best-effort viewer did not get, by reason.",
+           [({"reason": r}, n) for r, n in sorted(snap.get("viewer_drops", {}).items())])
     metric("tofd_fps", "gauge", "Delivered frames per second (last 5 s).", [({}, snap["fps"])])
     metric("tofd_stage_duration_seconds", "summary", "Per-frame stage durations over the rolling window.",
            [({"stage": stage, "quantile": q}, v / 1e3)

@@ -1,20 +1,20 @@
-"""The threaded pipeline: capture thread -> worker processes (features, detection) -> sink thread.
+"""The pipeline: capture thread -> worker pool (features, detection) -> reorderer -> sink thread.
 
 Threads in the parent process:
-- capture: iterates the FrameSource, admits each frame to the ledger, marks device gaps, queues it;
-- dispatch: copies a queued frame into a free shared-memory slot and hands the slot to a worker;
-- collect: receives worker results (or notices a dead worker: its frames are ledgered, it is restarted),
-  copies the maps out of the slot, orders the frames and queues them for the sink;
-- sink: logs to Rerun (optional) and writes results (optional); a frame is delivered when this is done.
+- capture: iterates the FrameSource, checks each frame (capture.py), admits it to the ledger, queues it;
+- dispatch: hands a queued frame to the worker pool (pool.py: slots, workers, restarts, timeouts);
+- collect: receives the workers' results, puts them in output order (reorder.py), queues them for the sink;
+- sink: writes results (writers), then offers the frame to the viewer; a frame is delivered when written.
 
-Queue policy (see queues.py): "latest" for live sources (the dispatch queue holds only the newest frame
-and each worker holds at most one, the sink queue drops its oldest), "lossless" for replay (every queue
-blocks). Either way the collector hands frames to the sink in sequence order. Every drop goes to the
-DropLedger with its stage and reason.
+Queue policy (queues.py): "latest" for live sources (the dispatch queue holds only the newest frame, each
+worker holds at most one, a finished frame never waits for an older one, the sink queue drops its
+oldest), "lossless" for replay (every queue blocks, strict order). Every drop goes to the DropLedger with
+its stage and reason. The viewer is best effort: a viewer with `offer` (a ViewerProcess) never blocks the
+sink; frames it refuses are ledgered as viewer drops. A plain callable viewer is called inline.
 
 Timings per frame (ms): capture (driver receive -> admitted), queue (admitted -> sent to a worker),
-segmentation, fft, nfft, detection (in the worker), logging (Rerun), latency (driver receive -> sink done).
-Workers run the detector too (it is ~4 ms of numpy per frame: in the parent it would compete for the GIL).
+segmentation, fft, nfft, detection (in the worker), logging (inline viewer only), latency (driver receive
+-> written).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from multiprocessing.connection import wait as wait_ready
+from typing import Protocol
 
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
@@ -33,13 +33,15 @@ from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
 from tofd.algorithm.names import MAP_NAMES
 from tofd.config import Config
+from tofd.service.pipeline import monitor
+from tofd.service.pipeline.capture import GapTracker, frame_problem
 from tofd.service.pipeline.ledger import DropLedger
+from tofd.service.pipeline.pool import WorkerPool
 from tofd.service.pipeline.queues import Policy, StageQueue
+from tofd.service.pipeline.reorder import Reorderer
 from tofd.service.pipeline.results import FrameResult
-from tofd.service.pipeline.slots import SlotRing
 from tofd.service.pipeline.stages import detection_from
 from tofd.service.pipeline.stats import PipelineStats
-from tofd.service.pipeline.worker import WorkerHandle
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +51,12 @@ POLL_S = 0.1  # seconds: how often idle threads re-check the stop/abort flags
 
 class PipelineError(RuntimeError):
     """The pipeline cannot go on (workers that cannot start or keep dying, a failing source)."""
+
+
+class OfferingViewer(Protocol):
+    """A best-effort viewer: `offer` returns at once (or within `block_s`), False if it refused the frame."""
+
+    def offer(self, result: FrameResult, block_s: float) -> bool: ...
 
 
 @dataclasses.dataclass(slots=True)
@@ -64,36 +72,33 @@ class _Queued:
 class Pipeline:
     """Run frames from a FrameSource through the stages; see the module docstring.
 
-    `viewer` is called for every frame on the sink thread (its time is the "logging" stage), then each of
-    `writers`. `model`: the workers run the nose detector of cfg.detector with this model (None: no detection).
+    `viewer`: an OfferingViewer, or a callable called inline on the sink thread after `writers`.
+    `model`: the workers run the nose detector of cfg.detector with this model (None: no detection).
     `live_source`: the frames' host receive times are this process's monotonic clock (a camera), so latency
     counts from there; else (replay) from the capture thread's arrival. Use: start(source), then wait() or stop().
     """
 
     def __init__(self, cfg: Config, policy: Policy, intrinsics: Intrinsics | None = None,
-                 viewer: Sink | None = None, writers: tuple[Sink, ...] = (), model: NoseModel | None = None,
-                 live_source: bool = True):
+                 viewer: OfferingViewer | Sink | None = None, writers: tuple[Sink, ...] = (),
+                 model: NoseModel | None = None, live_source: bool = True):
         pc = cfg.pipeline
         self.cfg, self.policy, self.intrinsics = cfg, policy, intrinsics or cfg.intrinsics
         self.viewer, self.writers, self.live_source = viewer, writers, live_source
         self.ledger = DropLedger()
         self.stats = PipelineStats(pc.stats_window)
-        self.ring = SlotRing.create(pc.workers * pc.tasks_per_worker, self.intrinsics.shape)
-        spec = json.dumps({"shm": self.ring.name, "n_slots": self.ring.n_slots, "shape": self.ring.shape,
-                           "config": _config_table(cfg), "intrinsics": self.intrinsics.to_dict(),
-                           "model": None if model is None else model.to_dict()})
-        self.workers = [WorkerHandle(i, spec) for i in range(pc.workers)]
+        spec = {"config": config_table(cfg), "intrinsics": self.intrinsics.to_dict(),
+                "model": None if model is None else model.to_dict()}
+        self.pool = WorkerPool(spec, pc.workers, pc.tasks_per_worker, self.intrinsics.shape,
+                               cap=1 if policy == "latest" else pc.tasks_per_worker, timeout_s=pc.worker_timeout_s,
+                               max_failures=pc.max_worker_failures)
+        self.workers = self.pool.workers
+        self.order: Reorderer[FrameResult] = Reorderer(policy)
         self.inq: StageQueue[_Queued] = StageQueue(policy, 1 if policy == "latest" else pc.input_queue)
         self.outq: StageQueue[FrameResult] = StageQueue(policy, pc.sink_queue)
         self.source: FrameSource | None = None
         self.error: str | None = None
-        self.worker_restarts = 0
-        self._lock = threading.Condition()  # guards workers' pipes/inflight and the slot ring's bookkeeping
-        self._queued: dict[int, _Queued] = {}
-        self._gone: set[int] = set()  # lossless ordering: dropped seqs the collector must skip
-        self._done: dict[int, FrameResult] = {}
-        self._next_emit = 0
-        self._failures = 0
+        self._items: dict[int, _Queued] = {}  # seq -> frame, from admission until it leaves the workers
+        self._items_lock = threading.Lock()
         self._capture_done = threading.Event()
         self._dispatch_done = threading.Event()
         self._collect_done = threading.Event()
@@ -102,18 +107,18 @@ class Pipeline:
         self._closed = False
         self._max_frames: int | None = None
 
+    @property
+    def worker_restarts(self) -> int:
+        return self.pool.restarts
+
     # ---------------------------------------------------------------- lifecycle
     def start(self, source: FrameSource, max_frames: int | None = None) -> None:
         """Start the workers (waiting until they are ready), then the threads; capture stops after
         `max_frames` frames (None = until the source ends or stop())."""
         self.source, self._max_frames = source, max_frames
-        for w in self.workers:
-            w.start()
+        self.pool.start()
         self._spawn("collect", self._collect_loop)
-        deadline = time.monotonic() + self.cfg.pipeline.worker_start_timeout_s
-        with self._lock:
-            ok = self._lock.wait_for(lambda: all(w.ready for w in self.workers) or self.error is not None,
-                                     max(0.0, deadline - time.monotonic()))
+        ok = self.pool.wait_ready(self.cfg.pipeline.worker_start_timeout_s, lambda: self.error is not None)
         if not ok or self.error is not None:
             self._abort.set()
             self.close()
@@ -139,24 +144,22 @@ class Pipeline:
     def running(self) -> bool:
         return any(t.is_alive() for t in self._threads)
 
-    def close(self) -> dict:
-        """Drain (up to drain_timeout_s), then stop the workers and release shared memory; the ledger summary.
-
-        Frames still in flight after the drain timeout are ledgered as dropped ("shutdown").
-        """
+    def close(self, drain_timeout_s: float | None = None) -> dict:
+        """Drain (up to `drain_timeout_s`, default pipeline.drain_timeout_s), then stop the workers and
+        release shared memory; the ledger summary. Frames still in flight then are dropped ("shutdown")."""
         if self._closed:
             return self.ledger.summary()
         self._closed = True
         self.stop()
-        if not self.wait(self.cfg.pipeline.drain_timeout_s):
-            log.warning("pipeline did not drain in %.1f s; dropping what is left", self.cfg.pipeline.drain_timeout_s)
+        drain = self.cfg.pipeline.drain_timeout_s if drain_timeout_s is None else drain_timeout_s
+        if not self.wait(drain):
+            log.warning("pipeline did not drain in %.1f s; dropping what is left", drain)
         self._abort.set()
         self.wait(2.0)
-        for w in self.workers:
-            w.stop(2.0)
+        self.pool.stop(1.0)
         self.ledger.drop_pending("shutdown")
         self.ledger.close()
-        self.ring.close()
+        self.pool.close()
         return self.ledger.summary()
 
     def __enter__(self) -> Pipeline:
@@ -178,40 +181,43 @@ class Pipeline:
         t.start()
 
     def _fail(self, message: str) -> None:
-        with self._lock:
-            self.error = self.error or message
-            self._lock.notify_all()
+        self.error = self.error or message
+        with self.pool.lock:
+            self.pool.lock.notify_all()
         self._abort.set()
         self.stop()
 
     def _drop(self, seq: int, stage: str, reason: str) -> None:
+        """Ledger a frame as dropped, once (a frame already dropped or delivered is ignored)."""
+        with self._items_lock:
+            if self._items.pop(seq, None) is None:
+                return
+        self.order.gone(seq)
         self.ledger.drop(seq, stage, reason)
-        with self._lock:
-            self._queued.pop(seq, None)
-            self._gone.add(seq)
 
     # ---------------------------------------------------------------- capture
     def _capture_loop(self) -> None:
-        source, seq, last_counter = self.source, 0, None
-        reconnects = source.counters["reconnect"]
+        source, seq = self.source, 0
+        gaps = GapTracker(source)
         try:
             for frame in source:
                 now = time.monotonic()
                 if self._abort.is_set() or (self._max_frames is not None and seq >= self._max_frames):
                     break
+                self.ledger.admit(seq, _safe_counter(frame))
+                problem = frame_problem(frame, self.pool.ring.shape)
+                if problem is not None:
+                    self.ledger.drop(seq, "capture", f"invalid_frame: {problem}")
+                    seq += 1
+                    continue
                 origin = min(frame.host_monotonic_s, now) if self.live_source else now
-                gap = ""
-                if source.counters["reconnect"] != reconnects:
-                    reconnects, gap = source.counters["reconnect"], "reconnect"
-                elif last_counter is not None and frame.frame_counter != last_counter + 1:
-                    gap = "counter_gap"
+                previous = gaps.last_counter
+                gap = gaps.gap_before(frame)
                 if gap:
-                    self.ledger.mark_gap(-1 if last_counter is None else last_counter, frame.frame_counter, gap)
-                last_counter = frame.frame_counter
-                self.ledger.admit(seq, frame.frame_counter)
+                    self.ledger.mark_gap(-1 if previous is None else previous, frame.frame_counter, gap)
                 item = _Queued(seq, frame, origin, time.monotonic(), gap_before=gap)
-                with self._lock:
-                    self._queued[seq] = item
+                with self._items_lock:
+                    self._items[seq] = item
                 for old in self.inq.put(item, self._abort):
                     stage, reason = ("features", "superseded") if old is not item else ("capture", "shutdown")
                     self._drop(old.seq, stage, reason)
@@ -222,19 +228,12 @@ class Pipeline:
             self._capture_done.set()
 
     # ---------------------------------------------------------------- dispatch
-    def _free_worker(self) -> WorkerHandle | None:
-        cap = 1 if self.policy == "latest" else self.cfg.pipeline.tasks_per_worker  # live: no frame waits in a pipe
-        ready = [w for w in self.workers if w.ready and len(w.inflight) < cap]
-        return min(ready, key=lambda w: len(w.inflight)) if ready else None
-
     def _dispatch_loop(self) -> None:
         item: _Queued | None = None  # taken from the queue, waiting for a worker
         try:
             while not self._abort.is_set():
-                with self._lock:
-                    if not self._lock.wait_for(lambda: self._free_worker() is not None or self._abort.is_set(),
-                                               POLL_S):
-                        continue
+                if not self.pool.wait_free(POLL_S, self._abort):
+                    continue
                 if item is not None and self.policy == "latest" and len(self.inq):
                     self._drop(item.seq, "features", "superseded")
                     item = None
@@ -244,75 +243,51 @@ class Pipeline:
                     if self._capture_done.is_set() and len(self.inq) == 0:
                         break
                     continue
-                if self._dispatch(item):
+                if self._submit(item):
                     item = None
         finally:
             self._dispatch_done.set()
 
-    def _dispatch(self, item: _Queued) -> bool:
-        """Copy the frame into a free slot and send it to the least busy worker; False if none is free."""
-        with self._lock:
-            worker = self._free_worker()
-            slot = self.ring.acquire(0) if worker is not None else None
-            if slot is None:  # a worker died between the wait and now
-                return False
-            views = self.ring.views(slot)
-            views["range_m"][...] = item.frame.range_m
-            views["amplitude"][...] = item.frame.amplitude
-            self.ledger.advance(item.seq, "features")
-            item.sent_s = time.monotonic()
-            try:
-                worker.send(item.seq, slot)
-                return True
-            except OSError:  # it died just now; the collector restarts it
-                self.ring.release(slot)
-                return False
+    def _submit(self, item: _Queued) -> bool:
+        self.ledger.advance(item.seq, "features")
+        item.sent_s = time.monotonic()
+        self.order.sent(item.seq)
+        if self.pool.submit(item.seq, item.frame.range_m, item.frame.amplitude):
+            return True
+        self.order.unsent(item.seq)
+        return False
 
     # ---------------------------------------------------------------- collect
     def _collect_loop(self) -> None:
         try:
             while not self._abort.is_set():
-                with self._lock:
-                    conns = {w.results: w for w in self.workers if w.process is not None}
-                    sentinels = {w.sentinel: w for w in self.workers if w.process is not None}
-                for obj in wait_ready([*conns, *sentinels], POLL_S):
-                    if obj in conns:
-                        self._receive(conns[obj])
-                for obj in wait_ready(list(sentinels), 0):
-                    self._worker_died(sentinels[obj], "worker_died")
-                self._check_timeouts()
-                self._emit_ordered()
-                if self._dispatch_done.is_set() and not any(w.inflight for w in self.workers) and not self._done:
+                restart = not (self._capture_done.is_set() and self.policy == "latest")
+                self.pool.poll(POLL_S, self._on_result, self._on_lost, restart)
+                if self.pool.error is not None:
+                    self._fail(self.pool.error)
+                    return
+                ready, late = self.order.ready()
+                for seq in late:
+                    self._drop(seq, "features", "late")
+                for result in ready:
+                    self._to_sink(result)
+                if self._dispatch_done.is_set() and not self.pool.inflight and not self.order.pending:
                     break
         finally:
             self._collect_done.set()
 
-    def _receive(self, worker: WorkerHandle) -> None:
-        try:
-            msg = worker.receive()
-        except (EOFError, OSError):
-            return  # the sentinel reports the death
-        if "ready" in msg:
-            with self._lock:
-                worker.ready = True
-                self._lock.notify_all()
+    def _on_result(self, seq: int, msg: dict) -> None:
+        slot = msg["slot"]
+        with self._items_lock:
+            item = self._items.get(seq)
+        if item is None:  # dropped meanwhile (live: late); the slot is all that is left to free
+            self.pool.release(slot)
             return
-        self._handle_result(worker, msg)
-
-    def _handle_result(self, worker: WorkerHandle, msg: dict) -> None:
-        seq, slot = msg["seq"], msg["slot"]
-        with self._lock:
-            worker.inflight.pop(seq)
-            item = self._queued.pop(seq)
-            if "error" in msg:
-                self.ring.release(slot)
-                self._lock.notify_all()
         if "error" in msg:
-            self.ledger.drop(seq, "features", f"error: {msg['error']}")
-            with self._lock:
-                self._gone.add(seq)
+            self.pool.release(slot)
+            self._drop(seq, "features", f"error: {msg['error']}")
             return
-        views = self.ring.views(slot)
+        views = self.pool.ring.views(slot)
         result = FrameResult(
             seq=seq, frame=item.frame, mask=views["mask"].copy(),
             features={name: views[name].copy() for name in MAP_NAMES},
@@ -320,77 +295,26 @@ class Pipeline:
             gap_before=item.gap_before, detection=detection_from(msg),
             timings_ms={"capture": (item.admitted_s - item.origin_s) * 1e3,
                         "queue": (item.sent_s - item.admitted_s) * 1e3, **msg["timings_ms"]})
-        with self._lock:
-            self.ring.release(slot)
-            self._failures = 0
-            self._lock.notify_all()
-        self._done[seq] = result
+        self.pool.release(slot)
+        if not self.order.done(seq, result):
+            self._drop(seq, "features", "late")
 
-    def _worker_died(self, worker: WorkerHandle, reason: str) -> None:
-        """Ledger the frames a dead worker held, then restart it (unless shutting down or failing)."""
-        with self._lock:
-            worker.ready = False  # the dispatcher must not pick it any more
-        while worker.results.poll(0):  # results it sent before dying are still good
-            try:
-                msg = worker.receive()
-            except (EOFError, OSError):
-                break
-            if "seq" in msg:
-                self._handle_result(worker, msg)
-        worker.process.join(1.0)
-        with self._lock:
-            lost = dict(worker.inflight)
-            worker.inflight.clear()
-            for seq, (slot, _) in lost.items():
-                self.ring.release(slot)
-                self._queued.pop(seq, None)
-                self._gone.add(seq)
-            self._lock.notify_all()
-        for seq in sorted(lost):
-            self.ledger.drop(seq, "features", reason)
-        log.warning("feature worker %d (pid %s) died; %d frame(s) lost", worker.index, worker.pid, len(lost))
-        worker.stop(0.1)
-        self._failures += 1
-        if self._failures > self.cfg.pipeline.max_worker_failures:
-            self._fail(f"feature workers died {self._failures} times in a row without processing a frame")
-            return
-        if self._capture_done.is_set() and self.policy == "latest":
-            return  # live shutdown: nothing left for it to do
-        with self._lock:
-            worker.start()
-            self.worker_restarts += 1
-
-    def _check_timeouts(self) -> None:
-        limit = self.cfg.pipeline.worker_timeout_s
-        for w in self.workers:
-            if w.process is not None and w.inflight and w.oldest_task_age_s() > limit:
-                log.warning("feature worker %d held a frame for more than %.1f s; killing it", w.index, limit)
-                w.kill()
-                self._worker_died(w, "worker_timeout")
-
-    def _emit_ordered(self) -> None:
-        """Queue finished frames for the sink in sequence order (a frame never follows a newer one),
-        skipping the sequence numbers that were dropped."""
-        while True:
-            with self._lock:
-                gone = self._next_emit in self._gone
-                if gone:
-                    self._gone.discard(self._next_emit)
-            if gone:
-                self._next_emit += 1
-            elif self._next_emit in self._done:
-                self._to_sink(self._done.pop(self._next_emit))
-                self._next_emit += 1
-            else:
-                return
+    def _on_lost(self, seqs: list[int], reason: str) -> None:
+        for seq in seqs:
+            self._drop(seq, "features", reason)
 
     def _to_sink(self, result: FrameResult) -> None:
+        with self._items_lock:
+            if self._items.pop(result.seq, None) is None:
+                return
         self.ledger.advance(result.seq, "viewer")
         for old in self.outq.put(result, self._abort):
-            self._drop(old.seq, "viewer", "queue_full" if old is not result else "shutdown")
+            self.ledger.drop(old.seq, "viewer", "queue_full" if old is not result else "shutdown")
 
     # ---------------------------------------------------------------- sink
     def _sink_loop(self) -> None:
+        offer = getattr(self.viewer, "offer", None)
+        block_s = self.cfg.pipeline.shutdown_timeout_s if self.policy == "lossless" else 0.0
         while True:
             result = self.outq.get(POLL_S)
             if result is None:
@@ -398,7 +322,7 @@ class Pipeline:
                     return
                 continue
             try:
-                if self.viewer is not None:
+                if self.viewer is not None and offer is None:
                     t0 = time.perf_counter()
                     self.viewer(result)
                     result.timings_ms["logging"] = (time.perf_counter() - t0) * 1e3
@@ -407,36 +331,27 @@ class Pipeline:
                     write(result)
             except Exception as exc:
                 log.exception("sink failed on frame %d", result.frame.frame_counter)
-                self._drop(result.seq, "viewer", f"error: {type(exc).__name__}: {exc}")
+                self.ledger.drop(result.seq, "viewer", f"error: {type(exc).__name__}: {exc}")
                 continue
             self.ledger.deliver(result.seq)
             self.stats.record(result.timings_ms)
+            if offer is not None and not offer(result, block_s):
+                self.ledger.skip_viewer(result.seq, result.frame.frame_counter, "blocked")
 
     # ---------------------------------------------------------------- monitoring
     def snapshot(self) -> dict:
-        """Counters, rates, timings and queue depths for /metrics and the run summary."""
-        with self._lock:
-            inflight = sum(len(w.inflight) for w in self.workers)
-            alive = sum(w.alive() for w in self.workers)
+        """Counters, rates, timings and queue depths for /metrics and the run summary (see monitor.py)."""
         counters = dict(self.source.counters) if self.source is not None else {}
-        return {
-            "frames_in": self.ledger.frames_in,
-            "frames_out": self.ledger.frames_out,
-            "frames_dropped": self.ledger.frames_dropped,
-            "drops": self.ledger.drops_by(),
-            "gaps": len(self.ledger.gaps),
-            "fps": self.stats.fps(),
-            "timings_ms": self.stats.quantiles_ms(),
-            "queue_depth": {"dispatch": len(self.inq), "workers": inflight, "sink": len(self.outq)},
-            "workers_alive": alive,
-            "worker_restarts": self.worker_restarts,
-            "device_events": counters,
-            "last_delivery_age_s": self.stats.last_delivery_age_s(),
-            "error": self.error,
-        }
+        return monitor.snapshot(self.ledger, self.stats, self.pool,
+                                {"dispatch": len(self.inq), "reorder": self.order.pending, "sink": len(self.outq)},
+                                counters, self.error)
 
 
-def _config_table(cfg: Config) -> dict:
+def _safe_counter(frame: Frame) -> int:
+    """The frame counter for the ledger (-1 when it is not an integer)."""
+    return frame.frame_counter if isinstance(frame.frame_counter, int) else -1
+
+
+def config_table(cfg: Config) -> dict:
     """The config as a TOML-like table (for the worker processes, which rebuild it with config_from_dict)."""
     return json.loads(json.dumps(dataclasses.asdict(cfg)))
-

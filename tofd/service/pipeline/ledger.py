@@ -3,7 +3,9 @@
 Frames are tracked by the pipeline's own sequence number (frame counters can repeat after a device
 reconnect) and reported by frame counter. A dropped frame is recorded with the stage that dropped it and
 why; device-side gaps (counter jumps, reconnects) are recorded separately, since those frames never
-reached the host. Invariant, checked by `consistent`: frames_in == frames_out + frames_dropped once nothing
+reached the host. Frames delivered (results written) whose best-effort viewer logging was skipped are
+recorded apart, in `viewer_drops` (stage "viewer", reason e.g. "blocked"), since they did leave.
+Invariant, checked by `consistent`: frames_in == frames_out + frames_dropped once nothing
 is pending.
 """
 
@@ -25,7 +27,7 @@ class Drop:
     frame_counter: int
     seq: int  # pipeline sequence number
     stage: str  # one of STAGES: the stage whose input or work lost the frame
-    reason: str  # e.g. "superseded", "stale", "worker_died", "queue_full", "shutdown", "error: ..."
+    reason: str  # e.g. "superseded", "late", "worker_died", "queue_full", "shutdown", "invalid_frame: ..."
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,6 +49,7 @@ class DropLedger:
         self.frames_out = 0
         self.drops: list[Drop] = []
         self.gaps: list[Gap] = []
+        self.viewer_drops: list[Drop] = []  # delivered frames the viewer did not get
         self._closed = False  # after close(), late reports about frames no longer pending are ignored
 
     def admit(self, seq: int, frame_counter: int) -> None:
@@ -99,6 +102,15 @@ class DropLedger:
         with self._lock:
             self._closed = True
 
+    def skip_viewer(self, seq: int, frame_counter: int, reason: str) -> None:
+        """A delivered frame was not logged to the viewer (it lagged or stalled)."""
+        with self._lock:
+            self.viewer_drops.append(Drop(frame_counter, seq, "viewer", reason))
+
+    def viewer_drops_by(self) -> Counter[str]:
+        with self._lock:
+            return Counter(d.reason.split(":")[0] for d in self.viewer_drops)
+
     def mark_gap(self, after_counter: int, next_counter: int, kind: str) -> None:
         with self._lock:
             self.gaps.append(Gap(after_counter, next_counter, kind))
@@ -126,7 +138,7 @@ class DropLedger:
     def summary(self) -> dict:
         """JSON-ready totals, drops by stage and reason, every drop and gap."""
         with self._lock:
-            drops, gaps = list(self.drops), list(self.gaps)
+            drops, gaps, viewer = list(self.drops), list(self.gaps), list(self.viewer_drops)
             frames_in, frames_out, pending = self.frames_in, self.frames_out, len(self._pending)
         by_stage = Counter(d.stage for d in drops)
         return {
@@ -138,4 +150,6 @@ class DropLedger:
             "dropped_by_stage": dict(sorted(by_stage.items())),
             "drops": [asdict(d) for d in drops],
             "gaps": [asdict(g) for g in gaps],
+            "viewer_dropped": len(viewer),
+            "viewer_dropped_by_reason": dict(sorted(Counter(d.reason for d in viewer).items())),
         }

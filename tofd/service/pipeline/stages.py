@@ -45,9 +45,13 @@ class FeatureStage:
             t0 = time.perf_counter()
             det = self._detector.detect_maps(ff.maps, slot["range_m"], ff.rotation[2])
             timings["detection"] = (time.perf_counter() - t0) * 1e3
-            reply["detection"] = {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score,
-                                  "accepted": det.accepted}
+            reply["detection"] = detection_dict(det)
         return reply
+
+
+def detection_dict(det: Detection) -> dict:
+    """A Detection as a JSON-ready dict (score may be inf: no foreground)."""
+    return {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score, "accepted": det.accepted}
 
 
 def detection_from(message: dict) -> Detection | None:

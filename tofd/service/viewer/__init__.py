@@ -1,4 +1,5 @@
-"""Rerun streaming of pipeline results: entity tree and blueprint, per-frame logger, sinks (file/viewers)."""
+"""Rerun streaming of pipeline results: entity tree and blueprint, per-frame logger, sinks (file/viewers),
+and the viewer process that runs them apart from the pipeline."""
 
 from tofd.service.viewer.blueprint import build_blueprint
 from tofd.service.viewer.logger import RerunLogger

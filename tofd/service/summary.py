@@ -1,0 +1,37 @@
+"""The run summary: the drop ledger plus the final statistics, written atomically as JSON."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+
+def run_summary(ledger_summary: dict, snap: dict, run_s: float, viewer: dict | None) -> dict:
+    """`ledger_summary` (DropLedger.summary) with fps over the whole run, timing quantiles (ms), worker
+    restarts, device events, the error if any and the viewer's end report (None: no viewer)."""
+    return {**ledger_summary,
+            "error": snap["error"],
+            "fps": round(ledger_summary["frames_out"] / run_s, 2) if run_s > 0 else 0.0,
+            "timings_ms": {k: [round(x, 3) for x in v] for k, v in snap["timings_ms"].items()},
+            "worker_restarts": snap["worker_restarts"],
+            "device_events": dict(snap["device_events"]),
+            "viewer": viewer}
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write `data` to `path` via a temporary file in the same directory and a rename (readers never see
+    half a file; a symlink planted at `path` is replaced, not followed)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # as open() would create it, not mkstemp's 0600
+        with os.fdopen(fd, "w") as fh:
+            fh.write(json.dumps(data, indent=1) + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,35 @@
+"""The main thread's job while the pipeline runs: watch for a stop signal, ping the systemd watchdog,
+draw progress."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from tofd.service.health import sd_notify, watchdog_interval_s
+from tofd.service.pipeline import Pipeline
+from tofd.service.progress import Progress
+from tofd.service.signals import StopSignals
+
+log = logging.getLogger(__name__)
+
+
+def supervise(pipeline: Pipeline, stop: StopSignals, progress: Progress | None) -> None:
+    """Return when the pipeline ended or a stop signal came (then capture is stopped; draining is the
+    caller's). The watchdog is pinged only while the pipeline has not failed; a camera that is away
+    (reconnecting) is no reason for systemd to restart us: /healthz reports that to monitoring instead."""
+    watchdog = watchdog_interval_s()
+    tick = min(0.25, watchdog or 0.25)
+    last_ping = 0.0
+    while pipeline.running:
+        time.sleep(tick)
+        if stop:
+            log.info("%s: draining the pipeline", stop.name)
+            pipeline.stop()
+            return
+        if watchdog is not None and time.monotonic() - last_ping >= watchdog:
+            if pipeline.error is None:
+                sd_notify("WATCHDOG=1")
+            last_ping = time.monotonic()
+        if progress is not None:
+            progress.update(pipeline.snapshot())

@@ -1,0 +1,169 @@
+"""Rerun logging in its own process, behind a bounded hand-off, so that a stalled viewer can be abandoned.
+
+Rerun's log and flush calls block for as long as a connected receiver does not read (see
+/work/shared/design/rerun_notes.md), and the SDK offers no "drop instead of block". So the RecordingStream
+lives in a child process (which also keeps its CPU off the feature workers' GIL): the parent encodes each
+delivered frame (wire.py) into a queue of `queue_frames`, a sender thread writes it to the child's pipe.
+When the queue is full the frame is refused (the caller ledgers it as a viewer drop). close() asks the
+child to flush and exit and SIGKILLs it at the deadline: nothing in the parent ever waits on Rerun.
+
+Protocol: parent -> child, one bytes message per frame (wire.py) or b"close"; child -> parent, JSON
+{"ready": web_url} or {"error": text} once at start, {"closed": {"frames": n, "errors": n}} at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing as mp
+import os
+import signal
+import threading
+import time
+from collections import deque
+from multiprocessing.connection import Connection
+
+from tofd.config import Config
+from tofd.service.pipeline.results import FrameResult
+from tofd.service.viewer import wire
+
+log = logging.getLogger(__name__)
+
+CLOSE = b"close"
+
+
+def viewer_main(cfg_table: dict, sink: str, parent_pid: int, frames: Connection, status: Connection) -> None:
+    """Entry point of the viewer process: log every frame it is sent until CLOSE or the pipe closes."""
+    from tofd.service.lifeline import die_with_parent
+
+    die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    from tofd.config import config_from_dict
+    from tofd.service.viewer.logger import RerunLogger
+    from tofd.service.viewer.targets import RerunTarget
+
+    cfg = config_from_dict(cfg_table)
+    try:
+        target = RerunTarget(cfg.rerun, sink)
+        logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud)
+    except Exception as exc:  # reported to the parent as one line
+        status.send_bytes(json.dumps({"error": str(exc)}).encode())
+        return
+    status.send_bytes(json.dumps({"ready": target.web_url}).encode())
+    logged = errors = 0
+    while True:
+        try:
+            blob = frames.recv_bytes()
+        except (EOFError, OSError):
+            break
+        if blob == CLOSE:
+            break
+        try:
+            logger(wire.decode(blob, cfg.intrinsics))
+            logged += 1
+        except Exception as exc:  # one frame Rerun cannot take (e.g. a counter beyond int64) is skipped
+            errors += 1
+            if errors <= 3:
+                log.warning("viewer: frame not logged: %s: %s", type(exc).__name__, exc)
+    target.close(cfg.pipeline.shutdown_timeout_s)
+    status.send_bytes(json.dumps({"closed": {"frames": logged, "errors": errors}}).encode())
+
+
+class ViewerProcess:
+    """The parent's handle: start the child (raising ViewerError if its sink cannot start), `offer` frames,
+    `close` within a deadline. Use from one thread for offer and one for close."""
+
+    def __init__(self, cfg: Config, sink: str, queue_frames: int = 8, start_timeout_s: float = 30.0):
+        from tofd.service.pipeline.core import config_table
+        from tofd.service.viewer.targets import ViewerError
+
+        ctx = mp.get_context("spawn")
+        frames_r, self._frames = ctx.Pipe(duplex=False)
+        self._status, status_w = ctx.Pipe(duplex=False)
+        self.process = ctx.Process(target=viewer_main, args=(config_table(cfg), sink, os.getpid(), frames_r, status_w),
+                                   name="tofd-viewer", daemon=True)
+        self.process.start()
+        frames_r.close()
+        status_w.close()
+        self.queue_frames = queue_frames
+        self._queue: deque[bytes] = deque()
+        self._cond = threading.Condition()
+        self._closing = False
+        self.stalled = False  # the queue was full at the last offer
+        self.report: dict = {}
+        msg = self._status_message(start_timeout_s)
+        if msg is None or "error" in msg:
+            self._kill()
+            raise ViewerError((msg or {}).get("error") or f"the viewer process did not start in {start_timeout_s:g} s")
+        self.web_url: str | None = msg["ready"]
+        self._sender = threading.Thread(target=self._send_loop, name="tofd-viewer-send", daemon=True)
+        self._sender.start()
+
+    def _status_message(self, timeout_s: float) -> dict | None:
+        try:
+            if self._status.poll(timeout_s):
+                return json.loads(self._status.recv_bytes())
+        except (EOFError, OSError):
+            pass
+        return None
+
+    def offer(self, result: FrameResult, block_s: float = 0.0) -> bool:
+        """Queue a frame for the viewer; False (refused) if the queue stays full for `block_s` seconds. Once
+        a frame was refused, later offers do not wait until the queue has room again."""
+        blob = wire.encode(result)
+        with self._cond:
+            wait_s = 0.0 if self.stalled else block_s
+            if not self._cond.wait_for(lambda: len(self._queue) < self.queue_frames or self._closing, wait_s):
+                self.stalled = True
+                return False
+            if self._closing:
+                return False
+            self.stalled = False
+            self._queue.append(blob)
+            self._cond.notify_all()
+            return True
+
+    def _send_loop(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._queue or self._closing)
+                if not self._queue:
+                    blob = CLOSE
+                else:
+                    blob = self._queue.popleft()
+                    self._cond.notify_all()
+            try:
+                self._frames.send_bytes(blob)  # blocks while the child is stuck in Rerun
+            except OSError:
+                return  # the child is gone (killed at the deadline)
+            if blob == CLOSE:
+                return
+
+    def close(self, timeout_s: float) -> dict:
+        """Send what is queued, let the child flush and exit; SIGKILL it after `timeout_s`. A summary:
+        {"exit": "clean" | "killed", "frames": logged, "errors": frames Rerun refused, "unsent": n}."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            self._closing = True
+            self._cond.notify_all()
+        self._sender.join(max(0.0, deadline - time.monotonic()))
+        msg = self._status_message(max(0.0, deadline - time.monotonic())) if not self._sender.is_alive() else None
+        self.process.join(max(0.0, min(1.0, deadline - time.monotonic())))
+        with self._cond:
+            unsent = len(self._queue)
+        if msg is None or self.process.is_alive():
+            log.warning("the viewer did not finish in %.1f s (a stalled receiver?); abandoning it", timeout_s)
+            self._kill()
+            self.report = {"exit": "killed", "unsent": unsent}
+        else:
+            self.report = {"exit": "clean", **msg["closed"], "unsent": unsent}
+        self._sender.join(1.0)  # the child is gone: a blocked send has failed by now
+        self._frames.close()
+        self._status.close()
+        return self.report
+
+    def _kill(self) -> None:
+        if self.process.is_alive():
+            self.process.kill()
+        self.process.join(5.0)

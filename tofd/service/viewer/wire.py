@@ -1,0 +1,50 @@
+"""A FrameResult as one bytes message for the viewer process: what the Rerun logger reads, no pickle.
+
+Layout: 4-byte little-endian header length, a JSON header (scalars, detection, timings), then the
+planes as raw float32/bool in the order of PLANES, each (H, W) C-contiguous.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+
+from drivers.frame import Frame
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.names import MAP_NAMES
+from tofd.service.pipeline.results import FrameResult
+from tofd.service.pipeline.stages import detection_dict, detection_from
+
+PLANES: tuple[tuple[str, type], ...] = (("range_m", np.float32), ("amplitude", np.float32), ("mask", np.bool_),
+                                        *((name, np.float32) for name in MAP_NAMES))
+
+
+def encode(r: FrameResult) -> bytes:
+    f, det = r.frame, r.detection
+    header = {"seq": r.seq, "frame_counter": f.frame_counter, "timestamp_us": f.timestamp_us,
+              "host_monotonic_s": f.host_monotonic_s, "arrival_s": r.arrival_s, "gap_before": r.gap_before,
+              "nfft_iterations": r.nfft_iterations, "nfft_residual": r.nfft_residual, "timings_ms": r.timings_ms,
+              "shape": list(f.range_m.shape),
+              "detection": None if det is None else detection_dict(det)}
+    planes = {"range_m": f.range_m, "amplitude": f.amplitude, "mask": r.mask, **r.features}
+    head = json.dumps(header).encode()
+    return b"".join([struct.pack("<I", len(head)), head,
+                     *(np.ascontiguousarray(planes[name], dtype).tobytes() for name, dtype in PLANES)])
+
+
+def decode(blob: bytes, intrinsics: Intrinsics) -> FrameResult:
+    (n,) = struct.unpack_from("<I", blob)
+    h = json.loads(blob[4:4 + n])
+    shape, offset, planes = tuple(h["shape"]), 4 + n, {}
+    for name, dtype in PLANES:
+        size = int(np.prod(shape)) * np.dtype(dtype).itemsize
+        planes[name] = np.frombuffer(blob, dtype, int(np.prod(shape)), offset).reshape(shape)
+        offset += size
+    frame = Frame(planes["range_m"], planes["amplitude"], h["frame_counter"], h["timestamp_us"],
+                  host_monotonic_s=h["host_monotonic_s"], host_wall_s=0.0, intrinsics=intrinsics)
+    return FrameResult(seq=h["seq"], frame=frame, mask=planes["mask"],
+                       features={name: planes[name] for name in MAP_NAMES}, nfft_iterations=h["nfft_iterations"],
+                       nfft_residual=h["nfft_residual"], arrival_s=h["arrival_s"], timings_ms=h["timings_ms"],
+                       detection=detection_from(h), gap_before=h["gap_before"])
