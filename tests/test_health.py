@@ -49,7 +49,7 @@ def test_metrics_and_healthz_of_a_live_run():
             p50, p99 = stages[f'{{stage="{stage}",quantile="0.5"}}'], stages[f'{{stage="{stage}",quantile="0.99"}}']
             assert 0 < p50 <= p99 < 5
         assert set(metric_values(text, "tofd_queue_depth")) == {'{queue="dispatch"}', '{queue="workers"}',
-                                                               '{queue="sink"}'}
+                                                               '{queue="reorder"}', '{queue="sink"}'}
         assert metric_values(text, "tofd_workers_alive")[""] == cfg.pipeline.workers
         assert "# TYPE tofd_frames_dropped_total counter" in text
         assert get(base + "/nope")[0] == 404
