@@ -181,7 +181,7 @@ def test_a_stopped_worker_does_not_hold_back_live_output():
         finally:
             os.kill(victim.pid, signal.SIGCONT)
 
-    pipeline, summary, sink = run_pipeline(source, "latest", during=stop_one)
+    pipeline, summary, sink = run_pipeline(source, "latest", cfg=cfg, during=stop_one)
     held = stopped[0][1]
     late = {d["seq"] for d in summary["drops"] if d["reason"] == "late"}
     assert held and held <= late  # the frame the stopped worker held was dropped as late, not waited for

@@ -95,8 +95,11 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
 def amplitude_foreground(amplitude: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Step 1: valid pixels above Otsu's threshold on log amplitude."""
     finite_amp = np.isfinite(amplitude)
-    log_amp = np.log(np.maximum(amplitude, LOG_FLOOR * np.max(amplitude, where=finite_amp, initial=0.0),
-                                where=finite_amp, out=np.full(amplitude.shape, np.nan)))
+    peak = np.max(amplitude, where=finite_amp, initial=0.0)
+    if not peak > 0:  # no return anywhere (all zero, negative or non-finite): nothing is foreground
+        return np.zeros(amplitude.shape, bool)
+    log_amp = np.log(np.maximum(amplitude, LOG_FLOOR * peak, where=finite_amp,
+                                out=np.full(amplitude.shape, np.nan)))
     return valid & (log_amp > otsu_threshold(log_amp[finite_amp]))
 
 

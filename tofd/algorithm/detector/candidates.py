@@ -49,7 +49,8 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
     smooth = filtered(depth, valid, median_px)
-    r_px = max(1, round(radius_m * intrinsics.fx / float(np.median(depth[valid]))))
+    median_m = float(np.median(depth[valid]))
+    r_px = max(1, round(min(radius_m * intrinsics.fx / median_m if median_m > 0 else np.inf, max(valid.shape))))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r_px + 1, 2 * r_px + 1))
     return np.where(valid, smooth - cv2.erode(smooth, disc), 0.0).astype(np.float32)
 

@@ -208,6 +208,7 @@ class Pipeline:
                 problem = frame_problem(frame, self.pool.ring.shape)
                 if problem is not None:
                     self.ledger.drop(seq, "capture", f"invalid_frame: {problem}")
+                    self.order.gone(seq)
                     seq += 1
                     continue
                 origin = min(frame.host_monotonic_s, now) if self.live_source else now

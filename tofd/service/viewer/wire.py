@@ -27,7 +27,8 @@ def encode(r: FrameResult) -> bytes:
     f, det = r.frame, r.detection
     header = {"seq": r.seq, "frame_counter": f.frame_counter, "timestamp_us": f.timestamp_us,
               "host_monotonic_s": f.host_monotonic_s, "arrival_s": r.arrival_s, "gap_before": r.gap_before,
-              "nfft_iterations": r.nfft_iterations, "nfft_residual": r.nfft_residual, "timings_ms": {k: v for k, v in r.timings_ms.items() if k not in OWN_TIMINGS},
+              "nfft_iterations": r.nfft_iterations, "nfft_residual": r.nfft_residual,
+              "timings_ms": {k: v for k, v in r.timings_ms.items() if k not in OWN_TIMINGS},
               "shape": list(f.range_m.shape),
               "detection": None if det is None else detection_dict(det)}
     planes = {"range_m": f.range_m, "amplitude": f.amplitude, "mask": r.mask, **r.features}
