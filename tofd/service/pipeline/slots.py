@@ -3,8 +3,11 @@ mask and feature maps back. Only slot indices cross the process boundary, never 
 
 from __future__ import annotations
 
+import os
+import secrets
 import threading
 from multiprocessing import shared_memory
+from pathlib import Path
 
 import numpy as np
 
@@ -16,6 +19,26 @@ SLOT_FIELDS: tuple[tuple[str, type], ...] = (
     ("mask", np.bool_),  # output: foreground
     *((name, np.float32) for name in MAP_NAMES),  # outputs: feature maps, NaN outside the foreground
 )
+
+SHM_PREFIX = "tofd_"  # /dev/shm/tofd_<pid of the owner>_<random>
+SHM_DIR = Path("/dev/shm")
+
+
+def remove_stale_segments() -> list[str]:
+    """Unlink the slot rings of tofd processes that are gone (a kill -9 skips the owner's unlink); their names."""
+    removed = []
+    for path in SHM_DIR.glob(SHM_PREFIX + "*"):
+        try:
+            pid = int(path.name[len(SHM_PREFIX):].split("_")[0])
+            os.kill(pid, 0)
+        except ValueError:
+            continue  # not one of ours
+        except ProcessLookupError:
+            path.unlink(missing_ok=True)
+            removed.append(path.name)
+        except PermissionError:
+            continue  # alive, another user's
+    return removed
 
 
 def _layout(shape: tuple[int, int]) -> tuple[dict[str, tuple[int, type]], int]:
@@ -49,8 +72,10 @@ class SlotRing:
     def create(cls, n_slots: int, shape: tuple[int, int]) -> SlotRing:
         if n_slots < 1:
             raise ValueError(f"n_slots: must be >= 1, got {n_slots}")
+        remove_stale_segments()
         size = n_slots * _layout(tuple(shape))[1]
-        return cls(shared_memory.SharedMemory(create=True, size=size), n_slots, shape, owner=True)
+        name = f"{SHM_PREFIX}{os.getpid()}_{secrets.token_hex(4)}"
+        return cls(shared_memory.SharedMemory(name=name, create=True, size=size), n_slots, shape, owner=True)
 
     @classmethod
     def attach(cls, name: str, n_slots: int, shape: tuple[int, int]) -> SlotRing:

@@ -22,6 +22,9 @@ from drivers.intrinsics import Intrinsics
 
 def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
     """Entry point of a worker process."""
+    from tofd.service.lifeline import die_with_parent
+
+    die_with_parent()  # a kill -9 of the parent leaves no worker behind
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     os.environ["OMP_NUM_THREADS"] = "1"  # one core per worker: finufft must not oversubscribe

@@ -19,6 +19,7 @@ from pathlib import Path
 import rerun as rr
 
 from tofd.config import RerunConfig
+from tofd.service.lifeline import preexec_die_with_parent
 from tofd.service.viewer.blueprint import build_blueprint
 
 APPLICATION_ID = "tofd"
@@ -91,7 +92,8 @@ class RerunTarget:
         self._child_log = tempfile.TemporaryFile()  # a file, not a pipe: a full pipe would stall the viewer
         # own session: a Ctrl-C or a signal to our process group must not kill the viewer before we drain
         self.child = subprocess.Popen([rerun_executable(), *args], stdin=subprocess.DEVNULL,
-                                      stdout=subprocess.DEVNULL, stderr=self._child_log, start_new_session=True)
+                                      stdout=subprocess.DEVNULL, stderr=self._child_log, start_new_session=True,
+                                      preexec_fn=preexec_die_with_parent)  # no orphan viewer after a kill -9
         deadline = time.monotonic() + timeout_s
         while not port_open(host, self.cfg.grpc_port):
             if self.child.poll() is not None:
