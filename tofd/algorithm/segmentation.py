@@ -66,6 +66,13 @@ LOG_FLOOR = 1e-4  # amplitudes below this fraction of the maximum count as this 
 FAR_M = 1e4  # metres: invalid pixels' range in the median filter (they never pull a neighbour nearer)
 
 
+def valid_pixels(range_m: np.ndarray, amplitude: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) bool: pixels with a finite, positive range (and a finite amplitude, if given)."""
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(range_m) & (range_m > 0)
+    return valid if amplitude is None else valid & np.isfinite(amplitude)
+
+
 def otsu_threshold(values: np.ndarray) -> float:
     """Otsu's threshold of a 1-D sample: the histogram split that maximises the between-class variance."""
     hist, edges = np.histogram(values, bins=OTSU_BINS)
@@ -183,8 +190,7 @@ def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationCo
     if range_m.shape != amplitude.shape or range_m.ndim != 2:
         raise ValueError(f"range_m {range_m.shape} and amplitude {amplitude.shape} must be equal 2-D shapes")
     rotation = np.eye(3)
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(amplitude) & np.isfinite(range_m) & (range_m > 0)
+    valid = valid_pixels(range_m, amplitude)
     if not valid.any():
         return Foreground(np.zeros(range_m.shape, dtype=bool), rotation)
     intrinsics = intrinsics or Intrinsics()
