@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from tofd.config import Config, ConfigError
+from tofd.config import RERUN_SINKS, Config, ConfigError
 
 RERUN_SPEC_HELP = "save:PATH | web | connect:URL | spawn | none (default: the config's [rerun] sink)"
 
@@ -18,6 +18,6 @@ def parse_rerun_spec(spec: str | None, cfg: Config) -> Config:
         return replace(cfg, rerun=replace(cfg.rerun, sink="save", path=arg))
     if kind == "connect":
         return replace(cfg, rerun=replace(cfg.rerun, sink="connect", url=arg or cfg.rerun.url))
-    if kind in ("web", "spawn", "none", "save") and not arg:
+    if kind in RERUN_SINKS and not arg:
         return replace(cfg, rerun=replace(cfg.rerun, sink=kind))
     raise ConfigError(f"--rerun: {spec!r} is not one of {RERUN_SPEC_HELP}")
