@@ -233,7 +233,12 @@ def main() -> int:
         print(f"{r['fault']:<20} {r['trial']:>5} {r.get('frames_in', '-')!s:>5} {r.get('frames_out', '-')!s:>5} "
               f"{r.get('frames_dropped', '-')!s:>5} {r.get('viewer_dropped', '-')!s:>6} {r.get('exit_code')!s:>4} "
               f"{r.get('exit_s')!s:>7} {r.get('peak_rss_mb')!s:>7}  {r.get('dropped_by_reason', {})}")
-    write_json(ROOT / "bench" / "results" / "chaos.json", {"rows": rows, "all_passed": all(r["pass"] for r in rows)})
+    write_json(ROOT / "bench" / "results" / "chaos.json", {
+        "title": "Chaos suite (bench/chaos.py)",
+        "about": "Each fault injected into a real `tofd run --emulate` (malformed_frames: the pipeline in-process). "
+                 "pass = exit code 0 and frames in = out + dropped; exit_s = SIGTERM to exit (kill -9: to the last "
+                 "child gone); peak_rss_mb = tofd and all its children.",
+        "cpu_count": os.cpu_count(), "rows": rows, "all_passed": all(r["pass"] for r in rows)})
     return 0 if all(r["pass"] for r in rows) else 1
 
 

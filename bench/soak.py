@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import tempfile
@@ -54,7 +55,10 @@ def main() -> int:
     n = len(rss)
     second, last = rss[n // 5: 2 * n // 5] or rss, rss[4 * n // 5:] or rss
     drift = (sum(last) / len(last)) / (sum(second) / len(second)) - 1
-    result = {"seconds": args.seconds, "rerun": args.rerun, "exit_code": proc.returncode,
+    result = {"title": "Soak (bench/soak.py)",
+              "about": "`tofd run --emulate` for `seconds`; RSS of tofd and its children, drift = last fifth vs "
+                       "second fifth of the run; fps from /metrics.",
+              "cpu_count": os.cpu_count(), "seconds": args.seconds, "rerun": args.rerun, "exit_code": proc.returncode,
               "rss_mb_start": round(sum(second) / len(second), 1), "rss_mb_end": round(sum(last) / len(last), 1),
               "rss_drift_pct": round(100 * drift, 2), "rss_mb_peak": round(max(rss), 1),
               "fps_mean": round(sum(fps) / len(fps), 2), "fps_min": round(min(fps), 2),
