@@ -30,6 +30,8 @@ __all__ = ["RERUN_SPEC_HELP", "Progress", "ServiceResult", "parse_rerun_spec", "
 
 log = logging.getLogger(__name__)
 
+EXIT_MARGIN_S = 1.0  # seconds of shutdown_timeout_s kept for what follows the viewer's flush
+
 
 @dataclass(slots=True)
 class ServiceResult:
@@ -85,7 +87,8 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             if health is not None:
                 health.close()
             if viewer is not None:
-                viewer_report = viewer.close(max(1.0, deadline - time.monotonic()))
+                # EXIT_MARGIN_S of the budget is left for killing the viewer and the interpreter's exit
+                viewer_report = viewer.close(max(0.5, deadline - time.monotonic() - EXIT_MARGIN_S))
     snap = pipeline.snapshot()
     summary = run_summary(summary, snap, run_s, viewer_report)
     if progress is not None:
