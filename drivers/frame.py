@@ -37,6 +37,11 @@ class Registers:
         return MOD_FREQS_MHZ[self.mod_freq_index] * 1e6
 
 
+DEFAULT_REGISTER_VALUES = Registers()
+"""The camera's power-up settings: the one definition of the register defaults (protocol, emulator, UsbCamera
+and tofd's [camera] config take theirs from here)."""
+
+
 @dataclass(frozen=True, slots=True)
 class DeviceInfo:
     """Identity of the source of a frame."""
