@@ -233,3 +233,15 @@ def test_damage_before_the_first_frame_channel_still_replays_later_frames(tmp_pa
     damaged.write_bytes(bytes(data))
     source = ReplaySource(damaged)
     assert counters(collect(source)) == [1, 2, 3, 4]
+
+
+def test_replay_command_refuses_a_damaged_header_in_one_line(tmp_path, capsys):
+    from tofd import cli
+
+    data = BUNDLED.read_bytes()
+    at = data.index(repr(read_recording_info(BUNDLED).intrinsics.fx).encode())
+    changed = tmp_path / "fx.mcap"
+    changed.write_bytes(other_digit(data, at + 5))
+    assert cli.main(["replay", str(changed), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "disagrees with the first frame" in err[0] and "Traceback" not in err[0]
