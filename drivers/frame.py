@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from drivers.intrinsics import Intrinsics
+
+COUNTER_LIMIT = 1 << 32
+"""Frame counters are 32-bit on the device: 0 <= counter < COUNTER_LIMIT."""
+TIMESTAMP_LIMIT_US = 1 << 63
+"""Device timestamps are non-negative int64 microseconds."""
 
 MOD_FREQS_MHZ = (40.0, 30.0, 21.0, 20.0, 19.0)
 """MOD_FREQ register index -> modulation frequency in MHz (SR3000)."""
@@ -29,6 +35,11 @@ class Registers:
     @property
     def mod_freq_hz(self) -> float:
         return MOD_FREQS_MHZ[self.mod_freq_index] * 1e6
+
+
+DEFAULT_REGISTER_VALUES = Registers()
+"""The camera's power-up settings: the one definition of the register defaults (protocol, emulator, UsbCamera
+and tofd's [camera] config take theirs from here)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -64,3 +75,23 @@ class Frame:
     device: DeviceInfo = field(default_factory=lambda: DeviceInfo(serial="00000000"))
     registers: Registers = field(default_factory=Registers)
     ground_truth: GroundTruth | None = None
+
+
+def frame_problem(frame: Frame, shape: tuple[int, int]) -> str | None:
+    """Why `frame` cannot enter the pipeline, or None: planes float32 of `shape` (H, W) and of its own
+    intrinsics' shape, counter in [0, 2**32), device timestamp in [0, 2**63) us, finite host times."""
+    for name in ("range_m", "amplitude"):
+        plane = getattr(frame, name)
+        if not isinstance(plane, np.ndarray) or plane.dtype != np.float32 or plane.shape != shape:
+            got = f"{getattr(plane, 'dtype', type(plane).__name__)} {getattr(plane, 'shape', '')}".strip()
+            return f"{name} is {got}, expected float32 {shape}"
+    if frame.intrinsics.shape != shape:
+        return f"intrinsics are {frame.intrinsics.width}x{frame.intrinsics.height}, expected {shape[1]}x{shape[0]}"
+    if not (isinstance(frame.frame_counter, int) and 0 <= frame.frame_counter < COUNTER_LIMIT):
+        return f"frame counter {frame.frame_counter!r} is outside [0, 2**32)"
+    if not (isinstance(frame.timestamp_us, int) and 0 <= frame.timestamp_us < TIMESTAMP_LIMIT_US):
+        return f"device timestamp {frame.timestamp_us!r} us is outside [0, 2**63)"
+    for name in ("host_monotonic_s", "host_wall_s"):
+        if not math.isfinite(getattr(frame, name)):
+            return f"{name} is {getattr(frame, name)!r}"
+    return None

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import threading
 from abc import ABC, abstractmethod
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 from drivers.frame import Frame
 
@@ -14,17 +15,40 @@ class DriverError(RuntimeError):
     """A frame source that cannot be opened or used (no device, access denied, unreadable file)."""
 
 
+@dataclass(frozen=True, slots=True)
+class Rejected:
+    """A frame the source had (or knows it lost) but does not deliver: the pipeline ledgers it at capture."""
+
+    frame_counter: int
+    reason: str  # "invalid_frame: ...", "damaged: ...", "duplicate: ..."
+
+
 class FrameSource(ABC):
     """A stream of Frames.
 
     Iterate to receive frames in order; iteration ends at the end of a recording or after close() (which is
     safe to call from another thread). Faults the source survived are counted in `counters` by kind
-    (e.g. "timeout", "crc_error", "device_dropped", "reconnect"), so a caller can report them.
+    (e.g. "timeout", "crc_error", "device_dropped", "reconnect"), so a caller can report them. Frames the
+    source rejects (see `reject`) are queued for the consumer, who takes them with `take_rejected` before
+    each frame and at the end, so that every frame is either delivered or accounted for.
     """
 
     def __init__(self) -> None:
         self.counters: Counter[str] = Counter()
         self._closed = threading.Event()
+        self._rejected: deque[Rejected] = deque()
+
+    def reject(self, frame_counter: int, reason: str) -> None:
+        """Record a frame that will not be delivered; counted in counters[reason up to its first ':']."""
+        self._rejected.append(Rejected(frame_counter, reason))
+        self.counters[reason.split(":")[0]] += 1
+
+    def take_rejected(self) -> list[Rejected]:
+        """The rejected frames not taken yet, oldest first (safe against a concurrent `reject`)."""
+        out = []
+        while self._rejected:
+            out.append(self._rejected.popleft())
+        return out
 
     @abstractmethod
     def __iter__(self) -> Iterator[Frame]: ...

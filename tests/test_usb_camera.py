@@ -254,3 +254,32 @@ def test_tofd_devices_emulate(capsys):
     assert main(["devices", "--emulate"]) == 0
     out = capsys.readouterr().out
     assert "30000001" in out and "6.2 ms" in out and "20 MHz" in out and "1.0" in out
+
+
+def test_frames_carry_the_amplitude_threshold_set_while_streaming(make_emulated_camera, tmp_path):
+    from drivers.recording.replay import iter_frames
+    from drivers.recording.writer import RecordingWriter
+
+    camera = make_emulated_camera()
+    before = take(camera, 2)
+    camera.set_register(Register.AMP_THR_LO, 0x34)
+    camera.set_register(Register.AMP_THR_HI, 0x12, via="bulk")
+    after = take(camera, 3)
+    assert {f.registers.amp_threshold for f in before} == {0}
+    assert {f.registers.amp_threshold for f in after} == {0x1234}
+    path = tmp_path / "thr.mcap"
+    with RecordingWriter(path) as writer:
+        for frame in before + after:
+            writer.write(frame)
+    assert [f.registers.amp_threshold for f in iter_frames(path)] == [0, 0, 0x1234, 0x1234, 0x1234]
+
+
+def test_power_up_registers_of_the_camera_are_the_frame_defaults(small_scene):
+    from drivers.frame import Registers
+    from drivers.usb.device import registers_from_bank
+    from tofd.config import CameraConfig
+
+    emulator = EmulatedSR3000("30000009", small_scene)
+    assert registers_from_bank(bytes(emulator.registers)) == Registers()  # the emulator's power-up bank
+    cfg = CameraConfig()
+    assert (cfg.int_time_code, cfg.mod_freq_index) == (Registers().int_time_code, Registers().mod_freq_index)

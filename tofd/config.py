@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
+from drivers.frame import DEFAULT_REGISTER_VALUES
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
 
@@ -41,8 +42,8 @@ class CameraConfig:
     """
 
     serial: str = ""  # 8 hex digits; empty = first camera found
-    int_time_code: int = 30  # INT_TIME register: (code + 1) * 0.2 ms
-    mod_freq_index: int = 3  # MOD_FREQ register: index into [40, 30, 21, 20, 19] MHz
+    int_time_code: int = DEFAULT_REGISTER_VALUES.int_time_code  # INT_TIME register: (code + 1) * 0.2 ms
+    mod_freq_index: int = DEFAULT_REGISTER_VALUES.mod_freq_index  # MOD_FREQ register: index into MOD_FREQS_MHZ
     read_timeout_s: float = 0.5  # seconds: timeout of one bulk frame read (then retried)
     stall_report_s: float = 2.0  # seconds without a frame before a stall is reported
     reconnect_initial_s: float = 0.1  # seconds: first wait before reopening an unplugged camera

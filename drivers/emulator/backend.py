@@ -17,10 +17,11 @@ from types import SimpleNamespace
 
 import usb.backend
 
-from drivers.emulator.device import EmulatedSR3000, usb_error
+from drivers.emulator.device import EmulatedSR3000
 from drivers.emulator.scene import FaceScene, Motion
 from drivers.usb import protocol as p
 from drivers.usb.camera import UsbCamera
+from drivers.usb.errors import libusb_error
 
 __all__ = ["EmulatedCamera", "EmulatedSR3000", "EmulatorBackend", "FaceScene", "Motion", "open_emulated_camera"]
 
@@ -101,7 +102,7 @@ class EmulatorBackend(usb.backend.IBackend):
     def open_device(self, dev: _DeviceId) -> _Handle:
         dev.device.check_alive(dev.generation)
         if dev.device.access_denied:
-            raise usb_error(errno.EACCES)
+            raise libusb_error(errno.EACCES)
         return _Handle(dev.device, dev.generation)
 
     def close_device(self, dev_handle: _Handle) -> None:
@@ -110,7 +111,7 @@ class EmulatorBackend(usb.backend.IBackend):
     def set_configuration(self, dev_handle: _Handle, config_value: int) -> None:
         dev_handle.device.check_alive(dev_handle.generation)
         if config_value not in (0, p.CONFIGURATION):
-            raise usb_error(errno.EINVAL)
+            raise libusb_error(errno.EINVAL)
         dev_handle.device.configuration = config_value
 
     def get_configuration(self, dev_handle: _Handle) -> int:
@@ -120,7 +121,7 @@ class EmulatorBackend(usb.backend.IBackend):
     def set_interface_altsetting(self, dev_handle: _Handle, intf: int, altsetting: int) -> None:
         self._check_interface(dev_handle, intf)
         if altsetting != 0:
-            raise usb_error(errno.EINVAL)
+            raise libusb_error(errno.EINVAL)
 
     def claim_interface(self, dev_handle: _Handle, intf: int) -> None:
         self._check_interface(dev_handle, intf)
@@ -133,7 +134,7 @@ class EmulatorBackend(usb.backend.IBackend):
     def _check_interface(self, dev_handle: _Handle, intf: int) -> None:
         dev_handle.device.check_alive(dev_handle.generation)
         if dev_handle.device.configuration != p.CONFIGURATION or intf != p.INTERFACE:
-            raise usb_error(errno.EINVAL)
+            raise libusb_error(errno.EINVAL)
 
     # ------------------------------------------------------------------------------ transfers
     def ctrl_transfer(self, dev_handle: _Handle, bmRequestType: int, bRequest: int, wValue: int, wIndex: int,
@@ -155,7 +156,7 @@ class EmulatorBackend(usb.backend.IBackend):
     def _check_claimed(self, dev_handle: _Handle, intf: int) -> None:
         dev_handle.device.check_alive(dev_handle.generation)
         if intf not in dev_handle.claimed:
-            raise usb_error(errno.EINVAL)
+            raise libusb_error(errno.EINVAL)
 
 
 class EmulatedCamera(UsbCamera):

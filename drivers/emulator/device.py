@@ -22,34 +22,14 @@ from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import usb.core
-
 from drivers.emulator.scene import FaceScene
 from drivers.frame import GroundTruth
 from drivers.usb import protocol as p
+from drivers.usb.errors import libusb_error
 
 READOUT_S = 0.0085
 FIFO_DEPTH = 4
 _WAIT_SLICE_S = 0.05  # a blocked read re-checks plugging at least this often
-
-_LIBUSB = {  # errno -> (libusb-1.0 code, message), as pyusb's libusb1 backend raises them
-    errno.EIO: (-1, "Input/output error"),
-    errno.EINVAL: (-2, "Invalid parameter"),
-    errno.EACCES: (-3, "Access denied (insufficient permissions)"),
-    errno.ENODEV: (-4, "No such device (it may have been disconnected)"),
-    errno.EBUSY: (-6, "Resource busy"),
-    errno.ETIMEDOUT: (-7, "Operation timed out"),
-    errno.EOVERFLOW: (-8, "Overflow"),
-    errno.EPIPE: (-9, "Pipe error"),
-}
-
-
-def usb_error(code: int) -> usb.core.USBError:
-    """The error a libusb-1.0 backend raises for this errno (USBTimeoutError for ETIMEDOUT)."""
-    libusb_code, text = _LIBUSB[code]
-    cls = usb.core.USBTimeoutError if code == errno.ETIMEDOUT else usb.core.USBError
-    return cls(text, libusb_code, code)
-
 
 def frame_period_s(int_time_code: int, readout_s: float = READOUT_S) -> float:
     """Seconds between frames: four exposures of (code + 1) * 0.2 ms, then the readout."""
@@ -165,7 +145,7 @@ class EmulatedSR3000:
         """Raise no-such-device if a handle of this generation no longer reaches the device."""
         self.check_replug()
         if generation != self.generation or not self.plugged:
-            raise usb_error(errno.ENODEV)
+            raise libusb_error(errno.ENODEV)
 
     # ------------------------------------------------------------------------------------- faults
     def inject_timeouts(self, n: int = 1) -> None:
@@ -293,7 +273,7 @@ class EmulatedSR3000:
             if request == p.Request.ACQUIRE and index == 0 and value in tuple(p.AcquireMode):
                 self._acquire(p.AcquireMode(value))
                 return None
-        raise usb_error(errno.EPIPE)
+        raise libusb_error(errno.EPIPE)
 
     def _status_register(self) -> int:
         """STATUS (read-only, opaque to the host): bit 0 acquiring, bit 1 FIFO not empty, bit 2 EP 0x86 halted."""
@@ -302,7 +282,7 @@ class EmulatedSR3000:
     def write_register(self, register: int, value: int) -> None:
         """WRITE_REG: a STALL for the writes the protocol refuses."""
         if p.register_write_error(register, value) is not None:
-            raise usb_error(errno.EPIPE)
+            raise libusb_error(errno.EPIPE)
         self.registers[register] = value
 
     def _acquire(self, mode: p.AcquireMode) -> None:
@@ -322,17 +302,17 @@ class EmulatedSR3000:
         if kind == 3 and index in strings and langid == 0x0409:
             text = strings[p.StringIndex(index)].encode("utf-16-le")
             return bytes([2 + len(text), 3]) + text
-        raise usb_error(errno.EPIPE)
+        raise libusb_error(errno.EPIPE)
 
     def bulk_write(self, generation: int, endpoint: int, data: bytes) -> int:
         """A 2-byte [register, value] write to 0x02 is WRITE_REG; anything else STALLs the endpoint."""
         with self._cond:
             self.check_alive(generation)
             if endpoint != p.EP_OUT or endpoint in self.halted:
-                raise usb_error(errno.EPIPE)
+                raise libusb_error(errno.EPIPE)
             if len(data) != 2 or p.register_write_error(data[0], data[1]) is not None:
                 self.halted.add(endpoint)
-                raise usb_error(errno.EPIPE)
+                raise libusb_error(errno.EPIPE)
             self._advance()
             self.registers[data[0]] = data[1]
             return 2
@@ -349,19 +329,19 @@ class EmulatedSR3000:
             while True:
                 self.check_alive(generation)
                 if endpoint != p.EP_IN or endpoint in self.halted:
-                    raise usb_error(errno.EPIPE)
+                    raise libusb_error(errno.EPIPE)
                 fault = self._read_faults[0] if self._read_faults else None
                 if fault == "timeout":
                     self._read_faults.popleft()
                     self._cond.wait(max(0.0, deadline - self.clock()) if deadline else _WAIT_SLICE_S)
-                    raise usb_error(errno.ETIMEDOUT)
+                    raise libusb_error(errno.ETIMEDOUT)
                 if fault == "io_error":
                     self._read_faults.popleft()
-                    raise usb_error(errno.EIO)
+                    raise libusb_error(errno.EIO)
                 if fault == "endpoint_stall":
                     self._read_faults.popleft()
                     self.halted.add(endpoint)
-                    raise usb_error(errno.EPIPE)
+                    raise libusb_error(errno.EPIPE)
                 self._advance()
                 if not self._rest and self._fifo:
                     if fault is not None:
@@ -371,7 +351,7 @@ class EmulatedSR3000:
                     return self._deliver(buffer)
                 now = self.clock()
                 if deadline is not None and now >= deadline:
-                    raise usb_error(errno.ETIMEDOUT)
+                    raise libusb_error(errno.ETIMEDOUT)
                 wake = [_WAIT_SLICE_S] + [t - now for t in (deadline, self._next_due, self._paused_until)
                                           if t is not None]
                 self._cond.wait(max(min(wake), 0.0))
@@ -385,7 +365,7 @@ class EmulatedSR3000:
             n = size  # the transfer fills the buffer; the frame's tail waits for the next read
         else:
             self._rest = b""  # the buffer ends inside a packet: babble, the frame is lost
-            raise usb_error(errno.EOVERFLOW)
+            raise libusb_error(errno.EOVERFLOW)
         buffer[:n] = self._rest[:n]
         self._rest = self._rest[n:]
         return n

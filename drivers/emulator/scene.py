@@ -70,6 +70,11 @@ class FaceScene:
             self._poses[index] = (r.range_m, amplitude, truth)
         return self._poses[index]
 
+    @property
+    def rendered(self) -> bool:
+        """Whether every pose of the cycle is rendered (streaming then never waits for the renderer)."""
+        return len(self._poses) == self.motion.n_poses
+
     def prerender(self) -> None:
         """Render every pose of the cycle now (about 25 ms each), so streaming never waits for the renderer."""
         for index in range(self.motion.n_poses):

@@ -25,6 +25,7 @@ import dataclasses
 import json
 import struct
 import typing
+import zlib
 
 import numpy as np
 
@@ -42,6 +43,7 @@ META_INTRINSICS = "tofd.intrinsics"
 META_DEVICE = "tofd.device"
 META_REGISTERS = "tofd.registers"
 CONFIG_ATTACHMENT = "config.json"
+METADATA_CRC_KEY = "crc32"
 
 _LEN = struct.Struct("<I")
 
@@ -238,10 +240,30 @@ def decode_frame(data: bytes | memoryview) -> Frame:
         raise FormatError(f"frame message does not decode: {type(exc).__name__}: {exc}") from None
 
 
+def _metadata_crc(data: dict[str, str]) -> str:
+    return str(zlib.crc32(json.dumps(data, sort_keys=True, separators=(",", ":")).encode()))
+
+
+def seal_metadata(data: dict[str, str]) -> dict[str, str]:
+    """`data` plus METADATA_CRC_KEY: CRC-32 of its canonical JSON (MCAP metadata records carry no CRC)."""
+    return {**data, METADATA_CRC_KEY: _metadata_crc(data)}
+
+
+def check_metadata(name: str, data: dict[str, str]) -> dict[str, str]:
+    """`data` without its METADATA_CRC_KEY; FormatError if that CRC does not match (files of format
+    version 1 have none: their metadata is checked against the frames instead)."""
+    if METADATA_CRC_KEY not in data:
+        return data
+    body = {k: v for k, v in data.items() if k != METADATA_CRC_KEY}
+    if _metadata_crc(body) != data[METADATA_CRC_KEY]:
+        raise FormatError(f"metadata {name!r} fails its CRC")
+    return body
+
+
 def to_metadata(obj: object) -> dict[str, str]:
-    """A dataclass as an MCAP metadata map (every value a string; floats in repr, exact)."""
-    return {f.name: repr(v) if isinstance(v, float) else str(v) for f in dataclasses.fields(obj)
-            for v in [getattr(obj, f.name)]}
+    """A dataclass as a sealed MCAP metadata map (every value a string; floats in repr, exact)."""
+    return seal_metadata({f.name: repr(v) if isinstance(v, float) else str(v) for f in dataclasses.fields(obj)
+                          for v in [getattr(obj, f.name)]})
 
 
 def from_metadata(cls: type, data: dict[str, str]) -> object:

@@ -1,9 +1,13 @@
 """Replay of tofd recordings: ReplaySource (a FrameSource), read_recording_info, iter_frames.
 
 Reading is sequential and needs neither MCAP's summary nor its footer, so a recording whose writer was
-killed replays up to its last complete frame. Every chunk's CRC is checked; the first record that is cut
-short, fails its CRC or does not parse ends the stream: everything before it is replayed and the source
-says where and why it stopped (`stopped_reason`, `stop_detail`, `last_good_counter`, counters["corrupt_tail"]).
+killed replays up to its last complete frame. Every chunk's CRC is checked (a chunk without one is
+refused); at a record that is cut short, fails its CRC or does not parse, the reader resyncs at the next
+intact chunk, so every readable frame is replayed. Frames lost to damage (by counter), invalid frames
+(drivers.frame.frame_problem) and duplicated frames (same counter and device timestamp) are rejected
+through FrameSource.reject for the pipeline's drop ledger. Where the file ends early or has no intact
+chunk after damage, the source says why (`stopped_reason`, `stop_detail`, `last_good_counter`,
+counters["corrupt_tail"]).
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import mmap
 import struct
 import time
 import zlib
@@ -20,23 +25,30 @@ from io import BytesIO
 from pathlib import Path
 from typing import Literal
 
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Message, Metadata
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import MCAP0_MAGIC
 
-from drivers.frame import DeviceInfo, Frame, Registers
+from drivers.frame import DeviceInfo, Frame, Registers, frame_problem
 from drivers.intrinsics import Intrinsics
 from drivers.recording import format as fmt
 from drivers.source import DriverError, FrameSource
 
 log = logging.getLogger(__name__)
 
+MAX_LOST_FRAMES = 1 << 20
+"""Most frames one damaged stretch is taken to have destroyed (a larger counter jump is not a loss count)."""
 MAX_RECORD_BYTES = 256 << 20
 """Largest record the reader accepts; a larger length field is corruption (a frame chunk is ~0.1 MB)."""
 
 StopReason = Literal["end", "truncated", "corrupt"]
+CHUNK_HEADER_BYTES = 8 + 8 + 8 + 4 + 4  # start time, end time, uncompressed size, CRC, compression length
+CHUNK_COMPRESSION_AT = 9 + CHUNK_HEADER_BYTES - 4
+"""Offset of a chunk record's compression field from the record's start (opcode and length come first)."""
+_ZSTD_FIELD = struct.pack("<I", 4) + b"zstd"
 _DATA_OPCODES = frozenset({Opcode.HEADER, Opcode.METADATA, Opcode.ATTACHMENT, Opcode.CHUNK, Opcode.MESSAGE_INDEX})
 """Top-level records a tofd recording has before its end-of-data record (anything else there is damage)."""
 
@@ -56,36 +68,57 @@ class RecordingInfo:
     frame_count: int | None  # from MCAP's statistics; None when the writer did not finish (crash)
 
 
+@dataclass(frozen=True, slots=True)
+class Damage:
+    """A damaged stretch of a recording that the reader skipped: bytes [start, end) and what was wrong."""
+
+    start: int
+    end: int
+    detail: str
+
+
+class _Bad(Exception):
+    """A record that cannot be read: reason ("truncated" or "corrupt") and detail."""
+
+    def __init__(self, reason: StopReason, detail: str) -> None:
+        super().__init__(detail)
+        self.reason, self.detail = reason, detail
+
+
 class RecordingReader:
     """Sequential reader of one pass over a recording's records.
 
-    Iterating `frames()` yields the decoded frames in file order; metadata and attachments seen on the
-    way are collected in `metadata` and `attachments`. When iteration ends, `reason`/`detail`/`offset`
-    say why and where: "end" (the writer finished), "truncated" (file ends early: killed writer or cut
-    file) or "corrupt" (a CRC mismatch or an unparsable record).
+    Iterating `frames()` yields the decoded frames in file order and, where the file is damaged, a Damage
+    before the frames read after it: the reader resyncs at the next intact chunk (found by its
+    compression field and checked by its CRC), so every readable frame is read. Metadata and attachments
+    seen on the way are collected in `metadata` and `attachments`. When iteration ends, `reason`/`detail`
+    say why: "end" (the writer finished), "truncated" (file ends early: killed writer or cut file) or
+    "corrupt" (a CRC mismatch or an unparsable record with no intact chunk after it).
     """
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         try:
-            self._file = open(self.path, "rb")  # noqa: SIM115 (closed by close())
+            with open(self.path, "rb") as f:
+                magic = f.read(len(MCAP0_MAGIC))
+                self._data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if magic == MCAP0_MAGIC else None
         except OSError as exc:
             raise DriverError(f"cannot open recording {self.path}: {exc.strerror}") from None
-        self.file_size = self.path.stat().st_size
-        magic = self._file.read(len(MCAP0_MAGIC))
-        if magic != MCAP0_MAGIC:
-            self._file.close()
+        if self._data is None:
             raise DriverError(f"{self.path} is not a tofd recording (no MCAP magic at its start)")
+        self.file_size = len(self._data)
         self.metadata: dict[str, dict[str, str]] = {}
         self.attachments: dict[str, bytes] = {}
+        self.damage: list[Damage] = []
         self.reason: StopReason | None = None
         self.detail = ""
         self.offset = len(MCAP0_MAGIC)  # end of the last good record, bytes
         self._frame_channels: set[int] = set()
+        self._known_channels: set[int] = set()
         self._previous_opcode: int | None = None
 
     def close(self) -> None:
-        self._file.close()
+        self._data.close()
 
     def __enter__(self) -> RecordingReader:
         return self
@@ -93,49 +126,51 @@ class RecordingReader:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _stop(self, reason: StopReason, detail: str) -> None:
-        self.reason, self.detail = reason, detail
-
-    def _record(self) -> tuple[int, bytes] | None:
-        """The next record (opcode, body), or None after recording why reading must stop."""
-        head = self._file.read(9)
+    def _record(self, offset: int) -> tuple[int, bytes]:
+        """The record (opcode, body) at `offset`; _Bad if it is cut short or claims an absurd length."""
+        head = self._data[offset:offset + 9]
         if len(head) < 9:
             where = "at a record boundary" if not head else "inside a record header"
-            self._stop("truncated", f"file ends {where} at byte {self.offset + len(head)} without MCAP's "
+            raise _Bad("truncated", f"file ends {where} at byte {offset + len(head)} without MCAP's "
                                     "end-of-data record (the writer did not finish: killed, crashed or cut)")
-            return None
         opcode, length = struct.unpack("<BQ", head)
         if length > MAX_RECORD_BYTES:
-            self._stop("corrupt", f"record at byte {self.offset} claims {length} bytes (opcode {opcode:#04x})")
-            return None
-        body = self._file.read(length)
-        if len(body) < length:
-            self._stop("truncated", f"file ends at byte {self.file_size} inside a record that starts at byte "
-                                    f"{self.offset} and needs {length} bytes")
-            return None
-        return opcode, body
+            raise _Bad("corrupt", f"record at byte {offset} claims {length} bytes (opcode {opcode:#04x})")
+        if offset + 9 + length > self.file_size:
+            raise _Bad("truncated", f"file ends at byte {self.file_size} inside a record that starts at byte "
+                                    f"{offset} and needs {length} bytes")
+        return opcode, self._data[offset + 9:offset + 9 + length]
+
+    @staticmethod
+    def _chunk(body: bytes) -> Chunk:
+        chunk = Chunk.read(ReadDataStream(BytesIO(body)))
+        if CHUNK_HEADER_BYTES + len(chunk.compression) + 8 + len(chunk.data) != len(body):
+            raise fmt.FormatError(f"chunk record of {len(body)} bytes holds {len(chunk.data)} bytes of records")
+        if chunk.uncompressed_crc == 0:
+            raise fmt.FormatError("chunk has no CRC (0): tofd always writes one")
+        return chunk
 
     def _parse(self, opcode: int, body: bytes) -> list[Frame]:
         """Frames of one top-level record (raises on corruption)."""
         stream = ReadDataStream(BytesIO(body))
         if opcode == Opcode.CHUNK:
-            chunk = Chunk.read(stream)
-            if stream.count != len(body):  # the writer never pads: a longer record is a damaged length
-                raise fmt.FormatError(f"chunk record of {len(body)} bytes holds {stream.count}")
             frames = []
-            for rec in breakup_chunk(chunk, validate_crc=True):
+            for rec in breakup_chunk(self._chunk(body), validate_crc=True):
                 if isinstance(rec, Channel):
+                    self._known_channels.add(rec.id)
                     if rec.topic == fmt.FRAME_TOPIC and rec.message_encoding == fmt.FRAME_ENCODING:
                         self._frame_channels.add(rec.id)
-                elif isinstance(rec, Message) and rec.channel_id in self._frame_channels:
+                elif isinstance(rec, Message) and (rec.channel_id in self._frame_channels or (
+                        self.damage and rec.channel_id not in self._known_channels)):  # its channel was lost
                     frames.append(fmt.decode_frame(rec.data))
             return frames
         if opcode == Opcode.METADATA:
             meta = Metadata.read(stream)
-            self.metadata[meta.name] = meta.metadata
+            self.metadata[meta.name] = fmt.check_metadata(meta.name, meta.metadata)
         elif opcode == Opcode.ATTACHMENT:
-            if zlib.crc32(body[:-4]) != struct.unpack("<I", body[-4:])[0]:
-                raise fmt.FormatError("attachment CRC mismatch")
+            crc = struct.unpack("<I", body[-4:])[0]
+            if crc == 0 or zlib.crc32(body[:-4]) != crc:
+                raise fmt.FormatError("attachment CRC missing (0) or mismatched")
             att = Attachment.read(stream)
             self.attachments[att.name] = att.data
         elif opcode not in _DATA_OPCODES:
@@ -146,22 +181,51 @@ class RecordingReader:
             raise fmt.FormatError("a second header record")
         return []
 
-    def frames(self) -> Iterator[Frame]:
-        """Frames in file order, until the end of data or the first bad record."""
+    def _intact_chunk(self, offset: int) -> bool:
+        """Whether an intact chunk record (lengths, CRC and compression) starts at `offset`."""
+        try:
+            opcode, body = self._record(offset)
+            if opcode != Opcode.CHUNK:
+                return False
+            chunk = self._chunk(body)
+            records = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+        except Exception:  # noqa: BLE001 (anything unreadable is not a resync point)
+            return False
+        return len(records) == chunk.uncompressed_size and zlib.crc32(records) == chunk.uncompressed_crc
+
+    def _resync(self, after: int) -> int | None:
+        """Offset of the first intact chunk record that starts after byte `after`, or None."""
+        pos = after + 1 + CHUNK_COMPRESSION_AT
+        while (hit := self._data.find(_ZSTD_FIELD, pos)) >= 0:
+            if self._intact_chunk(hit - CHUNK_COMPRESSION_AT):
+                return hit - CHUNK_COMPRESSION_AT
+            pos = hit + 1
+        return None
+
+    def frames(self) -> Iterator[Frame | Damage]:
+        """Frames in file order, a Damage before the frames read after each damaged stretch, until the end of
+        data, the end of the file or damage with no intact chunk after it."""
         while self.reason is None:
-            rec = self._record()
-            if rec is None:
-                return
-            opcode, body = rec
-            if opcode == Opcode.DATA_END:
-                self._stop("end", f"end of data at byte {self.offset} of {self.file_size}")
-                return
             try:
-                frames = self._parse(opcode, body)
-            except Exception as exc:  # noqa: BLE001 (any failure to parse these bytes is corruption)
-                self._stop("corrupt", f"bad record at byte {self.offset} (opcode {opcode:#04x}): "
-                                      f"{type(exc).__name__}: {exc}")
-                return
+                opcode, body = self._record(self.offset)
+                if opcode == Opcode.DATA_END and len(body) == 4:
+                    self.reason, self.detail = "end", f"end of data at byte {self.offset} of {self.file_size}"
+                    return
+                try:
+                    frames = self._parse(opcode, body)
+                except Exception as exc:  # noqa: BLE001 (any failure to parse these bytes is corruption)
+                    raise _Bad("corrupt", f"bad record at byte {self.offset} (opcode {opcode:#04x}): "
+                                          f"{type(exc).__name__}: {exc}") from None
+            except _Bad as bad:
+                resume = self._resync(self.offset)
+                if resume is None:
+                    self.reason, self.detail = bad.reason, bad.detail
+                    return
+                damage = Damage(self.offset, resume, bad.detail)
+                self.damage.append(damage)
+                self.offset, self._previous_opcode = resume, None
+                yield damage
+                continue
             self.offset += 9 + len(body)
             self._previous_opcode = opcode
             yield from frames
@@ -205,15 +269,23 @@ def _frame_count(path: Path) -> int | None:
 def read_recording_info(path: str | Path) -> RecordingInfo:
     """The header of a recording: software version, intrinsics, device, registers, config, frame count.
 
-    Raises DriverError if the file is not a tofd recording or its header records are damaged (the frames
-    may still replay: each carries its own intrinsics, device and registers).
+    Raises DriverError if the file is not a tofd recording, its header records are damaged (a metadata CRC
+    fails, or a record before the first frame is unreadable) or its intrinsics metadata disagrees with the
+    first frame's (which its chunk CRC protects): replay configures the pipeline from this header.
     """
     with RecordingReader(path) as reader:
-        next(reader.frames(), None)  # metadata and attachments precede the first frame
+        first = next((item for item in reader.frames() if isinstance(item, Frame)), None)  # after the header
+        header = (fmt.META_RECORDING, fmt.META_INTRINSICS, fmt.META_DEVICE, fmt.META_REGISTERS)
+        if reader.damage and not all(name in reader.metadata for name in header):
+            raise DriverError(f"{reader.path}: damaged recording header: {reader.damage[0].detail}")
         try:
-            return _info_from(reader, _frame_count(reader.path))
+            info = _info_from(reader, _frame_count(reader.path))
         except (ValueError, TypeError, KeyError) as exc:  # FormatError and JSON errors are ValueErrors
             raise DriverError(f"{reader.path}: damaged recording header: {exc}") from None
+    if first is not None and info.intrinsics is not None and info.intrinsics != first.intrinsics:
+        raise DriverError(f"{reader.path}: damaged recording header: intrinsics metadata {info.intrinsics} "
+                          f"disagrees with the first frame's {first.intrinsics}")
+    return info
 
 
 def _check_counter(name: str, value: int | None) -> None:
@@ -231,9 +303,11 @@ class ReplaySource(FrameSource):
     The range is the frames with start <= frame_counter < stop (None = open end); `seek` starts the first
     pass at the first frame whose counter is >= seek; `loop` replays the range again from `start` until
     close() (counters["replay_loops"] counts restarts). Iteration always ends at the end of the file
-    unless looping. A truncated or corrupt file replays its readable prefix; then `stopped_reason`
-    ("end", "truncated" or "corrupt"), `stop_detail`, `last_good_counter` say where it stopped, a warning is
-    logged and counters["corrupt_tail"] is 1.
+    unless looping. A damaged file replays every intact frame and rejects the lost ones by counter
+    ("damaged: ..."); frames that do not fit the recording ("invalid_frame: ...") or repeat an earlier one
+    ("duplicate: ...") are rejected, not replayed. When the file ends early or no intact chunk follows the
+    damage, `stopped_reason` ("end", "truncated" or "corrupt"), `stop_detail`, `last_good_counter` say where
+    it stopped, a warning is logged and counters["corrupt_tail"] is 1.
     """
 
     def __init__(self, path: str | Path, *, mode: Literal["lossless", "realtime"] = "lossless", speed: float = 1.0,
@@ -250,6 +324,12 @@ class ReplaySource(FrameSource):
             raise ValueError(f"stop: must be greater than start ({start}), got {stop}")
         self.path = Path(path)
         RecordingReader(self.path).close()  # fail now on a missing or foreign file
+        try:
+            header = read_recording_info(self.path).intrinsics
+        except DriverError:  # a damaged header: the frames are still checked against the default shape
+            header = None
+        self.shape = (header or Intrinsics()).shape
+        """(H, W) every replayed frame has (the recording's intrinsics)."""
         self.mode, self.speed, self.loop = mode, float(speed), loop
         self.seek, self.start, self.stop = seek, start, stop
         self.stopped_reason: StopReason | None = None
@@ -261,22 +341,54 @@ class ReplaySource(FrameSource):
         return (self.start is None or counter >= self.start) and (self.stop is None or counter < self.stop)
 
     def _pass(self, seek: int | None, first: bool) -> Iterator[Frame]:
-        """Frames of one pass over the file, within the range, from the first counter >= seek."""
-        seeking = seek is not None
+        """Valid frames of one pass over the file, within the range, from the first counter >= seek; invalid,
+        duplicated and (by counter) lost frames are rejected (FrameSource.reject) in their place."""
+        seeking, seen, damage, last = seek is not None, set(), None, None
         with RecordingReader(self.path) as reader:
-            for frame in reader.frames():
-                if first:
-                    self.frames_read += 1
-                    self.last_good_counter = frame.frame_counter
+            for item in reader.frames():
                 if self.closed:
                     return
-                if seeking and frame.frame_counter < seek:
+                if isinstance(item, Damage):
+                    damage = item
+                    log.warning("%s: damaged bytes %d-%d skipped: %s", self.path, item.start, item.end, item.detail)
+                    continue
+                problem = frame_problem(item, self.shape)
+                counter, key = item.frame_counter, (item.frame_counter, item.timestamp_us)
+                if problem is None and damage is not None:
+                    self._reject_lost(last, counter, damage, seek if seeking else None)
+                    damage = None
+                if problem is None and key in seen:
+                    problem = f"duplicate: frame {counter} at {item.timestamp_us} us was already replayed"
+                elif problem is None:
+                    seen.add(key)
+                    last = counter
+                    if first:
+                        self.frames_read += 1
+                        self.last_good_counter = counter
+                else:
+                    problem = f"invalid_frame: {problem}"
+                if seeking and (problem is not None or counter < seek):
                     continue
                 seeking = False
-                if self._in_range(frame.frame_counter):
-                    yield frame
+                if not self._in_range(counter):
+                    continue
+                if problem is None:
+                    yield item
+                else:
+                    self.reject(counter, problem)
             if first:
                 self._report(reader)
+
+    def _reject_lost(self, last: int | None, counter: int, damage: Damage, seek: int | None) -> None:
+        """Reject the frames between counter `last` and `counter` that `damage` destroyed."""
+        if last is None or not 0 < counter - last - 1 <= MAX_LOST_FRAMES:
+            log.warning("%s: frames lost to the damage at byte %d cannot be counted (counters %s -> %d)",
+                        self.path, damage.start, last, counter)
+            self.counters["damaged_uncounted"] += 1
+            return
+        for lost in range(last + 1, counter):
+            if (seek is None or lost >= seek) and self._in_range(lost):
+                self.reject(lost, f"damaged: bytes {damage.start}-{damage.end}: {damage.detail}")
 
     def _report(self, reader: RecordingReader) -> None:
         self.stopped_reason, self.stop_detail = reader.reason, reader.detail

@@ -49,12 +49,12 @@ class RecordingWriter:
         self._file = open(self.path, "wb")  # noqa: SIM115 (closed in close())
         self._writer = Writer(self._file, chunk_size=1 << 30, compression=CompressionType.ZSTD)
         self._writer.start(profile=fmt.PROFILE)
-        self._writer.add_metadata(fmt.META_RECORDING, {
+        self._writer.add_metadata(fmt.META_RECORDING, fmt.seal_metadata({
             "format_version": str(fmt.FORMAT_VERSION),
             "software_version": software_version(),
             "created_wall_s": repr(time.time()),
             "layout": "see schema tofd.Frame and tofd's drivers/recording/format.py",
-        })
+        }))
         if config is not None:
             now_ns = time.time_ns()
             self._writer.add_attachment(now_ns, now_ns, fmt.CONFIG_ATTACHMENT, "application/json",

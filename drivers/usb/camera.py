@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
+from drivers.frame import DEFAULT_REGISTER_VALUES, DeviceInfo, Frame, GroundTruth, Registers
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from drivers.usb import protocol as p
@@ -111,7 +111,8 @@ class UsbCamera(FrameSource):
     Raises DeviceNotFound / AccessDenied (with the udev rule to install) if the camera can't be opened.
     """
 
-    def __init__(self, serial: str = "", int_time_code: int = 30, mod_freq_index: int = 3,
+    def __init__(self, serial: str = "", int_time_code: int = DEFAULT_REGISTER_VALUES.int_time_code,
+                 mod_freq_index: int = DEFAULT_REGISTER_VALUES.mod_freq_index,
                  read_timeout_s: float = 0.5, stall_report_s: float = 2.0, reconnect_initial_s: float = 0.1,
                  reconnect_max_s: float = 5.0, *, backend: object | None = None, backend_name: str = "usb",
                  intrinsics: Intrinsics | None = None,
@@ -171,7 +172,9 @@ class UsbCamera(FrameSource):
             raise ValueError(why)
         with self._io:
             self._write_verified(register, value, via)
-        self._applied[register] = value
+            self._applied[register] = value
+            if register in (p.Register.AMP_THR_LO, p.Register.AMP_THR_HI):
+                self._read_amp_threshold()  # not in the frame header: frames from now on carry the new value
 
     def _write_verified(self, register: int, value: int, via: str = "control") -> None:
         self._device.write_register(register, value, via)
@@ -184,8 +187,12 @@ class UsbCamera(FrameSource):
             for register, value in self._applied.items():
                 self._write_verified(register, value)
             self._header_registers: dict[tuple[int, ...], Registers] = {}
-            bank = self._device.read_registers()
-            self._amp_threshold = bank[p.Register.AMP_THR_LO] | bank[p.Register.AMP_THR_HI] << 8
+            self._read_amp_threshold()
+
+    def _read_amp_threshold(self) -> None:
+        """Read the amplitude threshold (AMP_THR_LO | AMP_THR_HI << 8) back from the device (I/O lock held)."""
+        lo, hi = self._device.read_registers(p.Register.AMP_THR_LO, 2)
+        self._amp_threshold = lo | hi << 8
 
     # ----------------------------------------------------------------------------------- streaming
     def _start(self) -> None:
@@ -268,7 +275,7 @@ class UsbCamera(FrameSource):
     def _frame_registers(self, header: p.FrameHeader) -> Registers:
         """The Registers a frame was taken with, from its header (one object per distinct setting)."""
         index = p.mod_freq_index(header.mod_freq_khz)
-        key = (header.int_time_code, header.mod_freq_khz, header.acq_mode, header.data_source)
+        key = (header.int_time_code, header.mod_freq_khz, header.acq_mode, header.data_source, self._amp_threshold)
         if key not in self._header_registers:
             self._header_registers[key] = Registers(
                 int_time_code=header.int_time_code,

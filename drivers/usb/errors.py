@@ -13,9 +13,24 @@ from drivers.source import DriverError
 
 UDEV_RULE = Path(__file__).resolve().parent.parent / "config" / "99-tofd-sr3000.rules"
 
-# libusb-1.0 error codes, for backends that leave errno unset
-_LIBUSB_CODES = {-3: errno.EACCES, -4: errno.ENODEV, -6: errno.EBUSY, -7: errno.ETIMEDOUT, -8: errno.EOVERFLOW,
-                 -9: errno.EPIPE}
+LIBUSB_ERRORS = {  # errno -> (libusb-1.0 code, message), as pyusb's libusb1 backend raises them
+    errno.EIO: (-1, "Input/output error"),
+    errno.EINVAL: (-2, "Invalid parameter"),
+    errno.EACCES: (-3, "Access denied (insufficient permissions)"),
+    errno.ENODEV: (-4, "No such device (it may have been disconnected)"),
+    errno.EBUSY: (-6, "Resource busy"),
+    errno.ETIMEDOUT: (-7, "Operation timed out"),
+    errno.EOVERFLOW: (-8, "Overflow"),
+    errno.EPIPE: (-9, "Pipe error"),
+}
+_LIBUSB_CODES = {code: err for err, (code, _) in LIBUSB_ERRORS.items()}  # for backends that leave errno unset
+
+
+def libusb_error(code: int) -> usb.core.USBError:
+    """The error a libusb-1.0 backend raises for errno `code` (USBTimeoutError for ETIMEDOUT)."""
+    libusb_code, text = LIBUSB_ERRORS[code]
+    cls = usb.core.USBTimeoutError if code == errno.ETIMEDOUT else usb.core.USBError
+    return cls(text, libusb_code, code)
 
 
 class UsbCameraError(DriverError):

@@ -13,7 +13,7 @@ from enum import IntEnum, IntFlag
 
 import numpy as np
 
-from drivers.frame import MOD_FREQS_MHZ
+from drivers.frame import DEFAULT_REGISTER_VALUES, MOD_FREQS_MHZ
 
 VENDOR_ID = 0x0852
 PRODUCT_ID = 0x0074
@@ -69,7 +69,10 @@ class Register(IntEnum):
 
 REGISTER_COUNT = 64
 READ_ONLY_REGISTERS = frozenset({Register.STATUS})
-DEFAULT_REGISTERS = {Register.INT_TIME: 30, Register.MOD_FREQ: 3, Register.ACQ_MODE: 0x05}
+DEFAULT_REGISTERS = {Register.INT_TIME: DEFAULT_REGISTER_VALUES.int_time_code,
+                     Register.MOD_FREQ: DEFAULT_REGISTER_VALUES.mod_freq_index,
+                     Register.ACQ_MODE: DEFAULT_REGISTER_VALUES.acq_mode}
+"""Power-up register bank of the camera (the values of drivers.frame.Registers' defaults)."""
 """Power-up values of the named registers; every other register powers up as 0."""
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 import signal
 import sys
 import threading
@@ -18,7 +19,6 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from drivers.source import FrameSource
-    from tofd.config import Config
 
 PROGRESS_INTERVAL_S = 1.0
 
@@ -45,20 +45,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     limit.add_argument("--seconds", type=_positive_float, help="stop after this many seconds of recording")
     parser.add_argument("--config", type=Path, default=None, help="config file (default: config/tofd.toml)")
     parser.add_argument("--serial", default=None, help="camera serial (8 hex digits); overrides [camera] serial")
-
-
-def open_camera(config: Config, emulate: bool) -> FrameSource:
-    """The camera the config names (UsbCamera), or with `emulate` the emulated one (same code path)."""
-    kwargs = dataclasses.asdict(config.camera)
-    if emulate:
-        from drivers.emulator.backend import open_emulated_camera
-
-        serial = kwargs.pop("serial")
-        return open_emulated_camera(**({"serial": serial} if serial else {}), intrinsics=config.intrinsics,
-                                    **kwargs)
-    from drivers.usb.camera import UsbCamera
-
-    return UsbCamera(**kwargs, intrinsics=config.intrinsics)
 
 
 class _StopOnSignal:
@@ -96,7 +82,9 @@ def main(args: argparse.Namespace) -> int:
     from drivers.recording.writer import RecordingWriter
     from drivers.source import DriverError
     from tofd.config import load_config
+    from tofd.service.camera import open_camera
 
+    logging.basicConfig(level=logging.INFO, format="tofd: %(message)s")
     config = load_config(args.config)
     if args.serial is not None:
         camera = dataclasses.replace(config.camera, serial=args.serial)
@@ -136,5 +124,12 @@ def main(args: argparse.Namespace) -> int:
     if tty:
         print(file=sys.stderr)
     summary = _status(frames, time.monotonic() - t_start, args.out.stat().st_size, source.counters)
-    print(f"wrote {args.out}: {summary}")
+    print(f"wrote {args.out}: {summary}" + _explain_device_drops(source.counters["device_dropped"]))
     return 0
+
+
+def _explain_device_drops(dropped: int) -> str:
+    if not dropped:
+        return ""
+    return (f" ({dropped} frames the camera produced were overwritten in its frame buffer before tofd read them: "
+            "the host fell behind the camera, e.g. a busy CPU or a slow disk; the recording has counter gaps there)")

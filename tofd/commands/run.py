@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 from tofd.service.daemon import RERUN_SPEC_HELP
@@ -28,23 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write the drop ledger and run statistics here at exit")
 
 
-def open_camera(cfg, emulate: bool):
-    """The configured USB camera, or the emulated one."""
-    camera_kwargs = asdict(cfg.camera)
-    if emulate:
-        from drivers.emulator.backend import open_emulated_camera
-
-        serial = camera_kwargs.pop("serial") or "30000001"
-        logging.getLogger(__name__).info("rendering the emulated camera's scene (a few seconds)")
-        return open_emulated_camera(serial=serial, prerender=True, intrinsics=cfg.intrinsics, **camera_kwargs)
-    from drivers.usb.camera import UsbCamera
-
-    return UsbCamera(intrinsics=cfg.intrinsics, **camera_kwargs)
-
-
 def main(args: argparse.Namespace) -> int:
     from drivers.source import DriverError
     from tofd.config import load_config
+    from tofd.service.camera import open_camera
     from tofd.service.daemon import parse_rerun_spec, serve
     from tofd.service.pipeline import PipelineError
     from tofd.service.viewer import ViewerError

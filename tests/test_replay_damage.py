@@ -1,0 +1,247 @@
+"""Damaged recordings: resync after damage, lost/invalid/duplicated frames rejected for the ledger, CRC-less
+chunks refused, protected metadata, and a fuzz of the bundled recording."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from recording_helpers import assert_frames_equal, make_frame, write_recording
+from test_replay import collect, counters
+
+from drivers.intrinsics import Intrinsics
+from drivers.recording.replay import ReplaySource, read_recording_info
+from drivers.recording.writer import RecordingWriter
+from drivers.source import DriverError
+
+BUNDLED = Path(__file__).resolve().parent.parent / "replay_data" / "emulated_face_035_070.mcap"
+
+
+@pytest.fixture(scope="module")
+def clip101(tmp_path_factory):
+    """101 frames, counters 0..100, and each frame chunk's (start, end) byte offsets."""
+    path = tmp_path_factory.mktemp("clip101") / "clip.mcap"
+    frames = write_recording(path, range(101))
+    with open(path, "rb") as f:
+        chunks = [(c.chunk_start_offset, c.chunk_start_offset + c.chunk_length)
+                  for c in make_reader(f).get_summary().chunk_indexes]
+    return path, frames, chunks
+
+
+def replay(path: Path, **kwargs) -> tuple[ReplaySource, list, list]:
+    source = ReplaySource(path, **kwargs)
+    frames = collect(source)
+    return source, frames, source.take_rejected()
+
+
+def damaged_copy(tmp_path: Path, path: Path, name: str, edit) -> Path:
+    data = bytearray(path.read_bytes())
+    edit(data)
+    out = tmp_path / name
+    out.write_bytes(data)
+    return out
+
+
+def test_64_corrupted_bytes_after_frame_38_lose_only_that_frame(clip101, tmp_path):
+    path, frames, chunks = clip101
+
+    def corrupt(data):
+        start = chunks[38][1] + 40  # just after frame 38's chunk: frame 38's message index and frame 39
+        data[start:start + 64] = bytes(np.random.default_rng(0).integers(0, 256, 64, dtype=np.uint8))
+    source, replayed, rejected = replay(damaged_copy(tmp_path, path, "d.mcap", corrupt))
+    assert counters(replayed) == [c for c in range(101) if c != 39]
+    for frame in replayed:
+        assert_frames_equal(frames[frame.frame_counter], frame)
+    assert [(r.frame_counter, r.reason.split(":")[0]) for r in rejected] == [(39, "damaged")]
+    assert source.stopped_reason == "end" and source.counters["damaged"] == 1
+
+
+@pytest.mark.parametrize("k", [0, 6, 99])
+def test_bit_flip_inside_a_frame_rejects_that_frame_and_replays_the_rest(clip101, tmp_path, k):
+    path, frames, chunks = clip101
+
+    def flip(data):
+        data[chunks[k][1] - 1000] ^= 0x10  # inside frame k's compressed planes
+    source, replayed, rejected = replay(damaged_copy(tmp_path, path, "f.mcap", flip))
+    assert counters(replayed) == [c for c in range(101) if c != k]
+    if k == 0:  # nothing before it: the loss cannot be counted, but it is counted as uncounted damage
+        assert rejected == [] and source.counters["damaged_uncounted"] == 1
+    else:
+        reason = rejected[0].reason.lower()
+        assert [r.frame_counter for r in rejected] == [k] and ("crc" in reason or "zstd" in reason)
+
+
+@pytest.mark.parametrize("bit", range(8))
+def test_damaged_record_opcode_resyncs_at_the_next_chunk(clip101, tmp_path, bit):
+    path, _, chunks = clip101
+
+    def flip(data):
+        data[chunks[4][0]] ^= 1 << bit  # chunk (0x06) -> message index, channel, footer, unknown, ...
+    _, replayed, rejected = replay(damaged_copy(tmp_path, path, "op.mcap", flip))
+    assert counters(replayed) == [c for c in range(101) if c != 4]
+    assert [r.frame_counter for r in rejected] == [4] and f"bytes {chunks[4][0]}-" in rejected[0].reason
+
+
+def test_chunk_without_crc_is_refused(clip101, tmp_path):
+    path, _, chunks = clip101
+
+    def zero_crc(data):
+        crc_at = chunks[10][0] + 9 + 24  # after opcode+length, start/end time, uncompressed size
+        data[crc_at:crc_at + 4] = b"\0\0\0\0"
+    _, replayed, rejected = replay(damaged_copy(tmp_path, path, "z.mcap", zero_crc))
+    assert 10 not in counters(replayed) and len(replayed) == 100
+    assert [r.frame_counter for r in rejected] == [10] and "no CRC" in rejected[0].reason
+
+
+def test_duplicated_frame_record_is_rejected_not_replayed_twice(clip101, tmp_path):
+    path, _, chunks = clip101
+    data = path.read_bytes()
+    s, next_start = chunks[20][0], chunks[21][0]
+    doubled = tmp_path / "dup.mcap"
+    doubled.write_bytes(data[:next_start] + data[s:next_start] + data[next_start:])  # chunk 20 + its index again
+    source, replayed, rejected = replay(doubled)
+    assert counters(replayed) == list(range(101))
+    assert [(r.frame_counter, r.reason.split(":")[0]) for r in rejected] == [(20, "duplicate")]
+    assert source.stopped_reason == "end"
+
+
+def test_invalid_frames_are_rejected_and_the_replay_goes_on(tmp_path):
+    frames = [make_frame(c) for c in range(6)]
+    small = Intrinsics(width=10, height=10, fx=20.0, fy=20.0, cx=4.5, cy=4.5)
+    frames[2] = dataclasses.replace(frames[2], range_m=np.ones((10, 10), np.float32),
+                                    amplitude=np.ones((10, 10), np.float32), intrinsics=small)
+    frames[3] = dataclasses.replace(frames[3], host_monotonic_s=float("inf"))
+    frames[4] = dataclasses.replace(frames[4], frame_counter=10**30)
+    path = tmp_path / "bad.mcap"
+    with RecordingWriter(path) as writer:
+        for frame in frames:
+            writer.write(frame)
+    source, replayed, rejected = replay(path)
+    assert counters(replayed) == [0, 1, 5]
+    assert [r.frame_counter for r in rejected] == [2, 3, 10**30]
+    assert all(r.reason.startswith("invalid_frame: ") for r in rejected)
+    assert "(10, 10)" in rejected[0].reason and "host_monotonic_s" in rejected[1].reason
+    assert "frame counter" in rejected[2].reason
+    assert source.counters["invalid_frame"] == 3
+
+
+def test_damaged_intrinsics_metadata_is_refused(tmp_path):
+    path = tmp_path / "m.mcap"
+    write_recording(path, range(3))
+    data = path.read_bytes()
+    fx = repr(Intrinsics().fx).encode()
+    at = data.index(fx)
+    changed = tmp_path / "fx.mcap"
+    changed.write_bytes(other_digit(data, at + 5))  # one digit of fx
+    with pytest.raises(DriverError, match="fails its CRC"):
+        read_recording_info(changed)
+
+
+def test_unsealed_metadata_of_format_1_files_is_checked_against_the_frames(tmp_path):
+    data = BUNDLED.read_bytes()
+    fx = repr(read_recording_info(BUNDLED).intrinsics.fx).encode()
+    at = data.index(fx)
+    assert b"crc32" not in data[:at + 400]  # the bundled clip predates the metadata CRC
+    changed = tmp_path / "fx.mcap"
+    changed.write_bytes(other_digit(data, at + 5))
+    with pytest.raises(DriverError, match="disagrees with the first frame"):
+        read_recording_info(changed)
+
+
+def test_damaged_replay_through_the_pipeline_ledgers_each_lost_and_invalid_frame(clip101, tmp_path):
+    from tofd.config import Config
+    from tofd.service.pipeline import Pipeline
+
+    path, _, chunks = clip101
+    data = path.read_bytes()
+
+    def corrupt(d):
+        d[chunks[5][1] - 500] ^= 0xFF
+        d[chunks[7][1] - 500] ^= 0xFF
+    damaged = damaged_copy(tmp_path, path, "p.mcap", corrupt)
+    results = []
+    pipeline = Pipeline(Config(), "lossless", writers=(results.append,))
+    with ReplaySource(damaged, stop=12) as source:
+        pipeline.start(source)
+        assert pipeline.wait(120)
+    summary = pipeline.close()
+    assert data  # the original is untouched
+    assert [r.frame.frame_counter for r in results] == [0, 1, 2, 3, 4, 6, 8, 9, 10, 11]
+    assert summary["consistent"] and summary["frames_in"] == 12 and summary["frames_dropped"] == 2
+    assert [(d["frame_counter"], d["stage"], d["reason"].split(":")[0]) for d in summary["drops"]] == [
+        (5, "capture", "damaged"), (7, "capture", "damaged")]
+    assert summary["gaps"] == []
+
+
+def other_digit(data: bytes, at: int) -> bytes:
+    """`data` with the decimal digit at `at` replaced by the next one."""
+    digit = int(chr(data[at]))
+    return data[:at] + str((digit + 1) % 10).encode() + data[at + 1:]
+
+
+def mutate(data: bytes, rng: np.random.Generator) -> bytes:
+    """One random mutation: bit flips, a random run, a cut, a deleted or a repeated stretch."""
+    out = bytearray(data)
+    n, kind = len(out), int(rng.integers(5))
+    at = int(rng.integers(8, n - 1))
+    length = int(rng.integers(1, 5000))
+    if kind == 0:
+        for pos in rng.integers(0, n, int(rng.integers(1, 20))):
+            out[pos] ^= 1 << int(rng.integers(8))
+    elif kind == 1:
+        out[at:at + length] = bytes(rng.integers(0, 256, len(out[at:at + length]), dtype=np.uint8))
+    elif kind == 2:
+        del out[at:]
+    elif kind == 3:
+        del out[at:at + length]
+    else:
+        out[at:at] = out[at - min(at, length):at]
+    return bytes(out)
+
+
+def test_fuzzed_bundled_recording_never_escapes_an_exception(tmp_path):
+    data = BUNDLED.read_bytes()
+    reference = {f.frame_counter: f for f in collect(ReplaySource(BUNDLED))}
+    rng = np.random.default_rng(17)
+    for trial in range(30):
+        path = tmp_path / "fuzz.mcap"
+        path.write_bytes(mutate(data, rng))
+        try:
+            read_recording_info(path)
+            source = ReplaySource(path)
+        except DriverError:
+            continue  # refused with a clear error: fine
+        replayed = collect(source)
+        rejected = source.take_rejected()
+        for frame in replayed:  # nothing damaged is ever replayed
+            assert_frames_equal(reference[frame.frame_counter], frame)
+        assert len({f.frame_counter for f in replayed}) == len(replayed), trial
+        assert all(r.reason.split(":")[0] in ("damaged", "duplicate", "invalid_frame") for r in rejected)
+
+
+def test_damage_before_the_first_frame_channel_still_replays_later_frames(tmp_path):
+    path = tmp_path / "c.mcap"
+    write_recording(path, range(5))
+    with open(path, "rb") as f:
+        first = make_reader(f).get_summary().chunk_indexes[0]
+    data = bytearray(path.read_bytes())
+    data[first.chunk_start_offset + first.chunk_length - 10] ^= 0x01  # the chunk with the channel record
+    damaged = tmp_path / "c2.mcap"
+    damaged.write_bytes(bytes(data))
+    source = ReplaySource(damaged)
+    assert counters(collect(source)) == [1, 2, 3, 4]
+
+
+def test_replay_command_refuses_a_damaged_header_in_one_line(tmp_path, capsys):
+    from tofd import cli
+
+    data = BUNDLED.read_bytes()
+    at = data.index(repr(read_recording_info(BUNDLED).intrinsics.fx).encode())
+    changed = tmp_path / "fx.mcap"
+    changed.write_bytes(other_digit(data, at + 5))
+    assert cli.main(["replay", str(changed), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "disagrees with the first frame" in err[0] and "Traceback" not in err[0]
