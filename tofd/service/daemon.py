@@ -9,15 +9,16 @@ from __future__ import annotations
 import json
 import logging
 import signal
-import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from drivers.source import FrameSource
-from tofd.config import Config, ConfigError
-from tofd.service.health import HealthServer, sd_notify, watchdog_interval_s
-from tofd.service.model import load_service_model
+from tofd.config import Config, ConfigError, config_digest
+from tofd.outputs import write_text
+from tofd.progress import Progress
+from tofd.service.health import HealthServer, ServiceMetrics, notify_status, sd_notify, watchdog_interval_s
+from tofd.service.model import load_service_model, model_identity
 from tofd.service.pipeline.core import Pipeline, Sink
 from tofd.service.pipeline.queues import Policy
 
@@ -47,29 +48,19 @@ class ServiceResult:
     web_url: str | None = None
 
 
-class Progress:
-    """A one-line progress bar on stderr (redrawn in place on a terminal, a line per 10 % otherwise)."""
+def show_progress(progress: Progress, snap: dict) -> None:
+    """Move the progress bar to the frames delivered or dropped so far, with fps and drops."""
+    progress.update(snap["frames_out"] + snap["frames_dropped"],
+                    status=f"{snap['fps']:.1f} fps, dropped {snap['frames_dropped']}")
 
-    def __init__(self, total: int | None, label: str):
-        self.total, self.label, self._tty = total, label, sys.stderr.isatty()
-        self._last_decile = -1
 
-    def update(self, snap: dict, final: bool = False) -> None:
-        done = snap["frames_out"] + snap["frames_dropped"]
-        if self.total:
-            frac = min(1.0, done / self.total)
-            bar = "#" * int(frac * 30)
-            text = f"{self.label} [{bar:<30}] {done}/{self.total} frames"
-            decile = int(frac * 10)
-        else:
-            text, decile = f"{self.label} {done} frames", done // 100
-        text += f"  {snap['fps']:.1f} fps  dropped {snap['frames_dropped']}"
-        if self._tty:
-            sys.stderr.write("\r" + text + ("\n" if final else ""))
-        elif decile != self._last_decile or final:
-            sys.stderr.write(text + "\n")
-        self._last_decile = decile
-        sys.stderr.flush()
+def run_identity(cfg: Config) -> dict[str, str]:
+    """What this run computes with (logged at start; labels of tofd_build_info; in the summary): the model's
+    resolved path and SHA-256 and the config's digest."""
+    model = model_identity(cfg)
+    log.info("model: %s (sha256 %s, variant %s)", model.path or "none", model.sha256[:16] or "-",
+             cfg.detector.variant)
+    return {"model_path": model.path, "model_sha256": model.sha256, "config_sha256": config_digest(cfg)}
 
 
 def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool,
@@ -84,14 +75,16 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
                                                                                          signal.SIGINT)}
     health = pipeline = None
     run_s = 0.0
+    identity = run_identity(cfg)
     try:
         viewer = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud) if target else None
-        pipeline = Pipeline(cfg, policy, viewer=viewer, writers=writers, model=load_service_model(cfg),
-                            live_source=live_source)
+        metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
+        pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe),
+                            model=load_service_model(cfg), live_source=live_source)
         if cfg.health.enabled:
             try:
                 health = HealthServer(cfg.health.bind, cfg.health.port, pipeline.snapshot,
-                                      lambda: pipeline.running, cfg.health.stale_after_s).start()
+                                      lambda: pipeline.running, cfg.health.stale_after_s, metrics).start()
             except OSError as exc:
                 raise ConfigError(f"health.port: cannot listen on {cfg.health.bind}:{cfg.health.port}: "
                                   f"{exc.strerror}") from None
@@ -119,11 +112,14 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     summary["timings_ms"] = {k: [round(x, 3) for x in v] for k, v in snap["timings_ms"].items()}
     summary["worker_restarts"] = pipeline.worker_restarts
     summary["device_events"] = dict(snap["device_events"])
+    summary["model"] = {"path": identity["model_path"], "sha256": identity["model_sha256"]}
+    summary["config_sha256"] = identity["config_sha256"]
     if progress is not None:
-        progress.update(snap, final=True)
+        show_progress(progress, snap)
+        progress.done()
     if summary_path is not None:
         summary_path.parent.mkdir(parents=True, exist_ok=True)
-        summary_path.write_text(json.dumps(summary, indent=1) + "\n")
+        write_text(summary_path, json.dumps(summary, indent=1) + "\n")
     return ServiceResult(1 if pipeline.error else 0, summary, target.web_url if target else None)
 
 
@@ -141,6 +137,7 @@ def _supervise(pipeline: Pipeline, stop: list[int], progress: Progress | None) -
         if watchdog is not None and time.monotonic() - last_ping >= watchdog:
             if pipeline.error is None:  # alive and not failed; a camera that is away (reconnecting) is no reason
                 sd_notify("WATCHDOG=1")  # for systemd to restart us: /healthz reports that to monitoring instead
+            notify_status(pipeline.snapshot())
             last_ping = time.monotonic()
         if progress is not None:
-            progress.update(pipeline.snapshot())
+            show_progress(progress, pipeline.snapshot())
