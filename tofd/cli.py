@@ -7,6 +7,7 @@ import importlib
 import logging
 import pkgutil
 import sys
+import typing
 
 import tofd
 import tofd.commands
@@ -23,13 +24,20 @@ Exit status: 0 success, 1 runtime failure (camera, viewer, pipeline), 2 usage or
 EPILOG = "Start with `tofd run --emulate --rerun web` (no camera needed), or `tofd COMMAND --help`."
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument mistake is one line on stderr (pointing to --help) and exit status 2."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tofd", description=DESCRIPTION, epilog=EPILOG,
+    parser = _Parser(prog="tofd", description=DESCRIPTION, epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"tofd {tofd.__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages (same as --log-level debug)")
     parser.add_argument("--log-level", choices=LEVELS, default="info", help="lowest level logged (default info)")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
     for name in sorted(m.name for m in pkgutil.iter_modules(tofd.commands.__path__)):
         module = importlib.import_module(f"tofd.commands.{name}")
         summary = (module.__doc__ or "").strip().splitlines()[0]

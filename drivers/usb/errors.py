@@ -11,7 +11,7 @@ import usb.core
 
 from drivers.source import DriverError
 
-UDEV_RULE = Path(__file__).resolve().parent.parent / "config" / "99-tofd-sr3000.rules"
+UDEV_RULE = Path(__file__).resolve().parent.parent / "config" / "70-tofd-sr3000.rules"
 
 # libusb-1.0 error codes, for backends that leave errno unset
 _LIBUSB_CODES = {-3: errno.EACCES, -4: errno.ENODEV, -6: errno.EBUSY, -7: errno.ETIMEDOUT, -8: errno.EOVERFLOW,

@@ -23,8 +23,9 @@ from tofd.service.daemon import RERUN_SPEC_HELP
 log = logging.getLogger(__name__)
 
 
-class Stopped(Exception):
-    """SIGTERM or SIGINT arrived before the pipeline took over the signals."""
+class Stopped(BaseException):
+    """SIGTERM or SIGINT arrived before the pipeline took over the signals (a BaseException, like
+    KeyboardInterrupt, so that no `except Exception` on the way swallows it)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
