@@ -7,8 +7,8 @@ from rerun.chunk import RrdReader
 
 from tofd.service.viewer import blueprint as bp
 
-PER_FRAME = [bp.RANGE, bp.RANGE_RADIAL, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(), f"{bp.TIMINGS}/nfft",
-             f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]
+PER_FRAME = [bp.RANGE, bp.RANGE_RADIAL, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(),
+             f"{bp.TIMINGS}/nfft", f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]
 
 
 def read_entities(path):
