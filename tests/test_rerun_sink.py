@@ -105,3 +105,32 @@ def test_blueprint_has_an_events_view():
 
     found = [v for v in views(build_blueprint().root_container) if isinstance(v, rrb.TextLogView)]
     assert [v.origin for v in found] == [bp.EVENTS]
+
+
+def test_saved_rrd_is_batched_and_the_viewer_sends_no_usage_data(tmp_path, monkeypatch):
+    """`rerun rrd stats` does not call a saved replay "unoptimized"; with [rerun] analytics = false (default) the
+    rerun binary we start sees CI=1 and has analytics off (it prints no opt-in banner and no config)."""
+    import os
+    import subprocess
+
+    from tofd.service.viewer.targets import rerun_executable
+
+    monkeypatch.delenv("CI", raising=False)
+    cfg = Config()
+    path = tmp_path / "run.rrd"
+    target = RerunTarget(cfg.rerun, "save", path=str(path))
+    assert os.environ.get("CI") == "1"
+    pipeline = Pipeline(cfg, "lossless", viewer=RerunLogger(target.rec, cfg.intrinsics))
+    pipeline.start(RenderedSource(60, n_distinct=3))
+    assert pipeline.wait(120)
+    pipeline.close()
+    target.close()
+    stats = subprocess.run([rerun_executable(), "rrd", "stats", str(path)], capture_output=True, text=True,
+                           timeout=120, env={**os.environ, "RUST_LOG": "error"})
+    assert "theoretical lower bound" in stats.stdout + stats.stderr
+    assert "may be unoptimized" not in stats.stdout + stats.stderr
+    home = tmp_path / "home"
+    home.mkdir()
+    details = subprocess.run([rerun_executable(), "analytics", "config"], capture_output=True, text=True,
+                             timeout=60, env={**os.environ, "HOME": str(home), "XDG_CONFIG_HOME": str(home)})
+    assert details.stdout.strip() == "null" and "Welcome to Rerun" not in details.stdout

@@ -111,6 +111,7 @@ class RerunConfig:
     web_port: int = 9090  # HTTP port of the web viewer ("web" sink)
     memory_limit: str = "500MB"  # viewer child's memory budget (oldest data is dropped beyond it)
     point_cloud: bool = True  # log the foreground as a 3-D point cloud coloured by NFFT eps0
+    analytics: bool = False  # let the Rerun SDK/viewer send anonymous usage data (off: tofd sets CI=1 for them)
 
     def validate(self) -> None:
         if self.sink not in ("none", "save", "web", "connect", "spawn"):
