@@ -31,6 +31,10 @@ DEFAULT_CONFIG_PATH = default_file("tofd.toml")
 MAX_CONFIG_BYTES = 1 << 20  # a config file is a few kB; anything larger is not one (e.g. /dev/zero, a disk image)
 
 
+RERUN_SINKS = ("none", "save", "web", "connect", "spawn")
+"""Where the Rerun stream can go: nowhere, an .rrd file, a served web viewer, a running viewer, a desktop viewer."""
+
+
 class ConfigError(UsageError):
     """A config file that cannot be used; the message names the offending key."""
 
@@ -114,8 +118,8 @@ class RerunConfig:
     analytics: bool = False  # let the Rerun SDK/viewer send anonymous usage data (off: tofd sets CI=1 for them)
 
     def validate(self) -> None:
-        if self.sink not in ("none", "save", "web", "connect", "spawn"):
-            raise ValueError(f"sink: {self.sink!r} is not one of 'none', 'save', 'web', 'connect', 'spawn'")
+        if self.sink not in RERUN_SINKS:
+            raise ValueError(f"sink: {self.sink!r} is not one of {', '.join(RERUN_SINKS)}")
         for key in ("grpc_port", "web_port"):
             if not 0 < getattr(self, key) < 65536:
                 raise ValueError(f"{key}: {getattr(self, key)} is not a TCP port")
