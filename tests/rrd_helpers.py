@@ -7,8 +7,8 @@ from rerun.chunk import RrdReader
 
 from tofd.service.viewer import blueprint as bp
 
-PER_FRAME = [bp.RANGE, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(), f"{bp.TIMINGS}/nfft",
-             f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]
+PER_FRAME = [bp.RANGE, bp.RANGE_RADIAL, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(),
+             f"{bp.TIMINGS}/nfft", f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]
 
 
 def read_entities(path):
@@ -46,9 +46,12 @@ def check_rrd(path, counters, results_by_counter=None):
     assert np.all(np.diff(device_time) > 0)
     if results_by_counter:
         c = counters[-1]
-        range_m = image_at(tables[bp.RANGE][1], "DepthImage", len(counters) - 1)
+        range_m = image_at(tables[bp.RANGE_RADIAL][1], "DepthImage", len(counters) - 1)
         expected = np.nan_to_num(results_by_counter[c].frame.range_m, nan=0.0)
         np.testing.assert_array_equal(range_m, expected)
+        amplitude = image_at(tables[bp.AMPLITUDE][1], "Image", len(counters) - 1)
+        assert amplitude.dtype == np.uint16
+        np.testing.assert_array_equal(amplitude, np.rint(results_by_counter[c].frame.amplitude))
         cloud = tables[bp.FOREGROUND][1].column("Points3D:positions")[len(counters) - 1]
         assert len(cloud) == int(results_by_counter[c].mask.sum())
     return tables

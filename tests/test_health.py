@@ -9,8 +9,8 @@ import urllib.request
 
 from pipeline_sources import RenderedSource
 
-from tofd.config import Config
-from tofd.service.health import HealthServer, sd_notify, watchdog_interval_s
+from tofd.config import Config, config_digest
+from tofd.service.health import HealthServer, ServiceMetrics, notify_status, sd_notify, watchdog_interval_s
 from tofd.service.pipeline import Pipeline
 
 
@@ -29,8 +29,12 @@ def metric_values(text, name):
 
 def test_metrics_and_healthz_of_a_live_run():
     cfg = Config()
-    pipeline = Pipeline(cfg, "latest")
-    server = HealthServer("127.0.0.1", 0, pipeline.snapshot, lambda: pipeline.running, stale_after_s=2.0).start()
+    snapshot = []  # the pipeline's, once it exists (the metrics come first: they are one of its sinks)
+    metrics = ServiceMetrics(lambda: snapshot[0](), {"model_sha256": "ab" * 32, "config_sha256": config_digest(cfg)})
+    pipeline = Pipeline(cfg, "latest", writers=(metrics.observe,))
+    snapshot.append(pipeline.snapshot)
+    server = HealthServer("127.0.0.1", 0, pipeline.snapshot, lambda: pipeline.running, stale_after_s=2.0,
+                          metrics=metrics).start()
     try:
         assert server.bind == "127.0.0.1"
         pipeline.start(RenderedSource(300, fps=30, n_distinct=3))
@@ -43,11 +47,22 @@ def test_metrics_and_healthz_of_a_live_run():
         code, text = get(base + "/metrics")
         assert code == 200
         assert metric_values(text, "tofd_frames_in_total")[""] >= 20
-        assert metric_values(text, "tofd_fps")[""] > 0  # a rate is reported; its size is bench/ business
-        stages = metric_values(text, "tofd_stage_duration_seconds")
+        assert metric_values(text, "tofd_fps")[""] > 0
+        stages = metric_values(text, "tofd_stage_duration_rolling_seconds")
         for stage in ("segmentation", "fft", "nfft", "latency"):
-            p50, p99 = stages[f'{{stage="{stage}",quantile="0.5"}}'], stages[f'{{stage="{stage}",quantile="0.99"}}']
-            assert 0 < p50 <= p99 < 5
+            p50, p99 = stages[f'{{quantile="0.5",stage="{stage}"}}'], stages[f'{{quantile="0.99",stage="{stage}"}}']
+            assert 0 < p50 <= p99
+        assert "# TYPE tofd_stage_duration_seconds histogram" in text
+        for stage in ("segmentation", "nfft"):
+            count = metric_values(text, "tofd_stage_duration_seconds_count")[f'{{stage="{stage}"}}']
+            inf = metric_values(text, "tofd_stage_duration_seconds_bucket")[f'{{le="+Inf",stage="{stage}"}}']
+            assert count == inf >= 20 and metric_values(text, "tofd_stage_duration_seconds_sum")[
+                f'{{stage="{stage}"}}'] > 0
+        build = next(iter(metric_values(text, "tofd_build_info")))
+        assert 'version="0.1.0"' in build and f'config_sha256="{config_digest(cfg)}"' in build
+        assert metric_values(text, "process_resident_memory_bytes")[""] > 1e6
+        head = urllib.request.urlopen(urllib.request.Request(base + "/healthz", method="HEAD"), timeout=5)
+        assert head.status == 200 and head.read() == b"" and int(head.headers["Content-Length"]) > 0
         assert set(metric_values(text, "tofd_queue_depth")) == {'{queue="dispatch"}', '{queue="workers"}',
                                                                '{queue="reorder"}', '{queue="sink"}'}
         assert metric_values(text, "tofd_workers_alive")[""] == cfg.pipeline.workers
@@ -70,6 +85,10 @@ def test_sd_notify_reaches_a_unix_datagram_socket(tmp_path, monkeypatch):
         monkeypatch.setenv("NOTIFY_SOCKET", str(path))
         assert sd_notify("READY=1")
         assert sock.recv(100) == b"READY=1"
+        snap = {"fps": 29.96, "frames_out": 120, "frames_dropped": 5,
+                "drops": {("dispatch", "superseded"): 4, ("sink", "superseded"): 0, ("capture", "invalid"): 1}}
+        assert notify_status(snap)
+        assert sock.recv(200) == b"STATUS=30.0 fps, 120 frames delivered, 5 dropped (invalid 1, superseded 4)"
     monkeypatch.delenv("NOTIFY_SOCKET")
     assert not sd_notify("READY=1")
 

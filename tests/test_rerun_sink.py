@@ -50,3 +50,87 @@ def test_results_lines_match_delivered_frames(tmp_path):
     lines = [json.loads(x) for x in (tmp_path / "r.jsonl").read_text().splitlines()]
     assert [x["frame_counter"] for x in lines] == list(range(6))
     assert all(x["timings_ms"]["nfft"] > 0 and x["ground_truth_px"] is not None for x in lines)
+
+
+def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tmp_path):
+    """A fronto-parallel wall at z = 0.8 m: every pixel of the logged DepthImage, back-projected with the logged
+    Pinhole the way Rerun's 3-D view does (x = (u + 0.5 - px) / fx * d), lands on the wall; the radial range
+    is kept unchanged beside it and the amplitude is stored as integers."""
+    import numpy as np
+    import rerun as rr
+    from rrd_helpers import image_at, read_entities
+
+    from drivers.frame import Frame
+    from drivers.intrinsics import Intrinsics
+    from tofd.service.pipeline.results import FrameResult
+
+    intr = Intrinsics()
+    rays = intr.unit_rays()
+    radial = (0.8 / rays[..., 2]).astype(np.float32)  # the camera measures along each ray
+    amplitude = np.full(intr.shape, 1234.4, np.float32)
+    frame = Frame(radial, amplitude, frame_counter=5, timestamp_us=1000, host_monotonic_s=0.0, host_wall_s=0.0)
+    mask = np.zeros(intr.shape, bool)
+    feats = {name: np.full(intr.shape, np.nan, np.float32) for name in bp.FEATURES}
+    rec = rr.RecordingStream("tofd-test")
+    path = tmp_path / "plane.rrd"
+    rec.save(str(path))
+    RerunLogger(rec, intr, point_cloud=False)(FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0))
+    rec.flush()
+    rec.disconnect()
+    tables = read_entities(str(path))
+    depth = image_at(tables[bp.RANGE][1], "DepthImage", 0)
+    pinhole = tables[bp.CAMERA][0][0].to_record_batch()
+    matrix = np.array(pinhole.column("Pinhole:image_from_camera")[0].as_py()[0]).reshape(3, 3).T  # column-major
+    fx, fy, px, py = matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2]
+    for v, u in ((0, 0), (0, 175), (143, 0), (72, 88), (143, 175)):
+        d = float(depth[v, u])
+        point = np.array([(u + 0.5 - px) / fx * d, (v + 0.5 - py) / fy * d, d])
+        assert point[2] == pytest.approx(0.8, abs=1e-6)
+        np.testing.assert_allclose(point, rays[v, u] * radial[v, u], atol=1e-5)  # the camera's own 3-D point
+    assert float(radial[0, 0]) > 0.8 * 1.1  # a corner: the radial range would be > 10 % off as depth
+    np.testing.assert_array_equal(image_at(tables[bp.RANGE_RADIAL][1], "DepthImage", 0), radial)
+    amp = image_at(tables[bp.AMPLITUDE][1], "Image", 0)
+    assert amp.dtype == np.uint16 and int(amp[0, 0]) == 1234
+
+
+def test_blueprint_has_an_events_view():
+    import rerun.blueprint as rrb
+
+    from tofd.service.viewer import build_blueprint
+
+    def views(container):
+        for item in getattr(container, "contents", []) or []:
+            yield item
+            yield from views(item)
+
+    found = [v for v in views(build_blueprint().root_container) if isinstance(v, rrb.TextLogView)]
+    assert [v.origin for v in found] == [bp.EVENTS]
+
+
+def test_saved_rrd_is_batched_and_the_viewer_sends_no_usage_data(tmp_path, monkeypatch):
+    """`rerun rrd stats` does not call a saved replay "unoptimized"; with [rerun] analytics = false (default) the
+    rerun binary we start sees CI=1 and has analytics off (it prints no opt-in banner and no config)."""
+    import os
+    import subprocess
+
+    from tofd.service.viewer.targets import rerun_executable
+
+    monkeypatch.delenv("CI", raising=False)
+    cfg = Config()
+    path = tmp_path / "run.rrd"
+    target = RerunTarget(cfg.rerun, "save", path=str(path))
+    assert os.environ.get("CI") == "1"
+    pipeline = Pipeline(cfg, "lossless", viewer=RerunLogger(target.rec, cfg.intrinsics))
+    pipeline.start(RenderedSource(60, n_distinct=3))
+    assert pipeline.wait(120)
+    pipeline.close()
+    target.close()
+    stats = subprocess.run([rerun_executable(), "rrd", "stats", str(path)], capture_output=True, text=True,
+                           timeout=120, env={**os.environ, "RUST_LOG": "error"})
+    assert "theoretical lower bound" in stats.stdout + stats.stderr
+    assert "may be unoptimized" not in stats.stdout + stats.stderr
+    home = tmp_path / "home"
+    home.mkdir()
+    details = subprocess.run([rerun_executable(), "analytics", "config"], capture_output=True, text=True,
+                             timeout=60, env={**os.environ, "HOME": str(home), "XDG_CONFIG_HOME": str(home)})
+    assert details.stdout.strip() == "null" and "Welcome to Rerun" not in details.stdout

@@ -221,7 +221,7 @@ def test_no_device_and_access_denied_messages():
     with pytest.raises(DeviceNotFound, match="no SR3000-style camera .*none attached"):
         UsbCamera(backend=EmulatorBackend(emulator))
     backend = EmulatorBackend(EmulatedSR3000(access_denied=True))
-    with pytest.raises(AccessDenied, match="99-tofd-sr3000.rules"):
+    with pytest.raises(AccessDenied, match="70-tofd-sr3000.rules"):
         UsbCamera(backend=backend)
     (listing,) = list_devices(backend)
     assert listing.serial is None and "udev rule" in listing.error

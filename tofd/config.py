@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
+import os
+import stat
 import tomllib
 import types
 import typing
@@ -13,6 +17,7 @@ from pathlib import Path
 from drivers.frame import DEFAULT_REGISTER_VALUES
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
+from tofd.errors import UsageError
 
 
 def default_file(name: str) -> Path:
@@ -24,14 +29,22 @@ def default_file(name: str) -> Path:
 
 
 DEFAULT_CONFIG_PATH = default_file("tofd.toml")
+MAX_CONFIG_BYTES = 1 << 20  # a config file is a few kB; anything larger is not one (e.g. /dev/zero, a disk image)
 
 
 RERUN_SINKS = ("none", "save", "web", "connect", "spawn")
 """Where the Rerun stream can go: nowhere, an .rrd file, a served web viewer, a running viewer, a desktop viewer."""
 
 
-class ConfigError(ValueError):
+class ConfigError(UsageError):
     """A config file that cannot be used; the message names the offending key."""
+
+
+def check_serial(serial: str) -> str:
+    """`serial` if it is 8 hex digits or "" (the first camera found); ValueError names it otherwise."""
+    if serial and (len(serial) != 8 or any(c not in "0123456789abcdefABCDEF" for c in serial)):
+        raise ValueError(f"serial: {serial!r} is not 8 hex digits (or \"\" for the first camera)")
+    return serial
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,8 +63,7 @@ class CameraConfig:
     reconnect_max_s: float = 5.0  # seconds: the wait doubles after each failed attempt up to this
 
     def validate(self) -> None:
-        if self.serial and (len(self.serial) != 8 or any(c not in "0123456789abcdefABCDEF" for c in self.serial)):
-            raise ValueError(f"serial: {self.serial!r} is not 8 hex digits (or \"\" for the first camera)")
+        check_serial(self.serial)
         if not 0 <= self.int_time_code <= 255:
             raise ValueError(f"int_time_code: {self.int_time_code} is not in 0..255")
         if not 0 <= self.mod_freq_index <= 4:
@@ -105,6 +117,7 @@ class RerunConfig:
     web_port: int = 9090  # HTTP port of the web viewer ("web" sink)
     memory_limit: str = "500MB"  # viewer child's memory budget (oldest data is dropped beyond it)
     point_cloud: bool = True  # log the foreground as a 3-D point cloud coloured by NFFT eps0
+    analytics: bool = False  # let the Rerun SDK/viewer send anonymous usage data (off: tofd sets CI=1 for them)
 
     def validate(self) -> None:
         if self.sink not in RERUN_SINKS:
@@ -206,15 +219,47 @@ def config_from_dict(table: dict) -> Config:
     return typing.cast(Config, _build(Config, table, ""))
 
 
-def load_config(path: str | Path | None = None) -> Config:
-    """Load the config file at `path` (the bundled config/tofd.toml if None)."""
-    path = Path(path) if path is not None else DEFAULT_CONFIG_PATH
+def read_config_text(path: Path) -> str:
+    """The UTF-8 text of config file `path`: a regular file of at most MAX_CONFIG_BYTES (a FIFO would block,
+    a device would never end); ConfigError names the problem."""
     try:
-        text = path.read_text()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)  # O_NONBLOCK: opening a FIFO must not hang
     except OSError as exc:
         raise ConfigError(f"cannot read config {path}: {exc.strerror}") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ConfigError(f"cannot read config {path}: not a regular file")
+        data = os.read(fd, MAX_CONFIG_BYTES + 1)
+    finally:
+        os.close(fd)
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"cannot read config {path}: larger than {MAX_CONFIG_BYTES >> 10} KiB, not a config file")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a UTF-8 text file (byte {exc.start}), not a TOML config") from None
+
+
+def load_config(path: str | Path | None = None) -> Config:
+    """Load the config file at `path` (the bundled config/tofd.toml if None).
+
+    A relative detector.model_path is taken from the directory of the config file that names it (the bundled
+    model for the bundled config), never from the working directory.
+    """
+    path = Path(path) if path is not None else DEFAULT_CONFIG_PATH
+    text = read_config_text(path)
     try:
         table = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from None
-    return config_from_dict(table)
+    cfg = config_from_dict(table)
+    model_path = Path(cfg.detector.model_path)
+    if not model_path.is_absolute() and path.resolve() != DEFAULT_CONFIG_PATH.resolve():
+        model_path = path.resolve().parent / model_path
+        cfg = dataclasses.replace(cfg, detector=dataclasses.replace(cfg.detector, model_path=str(model_path)))
+    return cfg
+
+
+def config_digest(cfg: Config) -> str:
+    """SHA-256 (hex) of the config's canonical JSON: equal digests, equal settings."""
+    return hashlib.sha256(json.dumps(dataclasses.asdict(cfg), sort_keys=True, default=str).encode()).hexdigest()

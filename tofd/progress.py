@@ -1,36 +1,32 @@
-"""A one-line progress report on stderr for long runs: done/total, frames per second, ETA."""
+"""The one progress bar of every command: tqdm on stderr, drawn only when stderr is a terminal."""
 
 from __future__ import annotations
 
 import sys
 import time
-from typing import TextIO
+
+from tqdm import tqdm
 
 
 class Progress:
-    """Rewrites one stderr line at most every `interval_s` seconds; done() ends the line."""
+    """A bar of `total` frames (None: a counter); update() moves it to an absolute count, done() closes it."""
 
-    def __init__(self, label: str, total: int, stream: TextIO | None = None, interval_s: float = 0.5) -> None:
-        # sys.stderr looked up per instance, not bound at import (it may be replaced, e.g. by a test's capture)
-        self.label, self.total, self.stream, self.interval_s = label, total, stream or sys.stderr, interval_s
+    def __init__(self, label: str, total: int | None = None, unit: str = "frames") -> None:
         self.start = time.monotonic()
-        self._last = -float("inf")
         self.count = 0
+        self._bar = tqdm(total=total, desc=label, unit=f" {unit}", file=sys.stderr, dynamic_ncols=True,
+                         disable=not sys.stderr.isatty(), leave=True, mininterval=0.25)
 
-    def update(self, count: int, total: int | None = None) -> None:
+    def update(self, count: int, total: int | None = None, status: str | None = None) -> None:
+        """Set the bar to `count` (of `total`, if it changed); `status` is shown after the rate."""
+        if total is not None and total != self._bar.total:
+            self._bar.total = total
+        if status is not None:
+            self._bar.set_postfix_str(status, refresh=False)
+        self._bar.update(count - self.count)
         self.count = count
-        self.total = total if total is not None else self.total
-        now = time.monotonic()
-        if now - self._last >= self.interval_s or count >= self.total:
-            self._last = now
-            rate = count / max(now - self.start, 1e-9)
-            eta = (self.total - count) / rate if rate > 0 else float("inf")
-            self.stream.write(f"\r{self.label}: {count}/{self.total} frames, {rate:.1f} frames/s, ETA {eta:.0f} s  ")
-            self.stream.flush()
 
     def done(self) -> float:
-        """End the line; returns the elapsed seconds."""
-        elapsed = time.monotonic() - self.start
-        self.stream.write(f"\r{self.label}: {self.count}/{self.total} frames in {elapsed:.1f} s" + " " * 20 + "\n")
-        self.stream.flush()
-        return elapsed
+        """Close the bar; returns the elapsed seconds."""
+        self._bar.close()
+        return time.monotonic() - self.start

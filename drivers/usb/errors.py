@@ -11,7 +11,7 @@ import usb.core
 
 from drivers.source import DriverError
 
-UDEV_RULE = Path(__file__).resolve().parent.parent / "config" / "99-tofd-sr3000.rules"
+UDEV_RULE = Path(__file__).resolve().parent.parent / "config" / "70-tofd-sr3000.rules"
 
 LIBUSB_ERRORS = {  # errno -> (libusb-1.0 code, message), as pyusb's libusb1 backend raises them
     errno.EIO: (-1, "Input/output error"),

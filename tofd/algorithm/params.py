@@ -79,7 +79,7 @@ class FeatureConfig:
 class DetectorConfig:
     """Nose detector (tofd.algorithm.detector): the model file, which of its variants to use, and the box scale."""
 
-    model_path: str = "nose_model.json"  # JSON model; a relative path not found from the cwd is looked up in config/
+    model_path: str = "nose_model.json"  # JSON model; relative: from the config file's directory (never the cwd)
     variant: str = "nfft_range"  # fft_range, fft_range_amp, nfft_range or nfft_range_amp
     box_scale: float = 0.0  # box half-widths times this (> 0); 0 = the model's operating scale (training EER)
     border_margin_m: float = 0.006  # metres: pixels nearer than this to the mask border are never the nose

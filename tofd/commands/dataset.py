@@ -1,17 +1,17 @@
 """Labelled face datasets for the nose detector: `tofd dataset generate OUT.npz` renders one.
 
-The file layout is documented in tofd/lab/dataset.py (one .npz, no pickle, plus an intrinsics JSON sidecar).
+One .npz (no pickle) with keys range, amplitude (F x 144 x 176), nose_px, nose_visible, distance_m, yaw_deg,
+pitch_deg, subject, nose_xyz_m, plus OUT.json holding the intrinsics.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
-    gen = sub.add_parser("generate", help="render a labelled train or test split (tofd/lab/faces.py)")
+    gen = sub.add_parser("generate", help="render a labelled train or test split of synthetic faces")
     gen.add_argument("out", metavar="OUT.npz", help="dataset file to write (and OUT.json, the intrinsics)")
     gen.add_argument("--split", choices=("train", "test"), default="train",
                      help="train: three subjects at 0.60 m; test: a fourth subject at 0.35-0.70 m")
@@ -20,13 +20,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from tofd.errors import UsageError
     from tofd.lab.dataset import save_dataset
     from tofd.lab.faces import generate
+    from tofd.outputs import check_output_file
     from tofd.progress import Progress
 
     if args.frames < 1:
-        print(f"tofd dataset: --frames must be >= 1, got {args.frames}", file=sys.stderr)
-        return 2
+        raise UsageError(f"--frames must be >= 1, got {args.frames}")
+    check_output_file(args.out, "OUT.npz")
     progress = Progress(f"rendering {args.split}", args.frames)
     ds = generate(args.split, args.frames, args.seed, progress=progress.update)
     progress.done()

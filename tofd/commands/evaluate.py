@@ -25,24 +25,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     import time
-    from pathlib import Path
 
     from tofd.algorithm.detector import Candidates, load_model, save_model
     from tofd.config import load_config
-    from tofd.lab.data_args import dataset_for, samples_for
+    from tofd.lab.data_args import check_data_arguments, dataset_for, samples_for
     from tofd.lab.evaluation import evaluate_model, train_model
     from tofd.lab.report import answers_table, eer_table, plot_roc, write_json
+    from tofd.outputs import prepare_output_dir
 
     start = time.monotonic()
     cfg = load_config(args.config)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_data_arguments(args, ("train", "test") if args.model is None else ("test",))
+    out = prepare_output_dir(args.out)
     timing: dict = {}
     radius_m = args.radius_mm / 1e3
+    model = None
     if args.model is not None:
         model = load_model(args.model)
         model.check_compatible(cfg.features, cfg.segmentation)
-    else:
+    if args.test is not None:  # a bad test file fails before training, not after
+        test = dataset_for(args, "test", timing)
+    if model is None:
         train = dataset_for(args, "train", timing)
         samples = samples_for(train, cfg, args, "train", timing)
         model = train_model(samples, cfg.features, cfg.segmentation, args.quantile, args.positive_radius_mm / 1e3,
@@ -50,7 +53,8 @@ def main(args: argparse.Namespace) -> int:
                                                 "subjects": sorted(set(train.subject.tolist()))},
                             candidates=Candidates.from_config(cfg.detector, cfg.segmentation))
         del samples
-    test = dataset_for(args, "test", timing)
+    if args.test is None:
+        test = dataset_for(args, "test", timing)
     samples = samples_for(test, cfg, args, "test", timing)
     sweep = time.monotonic()
     candidates = Candidates.from_config(cfg.detector, cfg.segmentation)

@@ -13,18 +13,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     import json
-    from pathlib import Path
 
     from tofd.config import load_config
     from tofd.lab import sphere_experiment as experiment_sphere
+    from tofd.outputs import prepare_output_dir, write_text
 
     cfg = load_config(args.config)
+    out = prepare_output_dir(args.out)
     points = experiment_sphere.run(cfg.intrinsics, cfg.features)
     print(experiment_sphere.table(points))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     result = experiment_sphere.to_json(points, cfg.features)
-    (out / "sphere.json").write_text(json.dumps(result, indent=2))
+    write_text(out / "sphere.json", json.dumps(result, indent=2) + "\n")
     experiment_sphere.plot(points, cfg.features.equivalence_range_m, out / "sphere.png")
     s = result["summary"]
     print(f"NFFT eps0 spread {100 * s['nfft_eps0_spread']:.2f} %, FFT/NFFT at e {s['fft_over_nfft_at_e']:.3f}, "

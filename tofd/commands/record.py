@@ -17,34 +17,23 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from tofd import arguments
+
 if TYPE_CHECKING:
     from drivers.source import FrameSource
 
 PROGRESS_INTERVAL_S = 1.0
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text}")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out", type=Path, help="recording to write (.mcap; overwritten if it exists)")
     parser.add_argument("--emulate", action="store_true", help="record the emulated camera (no hardware)")
     limit = parser.add_mutually_exclusive_group()
-    limit.add_argument("--frames", type=_positive_int, help="stop after this many frames")
-    limit.add_argument("--seconds", type=_positive_float, help="stop after this many seconds of recording")
+    limit.add_argument("--frames", type=arguments.positive_int, help="stop after this many frames")
+    limit.add_argument("--seconds", type=arguments.positive_float, help="stop after this many seconds of recording")
     parser.add_argument("--config", type=Path, default=None, help="config file (default: config/tofd.toml)")
-    parser.add_argument("--serial", default=None, help="camera serial (8 hex digits); overrides [camera] serial")
+    parser.add_argument("--serial", type=arguments.serial, default=None,
+                        help="camera serial (8 hex digits); overrides [camera] serial")
 
 
 class _StopOnSignal:

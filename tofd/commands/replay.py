@@ -1,9 +1,11 @@
 """Replay a recording through the pipeline: writes an .rrd and per-frame results (JSON Lines) to --out.
 
 Lossless by default (every frame is processed, as fast as the pipeline goes, with a progress bar on
-stderr); --realtime replays at the recorded pace (times --speed). Output in --out: <stem>.rrd (open it with
-`rerun <stem>.rrd`), <stem>.results.jsonl (frame counter, nose pixel and 3-D point, score, stage timings
-in ms), <stem>.summary.json (drop ledger, fps, p50/p99 timings). --rerun adds or replaces the viewer sink.
+stderr); --realtime replays at the recorded pace (times --speed), skipping frames it cannot keep up with.
+Output in --out: <stem>.rrd (open it with `rerun <stem>.rrd`), <stem>.results.jsonl (frame counter, nose pixel
+and 3-D point, score, stage timings in ms; with --loop also the loop index), <stem>.summary.json (drop ledger,
+fps, p50/p99 timings, model path and SHA-256). A recording with ground truth also gets an accuracy line and
+<stem>.accuracy.png (nose error and score over frames). --rerun adds or replaces the viewer sink.
 """
 
 from __future__ import annotations
@@ -14,31 +16,64 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from tofd import arguments
 from tofd.service.daemon import RERUN_SPEC_HELP
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", type=Path, help="recording made by `tofd record` (e.g. replay_data/*.mcap)")
     parser.add_argument("--out", type=Path, default=Path("replay_out"), help="output directory (default: %(default)s)")
-    parser.add_argument("--config", type=Path, default=None, help="config file (default: config/tofd.toml)")
+    parser.add_argument("--config", type=Path, default=None, help="config file (default: the bundled tofd.toml)")
     parser.add_argument("--realtime", action="store_true", help="replay at the recorded frame rate")
-    parser.add_argument("--speed", type=float, default=1.0, help="realtime speed factor (default: %(default)s)")
-    parser.add_argument("--seek", type=int, default=None, metavar="N", help="start at frame counter N")
+    parser.add_argument("--speed", type=arguments.positive_float, default=None,
+                        help="realtime speed factor (default 1; needs --realtime)")
+    parser.add_argument("--seek", type=arguments.frame_counter, default=None, metavar="N",
+                        help="start at frame counter N")
     parser.add_argument("--loop", action="store_true", help="replay again from the start until interrupted")
-    parser.add_argument("--frames", type=int, default=None, metavar="N", help="stop after N frames")
+    parser.add_argument("--frames", type=arguments.positive_int, default=None, metavar="N", help="stop after N frames")
     parser.add_argument("--rerun", default=None, metavar="SINK",
                         help=f"{RERUN_SPEC_HELP}; default: save:OUT/<stem>.rrd")
+
+
+def _check_seek(path: Path, seek: int) -> None:
+    """UsageError when no frame of the recording has a counter >= seek (reads until one does)."""
+    from drivers.recording.replay import RecordingReader
+    from tofd.errors import UsageError
+
+    last = None
+    with RecordingReader(path) as reader:
+        for frame in reader.frames():
+            if frame.frame_counter >= seek:
+                return
+            last = frame.frame_counter
+    raise UsageError(f"--seek {seek}: past the end of {path} (last frame counter {last})")
+
+
+def _report_accuracy(results: Path, plot: Path) -> None:
+    """Print the accuracy line and write the plot when the recording carries ground truth."""
+    from tofd.lab.accuracy import accuracy_from_results, plot_accuracy
+
+    acc = accuracy_from_results(results)
+    if acc is not None:
+        plot_accuracy(acc, plot)
+        print(f"tofd replay: {acc.line()}; plot {plot}", file=sys.stderr)
 
 
 def main(args: argparse.Namespace) -> int:
     from drivers.recording.replay import ReplaySource, read_recording_info
     from drivers.source import DriverError
     from tofd.config import load_config
-    from tofd.service.daemon import Progress, parse_rerun_spec, serve
+    from tofd.errors import UsageError
+    from tofd.outputs import prepare_output_dir
+    from tofd.progress import Progress
+    from tofd.service.daemon import parse_rerun_spec, serve
     from tofd.service.pipeline import PipelineError, ResultsWriter
     from tofd.service.viewer import ViewerError
 
-    logging.basicConfig(level=logging.INFO, format="tofd: %(message)s")
+    if args.speed is not None and not args.realtime:
+        raise UsageError("--speed needs --realtime (a lossless replay runs as fast as the pipeline goes)")
     stem = args.file.name.split(".")[0]
     cfg = load_config(args.config)
     cfg = parse_rerun_spec(args.rerun or f"save:{args.out / (stem + '.rrd')}", cfg)
@@ -46,29 +81,40 @@ def main(args: argparse.Namespace) -> int:
     policy = "lossless" if cfg.pipeline.policy == "auto" else cfg.pipeline.policy
     try:
         info = read_recording_info(args.file)
-        source = ReplaySource(args.file, mode="realtime" if args.realtime else "lossless", speed=args.speed,
+        if args.seek is not None:
+            _check_seek(args.file, args.seek)
+        source = ReplaySource(args.file, mode="realtime" if args.realtime else "lossless", speed=args.speed or 1.0,
                               loop=args.loop, seek=args.seek)
     except (DriverError, OSError, ValueError) as exc:
-        print(f"tofd replay: {args.file}: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(f"{args.file}: {exc}") from None
+    out = prepare_output_dir(args.out)
     if info.intrinsics is not None:
         cfg = replace(cfg, intrinsics=info.intrinsics)
     total = args.frames or (None if args.loop else info.frame_count)
-    writer = ResultsWriter(args.out / f"{stem}.results.jsonl")
+    results_path = out / f"{stem}.results.jsonl"
+    writer = ResultsWriter(results_path, loops=args.loop)
     try:
         with source:
             result = serve(cfg, source, policy, live_source=False, writers=(writer,), max_frames=args.frames,
-                           progress=Progress(total, "replay"), summary_path=args.out / f"{stem}.summary.json")
+                           progress=Progress("replay", total), summary_path=out / f"{stem}.summary.json")
     except (DriverError, PipelineError, ViewerError, OSError) as exc:
+        writer.discard()
         print(f"tofd replay: {exc}", file=sys.stderr)
         return 1
-    finally:
-        writer.close()
+    except BaseException:
+        writer.discard()
+        raise
+    writer.close()
     s = result.summary
     if source.stopped_reason not in (None, "end"):
         print(f"tofd replay: the recording is {source.stopped_reason} after frame {source.last_good_counter}: "
               f"{source.stop_detail}", file=sys.stderr)
+    _report_accuracy(results_path, out / f"{stem}.accuracy.png")
     written = ["results.jsonl", "summary.json"] + (["rrd"] if cfg.rerun.sink == "save" else [])
-    print(f"tofd replay: {s['frames_out']} frames processed, {s['frames_dropped']} dropped, {s['fps']} fps; "
-          f"wrote {args.out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
+    skipped = source.counters["replay_dropped"]
+    loops = source.counters["replay_loops"]
+    print(f"tofd replay: {s['frames_out']} frames processed, {s['frames_dropped']} dropped"
+          + (f", {skipped} skipped to keep the recorded pace" if skipped else "")
+          + (f", {loops + 1} passes" if args.loop else "")
+          + f", {s['fps']} fps; wrote {out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
     return result.exit_code

@@ -2,52 +2,88 @@
 
 Attaches to the camera with the configured serial (or --serial, else the first one found), or to the
 emulated camera with --emulate. Live queues are latest-wins: when processing falls behind, the oldest
-frames are dropped and counted in the drop ledger. SIGTERM/SIGINT drain the queues and exit 0.
+frames are dropped and counted in the drop ledger. SIGTERM/SIGINT drain the queues and exit 0 (also while
+the camera or the emulated scene is still being prepared).
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
+from tofd import arguments
 from tofd.service.daemon import RERUN_SPEC_HELP
+
+log = logging.getLogger(__name__)
+
+
+class Stopped(BaseException):
+    """SIGTERM or SIGINT arrived before the pipeline took over the signals (a BaseException, like
+    KeyboardInterrupt, so that no `except Exception` on the way swallows it)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, default=None, help="config file (default: config/tofd.toml)")
+    parser.add_argument("--config", type=Path, default=None, help="config file (default: the bundled tofd.toml)")
     parser.add_argument("--emulate", action="store_true", help="use the emulated SR3000 camera (no hardware)")
-    parser.add_argument("--serial", default=None, help="camera serial number (8 hex digits; overrides the config)")
+    parser.add_argument("--serial", type=arguments.serial, default=None,
+                        help="camera serial number (8 hex digits; overrides the config)")
     parser.add_argument("--rerun", default=None, metavar="SINK", help=RERUN_SPEC_HELP)
-    parser.add_argument("--frames", type=int, default=None, metavar="N", help="stop after N frames")
+    parser.add_argument("--frames", type=arguments.positive_int, default=None, metavar="N", help="stop after N frames")
     parser.add_argument("--health-port", type=int, default=None, metavar="PORT",
                         help="port of /healthz and /metrics (overrides health.port; 0 = any free port)")
     parser.add_argument("--summary", type=Path, default=None, metavar="JSON",
                         help="write the drop ledger and run statistics here at exit")
 
 
+@contextmanager
+def stop_on_signals() -> Iterator[None]:
+    """While preparing: SIGTERM and SIGINT raise Stopped (the pipeline installs its own handlers later)."""
+
+    def handler(signum: int, _frame: object) -> None:
+        raise Stopped(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
 def main(args: argparse.Namespace) -> int:
     from drivers.source import DriverError
     from tofd.config import load_config
+    from tofd.outputs import check_output_file
     from tofd.service.camera import open_camera
     from tofd.service.daemon import parse_rerun_spec, serve
     from tofd.service.pipeline import PipelineError
     from tofd.service.viewer import ViewerError
 
-    logging.basicConfig(level=logging.INFO, format="tofd: %(message)s")
-    if args.frames is not None and args.frames < 1:
-        print("tofd run: --frames: must be >= 1", file=sys.stderr)
-        return 2
     cfg = parse_rerun_spec(args.rerun, load_config(args.config))
     if args.serial is not None:
         cfg = replace(cfg, camera=replace(cfg.camera, serial=args.serial))
     if args.health_port is not None:
         cfg = replace(cfg, health=replace(cfg.health, port=args.health_port))
+    if args.summary is not None:
+        check_output_file(args.summary, "--summary")
     policy = "latest" if cfg.pipeline.policy == "auto" else cfg.pipeline.policy
     try:
-        with open_camera(cfg, args.emulate) as camera:
+        with stop_on_signals():
+            camera = open_camera(cfg, args.emulate)
+    except Stopped as exc:
+        print(f"tofd run: {exc} before the camera was ready; stopped", file=sys.stderr)
+        return 0
+    except (DriverError, OSError) as exc:
+        print(f"tofd run: {exc}", file=sys.stderr)
+        return 1
+    try:
+        with camera:
             result = serve(cfg, camera, policy, live_source=True, max_frames=args.frames,
                            summary_path=args.summary)
     except (DriverError, PipelineError, ViewerError, OSError) as exc:

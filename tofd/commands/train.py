@@ -3,8 +3,8 @@
 Trains on TRAIN (a dataset .npz or a recording with ground truth), by default the rendered train split: three
 subjects at 0.60 m (--train-subjects names others). The box of each variant spans the [q, 1 - q] quantiles of
 the log10 features of the pixels within --positive-radius-mm of the nose tip, its half-widths then rescaled per
-feature to minimise the training per-image EER (tofd.lab.evaluation.shape_box); its operating scale is the middle of
-the training frames' zero-error scales, else their equal-error scale (tofd.lab.evaluation.train_model).
+feature to minimise the training per-image EER; its operating scale is the middle of
+the training frames' zero-error scales, else their equal-error scale.
 
 The shipped config/nose_model.json is trained on all five identities that are neither the evaluation's test
 subject nor held out (README, Detector): tofd train --train-subjects lps,mp,mp_broad,mp_chin,lps_flat
@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from tofd.lab.data_args import add_data_arguments
 
     add_data_arguments(parser, ("train",))
-    parser.add_argument("--out", default="nose_model.json", help="model file to write (default nose_model.json)")
+    parser.add_argument("--out", required=True, metavar="MODEL.json",
+                        help="model file to write (use it with detector.model_path in the config)")
     parser.add_argument("--quantile", type=float, default=0.05, help="box quantile q (default 0.05)")
     parser.add_argument("--positive-radius-mm", type=float, default=5.0,
                         help="training pixels: within this 3-D distance of the nose tip (default 5)")
@@ -29,10 +30,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from tofd.algorithm.detector import Candidates, save_model
     from tofd.config import load_config
-    from tofd.lab.data_args import dataset_for, samples_for
+    from tofd.lab.data_args import check_data_arguments, dataset_for, samples_for
     from tofd.lab.evaluation import train_model
+    from tofd.outputs import check_output_file
 
     cfg = load_config(args.config)
+    check_data_arguments(args, ("train",))
+    check_output_file(args.out)
     timing: dict = {}
     ds = dataset_for(args, "train", timing)
     samples = samples_for(ds, cfg, args, "train", timing)

@@ -7,8 +7,10 @@ import argparse
 import time
 
 from tofd.config import Config
+from tofd.errors import UsageError
 from tofd.lab.dataset import Dataset, load_labelled
 from tofd.lab.evaluation import FrameSamples, extract_samples
+from tofd.lab.faces import SUBJECTS, check_subjects
 from tofd.progress import Progress
 
 DEFAULT_FRAMES = {"train": 120, "test": 960}  # test: 120 per distance, EER steps of 0.8 %
@@ -18,42 +20,59 @@ def add_data_arguments(parser: argparse.ArgumentParser, splits: tuple[str, ...])
     for split in splits:
         parser.add_argument(f"--{split}", metavar=split.upper(), default=None,
                             help=f"{split} data: a dataset .npz or a recording with ground truth "
-                                 f"(default: render the {split} split of tofd/lab/faces.py)")
+                                 f"(default: render the {split} split)")
         parser.add_argument(f"--{split}-frames", type=int, default=DEFAULT_FRAMES[split],
                             help=f"frames of the rendered {split} split (default {DEFAULT_FRAMES[split]})")
         parser.add_argument(f"--{split}-subjects", default=None, metavar="NAME,...",
                             help=f"subjects of the rendered {split} split, comma-separated (default: the split's; "
-                                 "known: tofd.lab.faces.SUBJECTS)")
+                                 f"known: {', '.join(SUBJECTS)})")
     parser.add_argument("--seed", type=int, default=0, help="seed of the rendered splits (test uses seed + 1)")
-    parser.add_argument("--config", default=None, help="config file (default config/tofd.toml)")
+    parser.add_argument("--config", default=None, help="config file (default: the bundled tofd.toml)")
     parser.add_argument("--workers", type=int, default=2, help="feature-extraction processes (default 2)")
     parser.add_argument("--radius-mm", type=float, default=15.0,
                         help="true nose pixels: 3-D distance (on the 3x3-median range) to the ground-truth tip "
                              "at most this (default 15)")
 
 
+def _subjects(args: argparse.Namespace, split: str) -> tuple[str, ...] | None:
+    names = getattr(args, f"{split}_subjects")
+    return tuple(n.strip() for n in names.split(",") if n.strip()) if names is not None else None
+
+
+def check_data_arguments(args: argparse.Namespace, splits: tuple[str, ...]) -> None:
+    """UsageError for a data argument that would fail only after long work (frames, subjects, file vs render)."""
+    if args.workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    for split in splits:
+        subjects = _subjects(args, split)
+        if getattr(args, split) is not None:
+            if subjects is not None:
+                raise UsageError(f"--{split}-subjects renders the {split} split; it cannot be combined with --{split}")
+            continue
+        frames = getattr(args, f"{split}_frames")
+        if frames < 1:
+            raise UsageError(f"--{split}-frames must be >= 1, got {frames}")
+        if subjects is not None:
+            try:
+                check_subjects(subjects)
+            except ValueError as exc:
+                raise UsageError(f"--{split}-subjects: {exc}") from None
+
+
 def dataset_for(args: argparse.Namespace, split: str, timing: dict) -> Dataset:
-    """The --<split> file, or the rendered default split; records seconds spent in timing[f'{split}_data_s']."""
+    """The --<split> file, or the rendered default split; records seconds spent in timing[f'{split}_data_s'].
+    Call check_data_arguments first."""
     from tofd.lab.faces import generate
 
     start = time.monotonic()
     path = getattr(args, split)
-    names = getattr(args, f"{split}_subjects")
     if path is not None:
-        if names is not None:
-            raise SystemExit(f"tofd: --{split}-subjects renders the {split} split; "
-                             f"it cannot be combined with --{split}")
         ds = load_labelled(path)
     else:
         frames = getattr(args, f"{split}_frames")
-        if frames < 1:
-            raise SystemExit(f"tofd: --{split}-frames must be >= 1, got {frames}")
-        subjects = tuple(n.strip() for n in names.split(",") if n.strip()) if names is not None else None
         progress = Progress(f"rendering {split} split", frames)
-        try:
-            ds = generate(split, frames, args.seed + (split == "test"), progress=progress.update, subjects=subjects)
-        except ValueError as exc:  # names the unknown subjects (tofd.lab.faces.render_frames)
-            raise SystemExit(f"tofd: --{split}-subjects: {exc}") from None
+        ds = generate(split, frames, args.seed + (split == "test"), progress=progress.update,
+                      subjects=_subjects(args, split))
         progress.done()
     timing[f"{split}_data_s"] = round(time.monotonic() - start, 3)
     return ds

@@ -34,9 +34,11 @@ import numpy as np
 
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
+from tofd.errors import UsageError
+from tofd.outputs import AtomicFile, write_text
 
 
-class DatasetError(ValueError):
+class DatasetError(UsageError):
     """A dataset file that cannot be used; the message names the file and the offending key."""
 
 
@@ -183,8 +185,14 @@ def load_dataset(path: str | Path) -> Dataset:
                     d[key] = npz[key]
                 except ValueError as exc:  # object arrays need pickle
                     raise DatasetError(f"{path}: key {key!r} cannot be read without pickle: {exc}") from None
+    except DatasetError:
+        raise
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: no such dataset file") from None
     except (OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise DatasetError(f"{path}: cannot read dataset: {exc}") from None
+        raise DatasetError(f"{path}: cannot read dataset: {getattr(exc, 'strerror', None) or exc}") from None
+    except ValueError:  # numpy: not a .npy/.npz, and reading it would need pickle
+        raise DatasetError(f"{path}: not a dataset .npz (numpy zip archive)") from None
     return _from_dict(d, intrinsics, str(path))
 
 
@@ -194,9 +202,9 @@ def save_dataset(dataset: Dataset, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     arrays = dataset._as_dict()
     arrays["subject"] = np.asarray(arrays["subject"]).astype(str)
-    with path.open("wb") as fh:
-        np.savez_compressed(fh, **arrays)
-    sidecar_path(path).write_text(json.dumps({"intrinsics": dataset.intrinsics.to_dict()}, indent=2) + "\n")
+    with AtomicFile(path, "wb") as fh:
+        np.savez_compressed(fh.file, **arrays)
+    write_text(sidecar_path(path), json.dumps({"intrinsics": dataset.intrinsics.to_dict()}, indent=2) + "\n")
     return path
 
 

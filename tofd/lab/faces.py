@@ -132,6 +132,13 @@ def generate(
                          progress)
 
 
+def check_subjects(subjects: tuple[str, ...]) -> None:
+    """ValueError naming unknown subjects (or an empty list) and the known ones."""
+    unknown = [s for s in subjects if s not in SUBJECTS]
+    if unknown or not subjects:
+        raise ValueError(f"unknown subject(s) {', '.join(unknown) or '(none given)'} (known: {', '.join(SUBJECTS)})")
+
+
 def render_frames(
     subjects: tuple[str, ...],
     distances: tuple[float, ...],
@@ -141,9 +148,7 @@ def render_frames(
     progress: Callable[[int, int], None] | None = None,
 ) -> Dataset:
     """Render `frames` labelled frames of these SUBJECTS at these nose distances (metres), cycling evenly."""
-    unknown = [s for s in subjects if s not in SUBJECTS]
-    if unknown or not subjects:
-        raise ValueError(f"unknown subject(s) {', '.join(unknown) or '(none given)'} (known: {', '.join(SUBJECTS)})")
+    check_subjects(subjects)
     if frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames}")
     intrinsics = intrinsics or Intrinsics()

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from tofd.lab.evaluation import VariantResult
+from tofd.outputs import save_figure, write_text
 
 LABELS = {
     "fft_range": "FFT range",
@@ -59,8 +60,7 @@ def results_to_dict(results: dict[str, VariantResult]) -> dict:
 
 def write_json(path: Path, results: dict[str, VariantResult], **extra: object) -> Path:
     """Everything: settings, timing, model, and per variant the ROC points and EERs (overall, per distance)."""
-    path.write_text(json.dumps({**extra, "results": results_to_dict(results)}, indent=1) + "\n")
-    return path
+    return write_text(path, json.dumps({**extra, "results": results_to_dict(results)}, indent=1) + "\n")
 
 
 def plot_roc(path: Path, results: dict[str, VariantResult]) -> Path:
@@ -86,6 +86,6 @@ def plot_roc(path: Path, results: dict[str, VariantResult]) -> Path:
     bx.grid(alpha=0.3)
     bx.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

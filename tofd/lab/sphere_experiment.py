@@ -18,6 +18,7 @@ from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import FFTFeatures, NFFTFeatures
 from tofd.algorithm.params import FeatureConfig
 from tofd.lab import shapes as synthetic
+from tofd.outputs import save_figure
 
 SPHERE_RADIUS_M = 0.15
 DISTANCES_M = tuple(np.round(np.arange(0.30, 0.901, 0.05), 2))
@@ -91,5 +92,5 @@ def plot(points: list[SpherePoint], equivalence_range_m: float, path) -> None:
     ax.set_title(f"Sphere r = {SPHERE_RADIUS_M} m: scale invariance of eps0")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
     plt.close(fig)

@@ -15,15 +15,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.source import FrameSource
-from tofd.config import Config, ConfigError
-from tofd.service.health import HealthServer, sd_notify
-from tofd.service.model import load_service_model
+from tofd.config import Config, ConfigError, config_digest
+from tofd.progress import Progress
+from tofd.service.health import HealthServer, ServiceMetrics, sd_notify
+from tofd.service.model import load_service_model, model_identity
 from tofd.service.pipeline.core import Pipeline, Sink
 from tofd.service.pipeline.queues import Policy
-from tofd.service.progress import Progress
 from tofd.service.signals import StopSignals
 from tofd.service.summary import run_summary, write_json_atomic
-from tofd.service.supervise import supervise
+from tofd.service.supervise import show_progress, supervise
 from tofd.service.viewer.spec import RERUN_SPEC_HELP, parse_rerun_spec
 
 __all__ = ["RERUN_SPEC_HELP", "Progress", "ServiceResult", "parse_rerun_spec", "serve"]
@@ -40,12 +40,21 @@ class ServiceResult:
     web_url: str | None = None
 
 
-def _health(cfg: Config, pipeline: Pipeline) -> HealthServer | None:
+def run_identity(cfg: Config) -> dict[str, str]:
+    """What this run computes with (logged at start; labels of tofd_build_info; in the summary): the model's
+    resolved path and SHA-256 and the config's digest."""
+    model = model_identity(cfg)
+    log.info("model: %s (sha256 %s, variant %s)", model.path or "none", model.sha256[:16] or "-",
+             cfg.detector.variant)
+    return {"model_path": model.path, "model_sha256": model.sha256, "config_sha256": config_digest(cfg)}
+
+
+def _health(cfg: Config, pipeline: Pipeline, metrics: ServiceMetrics) -> HealthServer | None:
     if not cfg.health.enabled:
         return None
     try:
         health = HealthServer(cfg.health.bind, cfg.health.port, pipeline.snapshot, lambda: pipeline.running,
-                              cfg.health.stale_after_s).start()
+                              cfg.health.stale_after_s, metrics).start()
     except OSError as exc:
         raise ConfigError(f"health.port: cannot listen on {cfg.health.bind}:{cfg.health.port}: "
                           f"{exc.strerror}") from None
@@ -62,12 +71,14 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     pc = cfg.pipeline
     health = pipeline = viewer = None
     run_s, started_s, viewer_report = 0.0, time.monotonic(), None
+    identity = run_identity(cfg)
     with StopSignals() as stop:
         try:
             viewer = None if cfg.rerun.sink == "none" else ViewerProcess(cfg, cfg.rerun.sink)
-            pipeline = Pipeline(cfg, policy, viewer=viewer, writers=writers, model=load_service_model(cfg),
-                                live_source=live_source)
-            health = _health(cfg, pipeline)
+            metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
+            pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe),
+                                model=load_service_model(cfg), live_source=live_source)
+            health = _health(cfg, pipeline, metrics)
             pipeline.start(source, max_frames)
             started_s = time.monotonic()
             sd_notify("READY=1")
@@ -91,8 +102,11 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
                 viewer_report = viewer.close(max(0.5, deadline - time.monotonic() - EXIT_MARGIN_S))
     snap = pipeline.snapshot()
     summary = run_summary(summary, snap, run_s, viewer_report)
+    summary["model"] = {"path": identity["model_path"], "sha256": identity["model_sha256"]}
+    summary["config_sha256"] = identity["config_sha256"]
     if progress is not None:
-        progress.update(snap, final=True)
+        show_progress(progress, snap)
+        progress.done()
     if summary_path is not None:
         write_json_atomic(summary_path, summary)
     return ServiceResult(1 if pipeline.error else 0, summary, viewer.web_url if viewer else None)

@@ -1,9 +1,9 @@
 """Health endpoint (/healthz, Prometheus /metrics over http.server) and systemd notifications (sd_notify).
 
 /healthz answers 200 while the pipeline runs, has no fatal error and delivered a frame within
-`stale_after_s` (or is still starting), else 503; the body is a small JSON status. /metrics is the
-Prometheus text format (version 0.0.4) of Pipeline.snapshot(). sd_notify writes READY=1 / WATCHDOG=1 /
-STOPPING=1 datagrams to $NOTIFY_SOCKET with a plain socket; without that variable it does nothing.
+`stale_after_s` (or is still starting), else 503; the body is a small JSON status (HEAD answers the same
+status without it). /metrics is ServiceMetrics through prometheus_client. sd_notify writes READY=1 / WATCHDOG=1 /
+STATUS= / STOPPING=1 datagrams to $NOTIFY_SOCKET with a plain socket; without that variable it does nothing.
 """
 
 from __future__ import annotations
@@ -12,8 +12,18 @@ import json
 import os
 import socket
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import TYPE_CHECKING
+
+from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Histogram, Info, ProcessCollector
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.exposition import generate_latest
+
+import tofd
+
+if TYPE_CHECKING:
+    from tofd.service.pipeline.results import FrameResult
 
 Snapshot = Callable[[], dict]
 
@@ -38,46 +48,102 @@ def watchdog_interval_s() -> float | None:
     return int(usec) / 2e6
 
 
-def _esc(value: str) -> str:
-    return value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+STAGE_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.035, 0.05, 0.075, 0.1, 0.15, 0.25, 0.5, 1.0, 2.5)
 
 
-def _labels(**labels: str) -> str:
-    return "{" + ",".join(f'{k}="{_esc(str(v))}"' for k, v in labels.items()) + "}" if labels else ""
+class _SnapshotCollector:
+    """Counters and gauges read from Pipeline.snapshot() at scrape time."""
+
+    def __init__(self, snapshot: Snapshot) -> None:
+        self._snapshot = snapshot
+
+    def collect(self) -> Iterator[Metric]:
+        snap = self._snapshot()
+
+        def one(family: type, name: str, help_text: str, value: float) -> Metric:
+            m = family(name, help_text)
+            m.add_metric([], float(value))
+            return m
+
+        yield one(CounterMetricFamily, "tofd_frames_in", "Frames that entered the pipeline.", snap["frames_in"])
+        yield one(CounterMetricFamily, "tofd_frames_out", "Frames delivered to every sink.", snap["frames_out"])
+        dropped = CounterMetricFamily("tofd_frames_dropped", "Frames dropped, by stage and reason.",
+                                      labels=["stage", "reason"])
+        for (stage, reason), n in sorted(snap["drops"].items()):
+            dropped.add_metric([stage, reason], float(n))
+        yield dropped
+        viewer = CounterMetricFamily("tofd_viewer_frames_dropped",
+                                     "Delivered frames the best-effort viewer did not get, by reason.",
+                                     labels=["reason"])
+        for reason, n in sorted(snap.get("viewer_drops", {}).items()):
+            viewer.add_metric([reason], float(n))
+        yield viewer
+        yield one(GaugeMetricFamily, "tofd_fps", "Delivered frames per second (last 5 s).", snap["fps"])
+        rolling = GaugeMetricFamily("tofd_stage_duration_rolling_seconds",
+                                    "Per-frame stage durations over the rolling window, by quantile.",
+                                    labels=["stage", "quantile"])
+        for stage, quantiles in sorted(snap["timings_ms"].items()):
+            for q, v in zip(("0.5", "0.99"), quantiles, strict=True):
+                rolling.add_metric([stage, q], v / 1e3)
+        yield rolling
+        depth = GaugeMetricFamily("tofd_queue_depth", "Frames waiting in each queue (workers: being processed).",
+                                  labels=["queue"])
+        for q, n in snap["queue_depth"].items():
+            depth.add_metric([q], float(n))
+        yield depth
+        yield one(CounterMetricFamily, "tofd_device_gaps", "Device-side gaps (counter jumps, reconnects).",
+                  snap["gaps"])
+        yield one(CounterMetricFamily, "tofd_reconnects", "Camera reconnects.",
+                  snap["device_events"].get("reconnect", 0))
+        events = CounterMetricFamily("tofd_device_events", "Device events counted by the driver, by kind.",
+                                     labels=["kind"])
+        for kind, n in sorted(snap["device_events"].items()):
+            events.add_metric([kind], float(n))
+        yield events
+        yield one(CounterMetricFamily, "tofd_worker_restarts", "Feature worker processes restarted.",
+                  snap["worker_restarts"])
+        yield one(GaugeMetricFamily, "tofd_workers_alive", "Feature worker processes alive.", snap["workers_alive"])
 
 
-def render_metrics(snap: dict) -> str:
-    """Prometheus text exposition of a Pipeline.snapshot()."""
-    out: list[str] = []
+class ServiceMetrics:
+    """The Prometheus registry of one service run: pipeline counters and gauges (from its snapshot), per-stage
+    duration histograms (observe(), called per delivered frame), process metrics and tofd_build_info.
 
-    def metric(name: str, kind: str, help_text: str, samples: list[tuple[dict, float]]) -> None:
-        out.append(f"# HELP {name} {help_text}")
-        out.append(f"# TYPE {name} {kind}")
-        out.extend(f"{name}{_labels(**labels)} {float(value):.6g}" for labels, value in samples)
+    `build`: labels of tofd_build_info, e.g. version, model_path, model_sha256, config_sha256.
+    """
 
-    metric("tofd_frames_in_total", "counter", "Frames that entered the pipeline.", [({}, snap["frames_in"])])
-    metric("tofd_frames_out_total", "counter", "Frames delivered to every sink.", [({}, snap["frames_out"])])
-    metric("tofd_frames_dropped_total", "counter", "Frames dropped, by stage and reason.",
-           [({"stage": s, "reason": r}, n) for (s, r), n in sorted(snap["drops"].items())])
-    metric("tofd_viewer_frames_dropped_total", "counter",
-           "Delivered frames the best-effort viewer did not get, by reason.",
-           [({"reason": r}, n) for r, n in sorted(snap.get("viewer_drops", {}).items())])
-    metric("tofd_fps", "gauge", "Delivered frames per second (last 5 s).", [({}, snap["fps"])])
-    metric("tofd_stage_duration_seconds", "summary", "Per-frame stage durations over the rolling window.",
-           [({"stage": stage, "quantile": q}, v / 1e3)
-            for stage, quantiles in sorted(snap["timings_ms"].items())
-            for q, v in zip(("0.5", "0.99"), quantiles, strict=True)])
-    metric("tofd_queue_depth", "gauge", "Frames waiting in each queue (workers: frames being processed).",
-           [({"queue": q}, n) for q, n in snap["queue_depth"].items()])
-    metric("tofd_device_gaps_total", "counter", "Device-side gaps (counter jumps, reconnects).", [({}, snap["gaps"])])
-    metric("tofd_reconnects_total", "counter", "Camera reconnects.",
-           [({}, snap["device_events"].get("reconnect", 0))])
-    metric("tofd_device_events_total", "counter", "Device events counted by the driver, by kind.",
-           [({"kind": k}, n) for k, n in sorted(snap["device_events"].items())])
-    metric("tofd_worker_restarts_total", "counter", "Feature worker processes restarted.",
-           [({}, snap["worker_restarts"])])
-    metric("tofd_workers_alive", "gauge", "Feature worker processes alive.", [({}, snap["workers_alive"])])
-    return "\n".join(out) + "\n"
+    def __init__(self, snapshot: Snapshot, build: dict[str, str] | None = None) -> None:
+        self.registry = CollectorRegistry(auto_describe=False)
+        ProcessCollector(registry=self.registry)
+        self.registry.register(_SnapshotCollector(snapshot))
+        self.stage_seconds = Histogram("tofd_stage_duration_seconds", "Per-frame stage durations.", ["stage"],
+                                       buckets=STAGE_BUCKETS_S, registry=self.registry)
+        Info("tofd_build", "Version of tofd and digests of the model and config it runs with.",
+             registry=self.registry).info({"version": tofd.__version__, **(build or {})})
+
+    def observe(self, result: FrameResult) -> None:
+        """Record one delivered frame's stage timings (a pipeline sink: Pipeline(writers=(metrics.observe,)))."""
+        for stage, ms in result.timings_ms.items():
+            self.stage_seconds.labels(stage).observe(ms / 1e3)
+
+    def render(self) -> bytes:
+        """The Prometheus text exposition (CONTENT_TYPE_LATEST)."""
+        return generate_latest(self.registry)
+
+
+def status_text(snap: dict) -> str:
+    """A one-line STATUS= text for `systemctl status`: fps, frames delivered, drops by reason."""
+    reasons: dict[str, int] = {}
+    for (_stage, reason), n in snap["drops"].items():
+        reasons[reason] = reasons.get(reason, 0) + n
+    drops = ", ".join(f"{r} {n}" for r, n in sorted(reasons.items()) if n)
+    return (f"{snap['fps']:.1f} fps, {snap['frames_out']} frames delivered, {snap['frames_dropped']} dropped"
+            + (f" ({drops})" if drops else ""))
+
+
+def notify_status(snap: dict) -> bool:
+    """Send STATUS=<status_text> to systemd (no-op outside systemd)."""
+    return sd_notify("STATUS=" + status_text(snap))
 
 
 def health_status(snap: dict, running: bool, stale_after_s: float) -> tuple[bool, dict]:
@@ -99,27 +165,34 @@ class HealthServer:
     """Serves /healthz and /metrics on (bind, port) from a thread; port 0 picks a free port (see .port)."""
 
     def __init__(self, bind: str, port: int, snapshot: Snapshot, running: Callable[[], bool],
-                 stale_after_s: float):
+                 stale_after_s: float, metrics: ServiceMetrics | None = None):
         server = self
+        self.metrics = metrics or ServiceMetrics(snapshot)
 
         class Handler(BaseHTTPRequestHandler):
             def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
+                self._answer(body=True)
+
+            def do_HEAD(self) -> None:  # noqa: N802
+                self._answer(body=False)
+
+            def _answer(self, body: bool) -> None:
                 path = self.path.split("?")[0]
                 if path == "/metrics":
-                    self._send(200, "text/plain; version=0.0.4; charset=utf-8", render_metrics(snapshot()))
+                    self._send(200, CONTENT_TYPE_LATEST, server.metrics.render(), body)
                 elif path == "/healthz":
                     ok, status = server.status()
-                    self._send(200 if ok else 503, "application/json", json.dumps(status) + "\n")
+                    self._send(200 if ok else 503, "application/json", (json.dumps(status) + "\n").encode(), body)
                 else:
-                    self._send(404, "text/plain", "not found: try /healthz or /metrics\n")
+                    self._send(404, "text/plain", b"not found: try /healthz or /metrics\n", body)
 
-            def _send(self, code: int, content_type: str, body: str) -> None:
-                data = body.encode()
+            def _send(self, code: int, content_type: str, data: bytes, body: bool) -> None:
                 self.send_response(code)
                 self.send_header("Content-Type", content_type)
                 self.send_header("Content-Length", str(len(data)))
                 self.end_headers()
-                self.wfile.write(data)
+                if body:
+                    self.wfile.write(data)
 
             def log_message(self, *args: object) -> None:  # no access log on stderr
                 pass

@@ -6,9 +6,9 @@ from __future__ import annotations
 import logging
 import time
 
-from tofd.service.health import sd_notify, watchdog_interval_s
+from tofd.progress import Progress
+from tofd.service.health import notify_status, sd_notify, watchdog_interval_s
 from tofd.service.pipeline import Pipeline
-from tofd.service.progress import Progress
 from tofd.service.signals import StopSignals
 
 log = logging.getLogger(__name__)
@@ -30,6 +30,13 @@ def supervise(pipeline: Pipeline, stop: StopSignals, progress: Progress | None) 
         if watchdog is not None and time.monotonic() - last_ping >= watchdog:
             if pipeline.error is None:
                 sd_notify("WATCHDOG=1")
+            notify_status(pipeline.snapshot())
             last_ping = time.monotonic()
         if progress is not None:
-            progress.update(pipeline.snapshot())
+            show_progress(progress, pipeline.snapshot())
+
+
+def show_progress(progress: Progress, snap: dict) -> None:
+    """Move the progress bar to the frames delivered or dropped so far, with fps and drops."""
+    progress.update(snap["frames_out"] + snap["frames_dropped"],
+                    status=f"{snap['fps']:.1f} fps, dropped {snap['frames_dropped']}")

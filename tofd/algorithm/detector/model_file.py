@@ -11,12 +11,14 @@ from pathlib import Path
 from tofd.algorithm.detector.box import Box
 from tofd.algorithm.names import VARIANTS
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
+from tofd.errors import UsageError
+from tofd.outputs import write_text
 
 MODEL_FORMAT = "tofd-nose-model"
 MODEL_VERSION = 1
 
 
-class ModelError(ValueError):
+class ModelError(UsageError):
     """A model file that cannot be used; the message names the file and the key."""
 
 
@@ -109,11 +111,10 @@ def _diff(section: str, saved: dict, current: dict) -> list[str]:
 
 
 def save_model(model: NoseModel, path: str | Path) -> Path:
-    """Write the model as indented JSON."""
+    """Write the model as indented JSON, atomically (tofd.outputs)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(model.to_dict(), indent=2) + "\n")
-    return path
+    return write_text(path, json.dumps(model.to_dict(), indent=2) + "\n")
 
 
 def load_model(path: str | Path) -> NoseModel:

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from drivers.frame import Frame
+from tofd.outputs import AtomicFile
 
 
 @dataclass(slots=True)
@@ -51,15 +52,32 @@ def result_record(r: FrameResult) -> dict:
 
 
 class ResultsWriter:
-    """Appends one JSON object per delivered frame to a .jsonl file (line-buffered, so a crash keeps a prefix)."""
+    """Writes one JSON object per delivered frame to a .jsonl file, atomically: lines go (line-buffered, so a
+    crash keeps a prefix) to a temp file beside `path` that close() renames over it (tofd.outputs).
 
-    def __init__(self, path: str | Path):
+    With `loops`, each record carries "loop": 0 for the first pass, incremented whenever the frame counter
+    does not increase (a looping replay starting over).
+    """
+
+    def __init__(self, path: str | Path, loops: bool = False):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = self.path.open("w", buffering=1)
+        self._file = AtomicFile(self.path, "w", buffering=1)
+        self._loops, self._loop, self._last_counter = loops, 0, -1
 
     def __call__(self, result: FrameResult) -> None:
-        self._fh.write(json.dumps(result_record(result)) + "\n")
+        record = result_record(result)
+        if self._loops:
+            if record["frame_counter"] <= self._last_counter:
+                self._loop += 1
+            self._last_counter = record["frame_counter"]
+            record["loop"] = self._loop
+        self._file.write(json.dumps(record) + "\n")
 
     def close(self) -> None:
-        self._fh.close()
+        """Rename the complete file into place."""
+        self._file.commit()
+
+    def discard(self) -> None:
+        """Remove the temp file: a failed run leaves no results file behind."""
+        self._file.discard()

@@ -6,8 +6,9 @@ import rerun.blueprint as rrb
 
 CAMERA = "/world/camera"  # Pinhole (intrinsics); x right, y down, z forward, metres
 IMAGE = f"{CAMERA}/image"  # the camera's image plane: 2-D views of range, amplitude, mask line up with 3-D
-RANGE = f"{IMAGE}/range"  # DepthImage: radial range, metres
-AMPLITUDE = f"{IMAGE}/amplitude"  # Image: amplitude, sensor units
+RANGE = f"{IMAGE}/depth"  # DepthImage: z-depth (planar, along the optical axis), metres: projects correctly in 3-D
+RANGE_RADIAL = "/sensor/range"  # DepthImage: the camera's radial range, metres (outside the Pinhole: 2-D only)
+AMPLITUDE = f"{IMAGE}/amplitude"  # Image: amplitude, sensor units, uint16
 MASK = f"{IMAGE}/mask"  # SegmentationImage: 0 background, 1 foreground
 NOSE_2D = f"{IMAGE}/nose"  # Points2D: detected nose tip, pixels
 FOREGROUND = "/world/foreground"  # Points3D: foreground points, metres, coloured by NFFT eps0
@@ -23,21 +24,23 @@ EVENTS = "/events"  # TextLog: device gaps and reconnects
 
 
 def build_blueprint() -> rrb.Blueprint:
-    """Camera images (left), feature maps (middle), 3-D scene and stage timings (right)."""
+    """Camera images (left), feature maps (middle), 3-D scene, stage timings and device events (right)."""
 
     def image_view(name: str, entity: str) -> rrb.Spatial2DView:
         return rrb.Spatial2DView(name=name, origin=IMAGE, contents=[entity, NOSE_2D])
 
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(image_view("range [m]", RANGE), image_view("amplitude", AMPLITUDE),
-                         image_view("foreground mask", MASK)),
+            rrb.Vertical(image_view("depth z [m]", RANGE), image_view("amplitude", AMPLITUDE),
+                         image_view("foreground mask", MASK),
+                         rrb.Spatial2DView(name="radial range [m]", origin=RANGE_RADIAL)),
             rrb.Grid(*(rrb.Spatial2DView(name=f"{path.split('/')[2].upper()} {path.split('/')[3]}", origin=path)
                        for path in FEATURES.values()), grid_columns=2),
             rrb.Vertical(
                 rrb.Spatial3DView(name="3-D (camera frame)", origin="/world",
                                   contents=["+ /world/**", f"- {IMAGE}/**"]),
                 rrb.TimeSeriesView(name="stage timings [ms]", origin=TIMINGS),
-                row_shares=[3, 2]),
+                rrb.TextLogView(name="events", origin=EVENTS),
+                row_shares=[3, 2, 1]),
             column_shares=[1, 2, 2]),
         collapse_panels=True)

@@ -1,7 +1,8 @@
 """Logs one FrameResult to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
 
-Per frame (~0.5 MB): range, amplitude, mask, four feature maps, the foreground cloud (~3000 points), the
-nose in 2-D and 3-D, one scalar per stage timing. Timelines: `frame` (device frame counter) and
+Per frame (~0.6 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right),
+the radial range outside it, amplitude (uint16), mask, four feature maps, the foreground cloud (~3000 points),
+the nose in 2-D and 3-D, one scalar per stage timing. Timelines: `frame` (device frame counter) and
 `device_time` (device clock). set_time is thread-local in Rerun, so it is called here, on the logging thread.
 """
 
@@ -41,12 +42,23 @@ def colour_by(values: np.ndarray) -> np.ndarray:
     return lut[np.where(finite, idx, 0).astype(np.intp)]
 
 
+def z_depth(radial_m: np.ndarray, ray_z: np.ndarray) -> np.ndarray:
+    """(H, W) float32 planar depth (metres along the optical axis) of a radial range map: range * ray_z."""
+    return (radial_m * ray_z).astype(np.float32)
+
+
+def amplitude_u16(amplitude: np.ndarray) -> np.ndarray:
+    """(H, W) uint16 amplitude (the sensor's integer units), rounded and clipped; NaN becomes 0."""
+    return np.clip(np.rint(np.nan_to_num(amplitude, nan=0.0)), 0, 65535).astype(np.uint16)
+
+
 class RerunLogger:
     """Callable sink: logs static entities once at construction, then every FrameResult it is given."""
 
     def __init__(self, rec: rr.RecordingStream, intrinsics: Intrinsics, point_cloud: bool = True):
         self.rec, self.point_cloud = rec, point_cloud
         self._rays = intrinsics.unit_rays().astype(np.float32)
+        self._ray_z = np.ascontiguousarray(self._rays[..., 2])  # z-depth = radial range * cos(angle to the axis)
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
         rec.log(bp.CAMERA, rr.Pinhole(focal_length=[intrinsics.fx, intrinsics.fy],
                                       principal_point=[intrinsics.cx + 0.5, intrinsics.cy + 0.5],
@@ -64,8 +76,10 @@ class RerunLogger:
         if r.gap_before:
             rec.log(bp.EVENTS, rr.TextLog(f"{r.gap_before} before frame {frame.frame_counter}",
                                           level=rr.TextLogLevel.WARN))
-        rec.log(bp.RANGE, rr.DepthImage(np.nan_to_num(frame.range_m, nan=0.0), meter=1.0, colormap="turbo"))
-        rec.log(bp.AMPLITUDE, rr.Image(frame.amplitude))
+        radial = np.nan_to_num(frame.range_m, nan=0.0)
+        rec.log(bp.RANGE, rr.DepthImage(z_depth(radial, self._ray_z), meter=1.0, colormap="turbo"))
+        rec.log(bp.RANGE_RADIAL, rr.DepthImage(radial, meter=1.0, colormap="turbo"))
+        rec.log(bp.AMPLITUDE, rr.Image(amplitude_u16(frame.amplitude)))
         rec.log(bp.MASK, rr.SegmentationImage(r.mask.view(np.uint8)))
         for name, path in bp.FEATURES.items():
             # a DepthImage is Rerun's colour-mapped scalar image; these are eccentricities, NaN (shown as 0)

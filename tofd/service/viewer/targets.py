@@ -9,6 +9,7 @@ calls them from its sink thread, behind a queue that drops (live) instead of blo
 from __future__ import annotations
 
 import importlib.util
+import os
 import socket
 import subprocess
 import tempfile
@@ -23,6 +24,16 @@ from tofd.service.lifeline import preexec_die_with_parent
 from tofd.service.viewer.blueprint import build_blueprint
 
 APPLICATION_ID = "tofd"
+# A file sink batches large chunks (few seconds, up to 64 MiB of rows) so `rerun rrd stats` finds the .rrd
+# optimised; viewers keep the SDK's low-latency default.
+FILE_BATCHER = {"flush_tick": 5.0, "flush_num_bytes": 64 << 20, "flush_num_rows": 100_000}
+
+
+def apply_analytics_setting(enabled: bool) -> None:
+    """Honour [rerun] analytics for this process and the viewer children it starts: unless enabled, set CI=1,
+    the variable under which the Rerun SDK and viewer neither collect nor send usage data."""
+    if not enabled:
+        os.environ["CI"] = "1"
 
 
 class ViewerError(RuntimeError):
@@ -63,7 +74,10 @@ class RerunTarget:
         self.cfg, self.sink = cfg, sink
         self.child: subprocess.Popen | None = None
         self.web_url: str | None = None
-        self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or str(uuid.uuid4()))
+        apply_analytics_setting(cfg.analytics)
+        batcher = rr.ChunkBatcherConfig(**FILE_BATCHER) if sink == "save" else None
+        self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or str(uuid.uuid4()),
+                                      batcher_config=batcher)
         blueprint = build_blueprint()
         if sink == "save":
             Path(path or cfg.path).parent.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,171 @@
+"""The `tofd` command as a user meets it, in real processes: one line per ordinary mistake (exit 2 for usage and
+data errors), nothing half-written, explicit model, replay checks, version, help and logging."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tofd.cli import build_parser
+
+ROOT = Path(__file__).resolve().parent.parent
+CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
+HANG_GUARD_S = 120  # a hang fails the test instead of blocking the suite; not a speed bound
+
+
+def tofd(*args: str, cwd: Path | None = None, **kwargs) -> subprocess.CompletedProcess:
+    env = {**os.environ, "RERUN": "off", "RUST_LOG": "error"}
+    return subprocess.run([sys.executable, "-m", "tofd", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=HANG_GUARD_S, env=env, **kwargs)
+
+
+def one_line_error(proc: subprocess.CompletedProcess, code: int, *words: str) -> str:
+    """The process failed with `code` and one stderr line naming `words`, without a traceback."""
+    err = proc.stderr.strip()
+    assert proc.returncode == code, (proc.returncode, err)
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    for word in words:
+        assert word in err, (word, err)
+    return err
+
+
+def test_version_and_help_describe_the_tool_not_the_source_tree():
+    proc = tofd("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == "tofd 0.1.0"
+    parser = build_parser()
+    top = parser.format_help()
+    assert "time-of-flight" in top and "Exit status" in top
+    subparsers = next(a for a in parser._actions if a.choices and "run" in a.choices).choices
+    for name, sub in subparsers.items():
+        text = sub.format_help()
+        assert "tofd/" not in text and ".py" not in text, (name, text)
+    assert "lps, mp, mp_broad" in subparsers["evaluate"].format_help().replace("\n", " ").replace("  ", " ")
+
+
+@pytest.mark.parametrize("kind", ["fifo", "zero", "binary", "directory"])
+def test_config_that_is_no_config_file_is_one_line_exit_2(tmp_path, kind):
+    path = {"fifo": tmp_path / "fifo.toml", "zero": Path("/dev/zero"), "binary": tmp_path / "bin.toml",
+            "directory": tmp_path}[kind]
+    if kind == "fifo":
+        os.mkfifo(path)  # nobody ever writes: reading it would block forever
+    if kind == "binary":
+        path.write_bytes(bytes(range(256)) * 4)
+    err = one_line_error(tofd("replay", str(CLIP), "--config", str(path), "--out", str(tmp_path / "o")), 2,
+                         "config error", str(path))
+    assert {"fifo": "not a regular file", "zero": "not a regular file", "binary": "not a UTF-8 text file",
+            "directory": "not a regular file"}[kind] in err
+
+
+def test_run_with_a_bad_serial_is_one_line_exit_2():
+    one_line_error(tofd("run", "--emulate", "--serial", "zz"), 2, "--serial", "'zz' is not 8 hex digits")
+
+
+def test_sigterm_while_the_emulated_scene_is_prepared_exits_cleanly(tmp_path):
+    env = {**os.environ, "RERUN": "off"}
+    proc = subprocess.Popen([sys.executable, "-m", "tofd", "run", "--emulate", "--rerun", "none", "--health-port",
+                             "0", "--summary", str(tmp_path / "s.json")], stderr=subprocess.PIPE, text=True, env=env)
+    guard = threading.Timer(HANG_GUARD_S, proc.kill)  # a missed line must not block the suite forever
+    guard.start()
+    try:
+        for line in proc.stderr:  # wait until it is preparing the scene
+            if "rendering the emulated camera" in line:
+                break
+        proc.send_signal(signal.SIGTERM)
+        rest = proc.stderr.read()
+        assert proc.wait(HANG_GUARD_S) == 0
+    finally:
+        guard.cancel()
+        proc.kill()
+        proc.wait()
+    assert "Traceback" not in rest and "SIGTERM before the camera was ready" in rest, rest
+
+
+def _bad_npz(tmp_path: Path, kind: str) -> Path:
+    path = tmp_path / f"{kind}.npz"
+    if kind == "text":
+        path.write_text("not numpy\n")
+    elif kind == "no_nose":
+        np.savez(path, range=np.zeros((2, 144, 176), np.float32), amplitude=np.zeros((2, 144, 176), np.float32))
+    elif kind in ("shape", "pickle"):
+        keys = {"nose_px": np.zeros((2, 2)), "nose_visible": np.ones(2, bool), "distance_m": np.ones(2),
+                "yaw_deg": np.zeros(2), "pitch_deg": np.zeros(2), "subject": np.array(["a", "b"])}
+        rng = np.zeros((2, 10, 10), np.float32) if kind == "shape" else np.array([{"a": 1}, None], dtype=object)
+        np.savez(path, range=rng, amplitude=np.zeros((2, 10, 10), np.float32), **keys)
+    return path
+
+
+@pytest.mark.parametrize("kind,words", [("missing", ["no such dataset file"]), ("text", ["not a dataset .npz"]),
+                                        ("no_nose", ["missing key", "'nose_px'"]), ("shape", ["shape (2, 10, 10)"]),
+                                        ("pickle", ["'range'", "without pickle"])])
+def test_evaluate_with_a_bad_test_file_fails_before_any_training(tmp_path, kind, words):
+    path = _bad_npz(tmp_path, kind)
+    proc = tofd("evaluate", "--test", str(path), "--out", str(tmp_path / "ev"))
+    one_line_error(proc, 2, str(path), *words)
+    assert "rendering train" not in proc.stderr and not (tmp_path / "ev" / "model.json").exists()
+
+
+def test_train_needs_an_explicit_out_and_names_a_missing_train_file(tmp_path):
+    assert tofd("train", "--train-frames", "1").returncode == 2  # argparse: --out is required
+    one_line_error(tofd("train", "--train", str(tmp_path / "absent.npz"), "--out", str(tmp_path / "m.json")), 2,
+                   "absent.npz")
+    one_line_error(tofd("evaluate", "--test-subjects", "bob", "--out", str(tmp_path / "e")), 2, "bob")
+    one_line_error(tofd("train", "--train-frames", "1", "--out", str(tmp_path / "no" / "dir" / "m.json")), 2,
+                   "does not exist")
+
+
+@pytest.mark.parametrize("kind", ["existing_file", "parent_is_a_file", "dangling_symlink"])
+def test_replay_out_that_cannot_be_a_directory_is_one_line_exit_2(tmp_path, kind):
+    target = tmp_path / "target"
+    if kind == "existing_file":
+        target.write_text("keep me\n")
+    elif kind == "parent_is_a_file":
+        (tmp_path / "file").write_text("keep me\n")
+        target = tmp_path / "file" / "out"
+    else:
+        target.symlink_to(tmp_path / "nowhere")
+    one_line_error(tofd("replay", str(CLIP), "--out", str(target)), 2, "--out", str(target))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({"existing_file": ["target"], "dangling_symlink":
+                                                                 ["target"], "parent_is_a_file": ["file"]}[kind])
+
+
+def test_replay_argument_mistakes(tmp_path):
+    one_line_error(tofd("replay", str(CLIP), "--speed", "2", "--out", str(tmp_path)), 2, "--speed needs --realtime")
+    one_line_error(tofd("replay", str(CLIP), "--seek", "100000", "--out", str(tmp_path)), 2, "--seek 100000",
+                   "past the end")
+    one_line_error(tofd("replay", str(tmp_path / "absent.mcap"), "--out", str(tmp_path)), 2, "absent.mcap")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_replay_uses_the_configured_model_not_one_in_the_cwd_and_reports_accuracy(tmp_path):
+    (tmp_path / "nose_model.json").write_text("{ not the model the config names")  # a stray trained model
+    out = tmp_path / "out"
+    proc = tofd("replay", str(CLIP), "--out", str(out), "--frames", "12", "--rerun", "none", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    shipped = ROOT / "config" / "nose_model.json"
+    summary = json.loads((out / "emulated_face_035_070.summary.json").read_text())
+    import hashlib
+
+    assert summary["model"] == {"path": str(shipped), "sha256": hashlib.sha256(shipped.read_bytes()).hexdigest()}
+    assert len(summary["config_sha256"]) == 64
+    assert f"INFO model: {shipped}" in proc.stderr  # printed at start, with its level
+    assert "nose found 12 of 12 within 5 px; median error" in proc.stderr
+    assert (out / "emulated_face_035_070.accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not list(out.glob(".*.tmp"))
+
+
+def test_replay_loop_results_carry_the_loop_index(tmp_path):
+    proc = tofd("replay", str(CLIP), "--out", str(tmp_path), "--loop", "--frames", "110", "--rerun", "none")
+    assert proc.returncode == 0, proc.stderr
+    rows = [json.loads(x) for x in (tmp_path / "emulated_face_035_070.results.jsonl").read_text().splitlines()]
+    loops = [r["loop"] for r in rows]
+    assert loops == sorted(loops) and set(loops) == {0, 1} and len(rows) == 110
+    first = [r["frame_counter"] for r in rows if r["loop"] == 0]
+    assert first == sorted(first) and rows[-1]["frame_counter"] < first[-1]

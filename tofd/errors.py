@@ -1,0 +1,10 @@
+"""The exception a command turns into one line on stderr and exit status 2 (a usage or data mistake)."""
+
+from __future__ import annotations
+
+
+class UsageError(ValueError):
+    """A mistake of the user's: a bad argument, a missing or malformed input file, an unusable output path.
+
+    `tofd` prints `tofd: <message>` and exits 2; the message names the argument or file and the problem.
+    """

@@ -1,0 +1,114 @@
+"""Output files written atomically: a temp file in the target's directory, fsync, then rename over the target.
+
+A reader sees the old file or the whole new one, never a half-written one; a symlink planted at the target is
+replaced by the new file, never followed (rename acts on the directory entry). Output paths and directories are
+checked before long work starts (OutputError, a UsageError, names the path and the problem).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import IO
+
+from tofd.errors import UsageError
+
+
+class OutputError(UsageError):
+    """An output path that cannot be written: the message names it and why."""
+
+
+def prepare_output_dir(path: str | Path, what: str = "--out") -> Path:
+    """Create directory `path` (and its parents) if needed and check it is a writable directory."""
+    path = Path(path)
+    if path.is_symlink() and not path.is_dir():
+        raise OutputError(f"{what} {path}: a dangling symlink, not a directory")
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"{what} {path}: exists and is not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{what} {path}: cannot create the directory: {exc.strerror or exc}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise OutputError(f"{what} {path}: the directory is not writable")
+    return path
+
+
+def check_output_file(path: str | Path, what: str = "--out") -> Path:
+    """Check that file `path` can be (re)placed: its directory exists and is writable, and it is no directory."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{what} {path}: is a directory, expected a file name")
+    parent = path.parent
+    if not parent.is_dir():
+        raise OutputError(f"{what} {path}: the directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputError(f"{what} {path}: the directory {parent} is not writable")
+    return path
+
+
+class AtomicFile:
+    """A file object writing to a temp file beside `path`; commit() renames it over `path`, discard() removes it.
+
+    As a context manager: commit on normal exit, discard on an exception.
+    """
+
+    def __init__(self, path: str | Path, mode: str = "w", buffering: int = -1):
+        self.path = Path(path)
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+        self.tmp_path = Path(tmp)
+        self.file: IO = os.fdopen(fd, mode, buffering)
+
+    def write(self, data: str | bytes) -> int:
+        return self.file.write(data)
+
+    def commit(self) -> Path:
+        """Flush, fsync and rename over the target (permissions 0644 less the umask, like open())."""
+        if self.file.closed:
+            return self.path
+        self.file.flush()
+        os.fsync(self.file.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(self.file.fileno(), 0o666 & ~umask)
+        self.file.close()
+        os.replace(self.tmp_path, self.path)
+        return self.path
+
+    def discard(self) -> None:
+        if not self.file.closed:
+            self.file.close()
+        self.tmp_path.unlink(missing_ok=True)
+
+    def __enter__(self) -> AtomicFile:
+        return self
+
+    def __exit__(self, exc_type: object, *_: object) -> None:
+        if exc_type is None:
+            self.commit()
+        else:
+            self.discard()
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write `text` to `path` atomically; returns the path."""
+    with AtomicFile(path, "w") as fh:
+        fh.write(text)
+    return Path(path)
+
+
+def save_figure(fig: object, path: str | Path, **savefig_kwargs: object) -> Path:
+    """Save a matplotlib figure as PNG to `path` atomically."""
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", **savefig_kwargs)  # type: ignore[attr-defined]
+    return write_bytes(path, buf.getvalue())
+
+
+def write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write `data` to `path` atomically; returns the path."""
+    with AtomicFile(path, "wb") as fh:
+        fh.write(data)
+    return Path(path)
