@@ -27,14 +27,14 @@ import time
 from collections.abc import Callable
 from typing import Protocol
 
-from drivers.frame import COUNTER_LIMIT, Frame
+from drivers.frame import COUNTER_LIMIT, Frame, frame_problem
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
 from tofd.algorithm.names import MAP_NAMES
 from tofd.config import Config
 from tofd.service.pipeline import monitor
-from tofd.service.pipeline.capture import GapTracker, frame_problem
+from tofd.service.pipeline.capture import GapTracker
 from tofd.service.pipeline.ledger import DropLedger
 from tofd.service.pipeline.pool import WorkerPool
 from tofd.service.pipeline.queues import Policy, StageQueue
@@ -201,7 +201,7 @@ class Pipeline:
         gaps = GapTracker(source)
         try:
             for frame in source:
-                seq, last_counter = self._ledger_rejected(source, seq, last_counter)
+                seq = self._ledger_rejected(source, seq, gaps)
                 now = time.monotonic()
                 if self._abort.is_set() or (self._max_frames is not None and seq >= self._max_frames):
                     break
@@ -224,23 +224,24 @@ class Pipeline:
                     stage, reason = ("features", "superseded") if old is not item else ("capture", "shutdown")
                     self._drop(old.seq, stage, reason)
                 seq += 1
-            self._ledger_rejected(source, seq, last_counter)
+            self._ledger_rejected(source, seq, gaps)
         except Exception as exc:
             self._fail(f"source: {type(exc).__name__}: {exc}")
         finally:
             self._capture_done.set()
 
-    def _ledger_rejected(self, source: FrameSource, seq: int, last_counter: int | None) -> tuple[int, int | None]:
-        """Admit and drop at capture the frames the source rejected; the next seq and the last counter seen
-        (a rejected frame with a valid counter was received, so it is no device gap)."""
+    def _ledger_rejected(self, source: FrameSource, seq: int, gaps: GapTracker) -> int:
+        """Admit and drop at capture the frames the source rejected; the next seq. A rejected frame with a valid
+        counter was received, so it is no device gap."""
         for rejected in source.take_rejected():
             self.ledger.admit(seq, rejected.frame_counter)
-            self._drop(seq, "capture", rejected.reason)
+            self.ledger.drop(seq, "capture", rejected.reason)
+            self.order.gone(seq)
             seq += 1
-            if 0 <= rejected.frame_counter < COUNTER_LIMIT and (last_counter is None or
-                                                                 rejected.frame_counter > last_counter):
-                last_counter = rejected.frame_counter
-        return seq, last_counter
+            counter = rejected.frame_counter
+            if 0 <= counter < COUNTER_LIMIT and (gaps.last_counter is None or counter > gaps.last_counter):
+                gaps.last_counter = counter
+        return seq
 
     # ---------------------------------------------------------------- dispatch
     def _dispatch_loop(self) -> None:
