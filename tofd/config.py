@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import tomllib
 import types
 import typing
@@ -202,6 +203,11 @@ def _build(cls: type, table: dict, prefix: str) -> object:
 def config_from_dict(table: dict) -> Config:
     """Build a Config from a parsed TOML table, rejecting unknown keys and wrong types."""
     return typing.cast(Config, _build(Config, table, ""))
+
+
+def config_table(cfg: Config) -> dict:
+    """The config as a JSON-ready table that config_from_dict turns back into the same Config."""
+    return json.loads(json.dumps(dataclasses.asdict(cfg)))
 
 
 def load_config(path: str | Path | None = None) -> Config:

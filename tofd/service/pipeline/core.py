@@ -31,13 +31,12 @@ from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
-from tofd.algorithm.names import MAP_NAMES
-from tofd.config import Config
+from tofd.config import Config, config_table
 from tofd.service.pipeline.ledger import DropLedger
 from tofd.service.pipeline.queues import Policy, StageQueue
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.slots import SlotRing
-from tofd.service.pipeline.stages import detection_from
+from tofd.service.pipeline.stages import frame_result
 from tofd.service.pipeline.stats import PipelineStats
 from tofd.service.pipeline.worker import WorkerHandle
 
@@ -80,7 +79,7 @@ class Pipeline:
         self.stats = PipelineStats(pc.stats_window)
         self.ring = SlotRing.create(pc.workers * pc.tasks_per_worker, self.intrinsics.shape)
         spec = json.dumps({"shm": self.ring.name, "n_slots": self.ring.n_slots, "shape": self.ring.shape,
-                           "config": _config_table(cfg), "intrinsics": self.intrinsics.to_dict(),
+                           "config": config_table(cfg), "intrinsics": self.intrinsics.to_dict(),
                            "model": None if model is None else model.to_dict()})
         self.workers = [WorkerHandle(i, spec) for i in range(pc.workers)]
         self.inq: StageQueue[_Queued] = StageQueue(policy, 1 if policy == "latest" else pc.input_queue)
@@ -312,14 +311,10 @@ class Pipeline:
             with self._lock:
                 self._gone.add(seq)
             return
-        views = self.ring.views(slot)
-        result = FrameResult(
-            seq=seq, frame=item.frame, mask=views["mask"].copy(),
-            features={name: views[name].copy() for name in MAP_NAMES},
-            nfft_iterations=msg["nfft_iterations"], nfft_residual=msg["nfft_residual"], arrival_s=item.origin_s,
-            gap_before=item.gap_before, detection=detection_from(msg),
-            timings_ms={"capture": (item.admitted_s - item.origin_s) * 1e3,
-                        "queue": (item.sent_s - item.admitted_s) * 1e3, **msg["timings_ms"]})
+        result = frame_result(seq, item.frame, self.ring.views(slot), msg, arrival_s=item.origin_s,
+                              gap_before=item.gap_before,
+                              timings_ms={"capture": (item.admitted_s - item.origin_s) * 1e3,
+                                          "queue": (item.sent_s - item.admitted_s) * 1e3})
         with self._lock:
             self.ring.release(slot)
             self._failures = 0
@@ -434,9 +429,4 @@ class Pipeline:
             "last_delivery_age_s": self.stats.last_delivery_age_s(),
             "error": self.error,
         }
-
-
-def _config_table(cfg: Config) -> dict:
-    """The config as a TOML-like table (for the worker processes, which rebuild it with config_from_dict)."""
-    return json.loads(json.dumps(dataclasses.asdict(cfg)))
 
