@@ -137,9 +137,13 @@ def plan_inputs(inputs: list[InputPlan], out: str, run_digest: str, partition_fr
                                             channels, output))
 
 
+RESULT_SECTIONS = ("segmentation", "features", "detector")
+"""Config sections the per-frame results depend on (the others set how the service runs, not what it computes)."""
+
+
 def run_digests(config_table: dict, model_dict: dict | None) -> dict[str, str]:
-    """Digests naming a run's results: config, model, tofd version, and the three together ("run")."""
-    d = {"config": digest(config_table), "model": digest(model_dict) if model_dict else "none",
-         "version": tofd.__version__}
+    """Digests naming a run's results: config (its RESULT_SECTIONS), model, tofd version, all three ("run")."""
+    d = {"config": digest({k: config_table[k] for k in RESULT_SECTIONS}),
+         "model": digest(model_dict) if model_dict else "none", "version": tofd.__version__}
     d["run"] = digest(d)
     return d

@@ -14,6 +14,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from tofd.config import Config
 from tofd.service.daemon import RERUN_SPEC_HELP
 
 
@@ -28,11 +29,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=None, metavar="N", help="stop after N frames")
     parser.add_argument("--rerun", default=None, metavar="SINK",
                         help=f"{RERUN_SPEC_HELP}; default: save:OUT/<stem>.rrd")
+    parser.add_argument("--check", type=Path, default=None, metavar="GOLDEN",
+                        help="compare the per-frame results with this golden file; exit 1 on a regression")
+    parser.add_argument("--write-golden", type=Path, default=None, metavar="GOLDEN",
+                        help="write the per-frame results as a golden file (e.g. replay_data/<stem>.golden.json)")
 
 
 def main(args: argparse.Namespace) -> int:
     from drivers.recording.replay import ReplaySource, read_recording_info
     from drivers.source import DriverError
+    from tofd.batch.golden import GoldenRecorder
     from tofd.config import load_config
     from tofd.service.daemon import Progress, parse_rerun_spec, serve
     from tofd.service.pipeline import PipelineError, ResultsWriter
@@ -55,9 +61,11 @@ def main(args: argparse.Namespace) -> int:
         cfg = replace(cfg, intrinsics=info.intrinsics)
     total = args.frames or (None if args.loop else info.frame_count)
     writer = ResultsWriter(args.out / f"{stem}.results.jsonl")
+    golden = GoldenRecorder() if args.check or args.write_golden else None
     try:
         with source:
-            result = serve(cfg, source, policy, live_source=False, writers=(writer,), max_frames=args.frames,
+            result = serve(cfg, source, policy, live_source=False, writers=(writer,) + ((golden,) if golden else ()),
+                           max_frames=args.frames,
                            progress=Progress(total, "replay"), summary_path=args.out / f"{stem}.summary.json")
     except (DriverError, PipelineError, ViewerError, OSError) as exc:
         print(f"tofd replay: {exc}", file=sys.stderr)
@@ -71,4 +79,31 @@ def main(args: argparse.Namespace) -> int:
     written = ["results.jsonl", "summary.json"] + (["rrd"] if cfg.rerun.sink == "save" else [])
     print(f"tofd replay: {s['frames_out']} frames processed, {s['frames_dropped']} dropped, {s['fps']} fps; "
           f"wrote {args.out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
+    if golden is not None:
+        return check_golden(args, golden.rows, stem, cfg) or result.exit_code
     return result.exit_code
+
+
+def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Config) -> int:
+    """Write and/or check the golden file; 1 (with the differences on stderr) on a regression."""
+    from tofd.batch.golden import compare, golden_document, load_golden, write_golden
+
+    if args.write_golden:
+        write_golden(args.write_golden, golden_document(rows, stem, cfg))
+        print(f"tofd replay: wrote golden file {args.write_golden} ({len(rows)} frames)", file=sys.stderr)
+    if not args.check:
+        return 0
+    try:
+        problems, notes = compare(load_golden(args.check), rows)
+    except ValueError as exc:
+        print(f"tofd replay: {exc}", file=sys.stderr)
+        return 2
+    for line in notes:
+        print(f"tofd replay: check: {line}", file=sys.stderr)
+    if problems:
+        print(f"tofd replay: check FAILED against {args.check}:", file=sys.stderr)
+        for line in problems:
+            print(f"  {line}", file=sys.stderr)
+        return 1
+    print(f"tofd replay: check passed against {args.check} ({len(rows)} frames)", file=sys.stderr)
+    return 0
