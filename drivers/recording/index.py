@@ -54,6 +54,7 @@ class ChunkFrames:
 def frame_index(f: IO[bytes]) -> FrameIndex | None:
     """The index of the recording open in `f`, or None if it has no intact summary (writer did not finish)."""
     try:
+        f.seek(0)
         reader = make_reader(f)
         summary = reader.get_summary()
     except Exception:  # noqa: BLE001 (a missing or damaged summary only means: no index)

@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import PurePosixPath
 
 import fsspec
+from mcap.writer import MCAP0_MAGIC
 
 import tofd
 from drivers.recording.index import frame_index
@@ -111,6 +112,9 @@ def plan_inputs(inputs: list[InputPlan], out: str, run_digest: str, partition_fr
             continue
         try:
             with fsspec.open(inp.url, "rb") as f:
+                if f.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+                    inp.error = "not a tofd recording (no MCAP magic at its start)"
+                    continue
                 index = frame_index(f)
                 if index is None:
                     f.seek(0)

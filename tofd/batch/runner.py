@@ -140,7 +140,8 @@ def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, s
         for p in inp.partitions:
             if p.output in failed:
                 entry["errors"].append(f"partition {p.first}-{p.stop}: {failed[p.output]}")
-                dropped["partition failed"] += p.frames
+                if p.frames:
+                    dropped["partition failed"] += p.frames
                 continue
             s = done[p.output]
             entry["frames_in"] += s["frames_in"]

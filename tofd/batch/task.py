@@ -32,9 +32,15 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
     """The partition's frames with the ms spent reading each; damaged chunks are counted and skipped."""
     if not part.offsets:  # no index: the whole recording, sequentially, up to its last intact frame
         from drivers.recording.replay import ReplaySource
+        from drivers.source import DriverError
 
         t0 = time.perf_counter()
-        with ReplaySource(part.url) as source:
+        try:
+            source = ReplaySource(part.url)
+        except (DriverError, OSError) as exc:
+            errors.append(str(exc))
+            return
+        with source:
             for frame in source:
                 stats["frames_in"] += 1
                 yield frame, (time.perf_counter() - t0) * 1e3

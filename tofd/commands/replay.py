@@ -88,16 +88,20 @@ def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Con
     """Write and/or check the golden file; 1 (with the differences on stderr) on a regression."""
     from tofd.batch.golden import compare, golden_document, load_golden, write_golden
 
+    doc = golden_document(rows, stem, cfg)
     if args.write_golden:
-        write_golden(args.write_golden, golden_document(rows, stem, cfg))
+        write_golden(args.write_golden, doc)
         print(f"tofd replay: wrote golden file {args.write_golden} ({len(rows)} frames)", file=sys.stderr)
     if not args.check:
         return 0
     try:
-        problems, notes = compare(load_golden(args.check), rows)
+        golden = load_golden(args.check)
     except ValueError as exc:
         print(f"tofd replay: {exc}", file=sys.stderr)
         return 2
+    problems, notes = compare(golden, rows)
+    notes += [f"the golden file was made with {k} {v[:12]}, this run has {doc['digests'][k][:12]}"
+              for k, v in golden.get("digests", {}).items() if k != "run" and v != doc["digests"].get(k)]
     for line in notes:
         print(f"tofd replay: check: {line}", file=sys.stderr)
     if problems:
