@@ -132,7 +132,8 @@ def plan_inputs(inputs: list[InputPlan], out: str, run_digest: str, partition_fr
             input_digest = index.digest
             n = index.chunk_count
             inp.frames = n
-            bounds = [(a, min(a + partition_frames, n)) for a in range(0, n, partition_frames)]
+            parts = -(-n // partition_frames)  # equal sizes (within one frame), none above partition_frames
+            bounds = [(k * n // parts, (k + 1) * n // parts) for k in range(parts)]
             offsets, channels = index.chunk_offsets, tuple(sorted(index.frame_channels))
         for first, stop in bounds:
             key = digest([input_digest, first, stop, run_digest])[:16]
