@@ -42,7 +42,7 @@ def batch_client(scheduler: str | None, workers: int) -> Iterator[Client]:
         with Client(scheduler) as client:
             yield client
         return
-    dashboard = ":0" if importlib.util.find_spec("bokeh") else None
+    dashboard = "127.0.0.1:0" if importlib.util.find_spec("bokeh") else None
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=dashboard,
                       env=THREAD_ENV) as cluster, Client(cluster) as client:
         yield client
