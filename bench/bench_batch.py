@@ -1,12 +1,12 @@
 """`tofd batch` throughput with 1 and 2 local Dask workers against `tofd replay --rerun none` with one feature
 worker on the same frames, in one run; the per-partition overhead (setup, reading, writing, scheduling) in ms.
 
-    python bench/bench_batch.py [--copies 4] [--partition-frames 50] [--json bench/results/batch.json]
+    python bench/bench_batch.py [--copies 4] [--partition-frames 50] [--repeats 2] [--json bench/results/batch.json]
 
 Input: --copies copies of the bundled clip (101 frames each) as separate recordings. Baseline: `tofd replay`
 of each copy with pipeline.workers = 1 (its summary fps: frames / pipeline time). Batch rate: frames / time from
 the first task submitted to the last result (the cluster is started before). Goal: rate(N workers) >= 0.9 x N x
-baseline. Prints a table and writes JSON.
+baseline. Runs are interleaved --repeats times and the best rate of each kept. Prints a table and writes JSON.
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ def replay_fps(recordings: list[Path], tmp: Path) -> float:
 
 def batch_run(recordings: list[Path], tmp: Path, workers: int, partition_frames: int) -> dict:
     out = tmp / f"batch_{workers}"
+    shutil.rmtree(out, ignore_errors=True)
     inputs, job, digests = prepare([str(r) for r in recordings], str(out), load_config(), partition_frames)
     with batch_client(None, workers) as client:
         summary = run_plan(client, inputs, job, str(out), digests, RunOptions(progress=False))
@@ -66,6 +67,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--copies", type=int, default=4)
     parser.add_argument("--partition-frames", type=int, default=50)
+    parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--json", type=Path, default=Path("bench/results/batch.json"))
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp_name:
@@ -75,8 +77,15 @@ def main() -> None:
             rec = tmp / f"clip{k}.mcap"
             shutil.copy(CLIP, rec)
             recordings.append(rec)
-        baseline = replay_fps(recordings, tmp)
-        runs = {w: batch_run(recordings, tmp, w, args.partition_frames) for w in (1, 2)}
+        baselines: list[float] = []
+        runs: dict[int, dict] = {}
+        for _ in range(args.repeats):  # interleaved, best of each: other jobs on a shared machine only slow runs down
+            baselines.append(replay_fps(recordings, tmp))
+            for w in (1, 2):
+                s = batch_run(recordings, tmp, w, args.partition_frames)
+                if w not in runs or s["throughput_fps"] > runs[w]["throughput_fps"]:
+                    runs[w] = s
+        baseline = max(baselines)
     digests = {s["results_digest"] for s in runs.values()}
     rows = [{"run": "tofd replay --rerun none (1 worker)", "frames_per_s": round(baseline, 2), "x_replay": 1.0}]
     for w, s in runs.items():
@@ -92,7 +101,7 @@ def main() -> None:
         "about": "tofd batch frames/s with 1 and 2 local Dask workers against tofd replay --rerun none with one "
                  "feature worker, same frames, same run; per-partition costs in ms.",
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end",
-        "frames": runs[1]["frames_out"], "partition_frames": args.partition_frames,
+        "repeats": args.repeats, "frames": runs[1]["frames_out"], "partition_frames": args.partition_frames,
         "partitions": runs[1]["partitions"]["total"],
         "identical_results_1_and_2_workers": len(digests) == 1,
         "rows": rows,

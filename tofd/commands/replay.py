@@ -4,6 +4,7 @@ Lossless by default (every frame is processed, as fast as the pipeline goes, wit
 stderr); --realtime replays at the recorded pace (times --speed). Output in --out: <stem>.rrd (open it with
 `rerun <stem>.rrd`), <stem>.results.jsonl (frame counter, nose pixel and 3-D point, score, stage timings
 in ms), <stem>.summary.json (drop ledger, fps, p50/p99 timings). --rerun adds or replaces the viewer sink.
+--check GOLDEN compares the per-frame results with a golden file (docs/BATCH.md) and exits 1 on a regression.
 """
 
 from __future__ import annotations
