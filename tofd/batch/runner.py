@@ -96,6 +96,7 @@ def run_plan(client: Client, inputs: list[InputPlan], job: dict, out: str, diges
     wall_s = time.perf_counter() - t_start
     if progress is not None:
         progress.done()
+    _remove_partial_files(parts)
     summary = _summary(inputs, done, failed, digests, out, wall_s, time.perf_counter() - t_submit,
                        n_workers=len(client.scheduler_info().get("workers", {})), dashboard=dashboard)
     fs, path = fsspec.core.url_to_fs(out)
@@ -103,6 +104,14 @@ def run_plan(client: Client, inputs: list[InputPlan], job: dict, out: str, diges
     with fs.open(f"{path}/{SUMMARY_NAME}", "w") as fh:
         json.dump(summary, fh, indent=2)
     return summary
+
+
+def _remove_partial_files(parts: list[Partition]) -> None:
+    """Delete the temporary files of tasks whose worker died while writing (each retry writes its own)."""
+    for directory in {p.output.rsplit("/", 1)[0] for p in parts}:
+        fs, path = fsspec.core.url_to_fs(directory)
+        for tmp in fs.glob(f"{path}/part-*.parquet.tmp-*"):
+            fs.rm(tmp)
 
 
 def _key(p: Partition) -> str:
