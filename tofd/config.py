@@ -219,6 +219,11 @@ def config_from_dict(table: dict) -> Config:
     return typing.cast(Config, _build(Config, table, ""))
 
 
+def config_table(cfg: Config) -> dict:
+    """The config as a JSON-ready table that config_from_dict turns back into the same Config."""
+    return json.loads(json.dumps(dataclasses.asdict(cfg)))
+
+
 def read_config_text(path: Path) -> str:
     """The UTF-8 text of config file `path`: a regular file of at most MAX_CONFIG_BYTES (a FIFO would block,
     a device would never end); ConfigError names the problem."""

@@ -6,6 +6,7 @@ Output in --out: <stem>.rrd (open it with `rerun <stem>.rrd`), <stem>.results.js
 and 3-D point, score, stage timings in ms; with --loop also the loop index), <stem>.summary.json (drop ledger,
 fps, p50/p99 timings, model path and SHA-256). A recording with ground truth also gets an accuracy line and
 <stem>.accuracy.png (nose error and score over frames). --rerun adds or replaces the viewer sink.
+--check GOLDEN compares the per-frame results with a golden file (docs/BATCH.md) and exits 1 on a regression.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from tofd import arguments
+from tofd.config import Config
 from tofd.service.daemon import RERUN_SPEC_HELP
 
 log = logging.getLogger(__name__)
@@ -35,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=arguments.positive_int, default=None, metavar="N", help="stop after N frames")
     parser.add_argument("--rerun", default=None, metavar="SINK",
                         help=f"{RERUN_SPEC_HELP}; default: save:OUT/<stem>.rrd")
+    parser.add_argument("--check", type=Path, default=None, metavar="GOLDEN",
+                        help="compare the per-frame results with this golden file; exit 1 on a regression")
+    parser.add_argument("--write-golden", type=Path, default=None, metavar="GOLDEN",
+                        help="write the per-frame results as a golden file (e.g. replay_data/<stem>.golden.json)")
 
 
 def _check_seek(path: Path, seek: int) -> None:
@@ -64,6 +70,7 @@ def _report_accuracy(results: Path, plot: Path) -> None:
 def main(args: argparse.Namespace) -> int:
     from drivers.recording.replay import ReplaySource, read_recording_info
     from drivers.source import DriverError
+    from tofd.batch.golden import GoldenRecorder
     from tofd.config import load_config
     from tofd.errors import UsageError
     from tofd.outputs import prepare_output_dir
@@ -93,10 +100,12 @@ def main(args: argparse.Namespace) -> int:
     total = args.frames or (None if args.loop else info.frame_count)
     results_path = out / f"{stem}.results.jsonl"
     writer = ResultsWriter(results_path, loops=args.loop)
+    golden = GoldenRecorder() if args.check or args.write_golden else None
     try:
         with source:
-            result = serve(cfg, source, policy, live_source=False, writers=(writer,), max_frames=args.frames,
-                           progress=Progress("replay", total), summary_path=out / f"{stem}.summary.json")
+            result = serve(cfg, source, policy, live_source=False, writers=(writer,) + ((golden,) if golden else ()),
+                           max_frames=args.frames, progress=Progress("replay", total),
+                           summary_path=out / f"{stem}.summary.json")
     except (DriverError, PipelineError, ViewerError, OSError) as exc:
         writer.discard()
         print(f"tofd replay: {exc}", file=sys.stderr)
@@ -117,4 +126,35 @@ def main(args: argparse.Namespace) -> int:
           + (f", {skipped} skipped to keep the recorded pace" if skipped else "")
           + (f", {loops + 1} passes" if args.loop else "")
           + f", {s['fps']} fps; wrote {out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
+    if golden is not None:
+        return check_golden(args, golden.rows, stem, cfg) or result.exit_code
     return result.exit_code
+
+
+def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Config) -> int:
+    """Write and/or check the golden file; 1 (with the differences on stderr) on a regression."""
+    from tofd.batch.golden import compare, golden_document, load_golden, write_golden
+
+    doc = golden_document(rows, stem, cfg)
+    if args.write_golden:
+        write_golden(args.write_golden, doc)
+        print(f"tofd replay: wrote golden file {args.write_golden} ({len(rows)} frames)", file=sys.stderr)
+    if not args.check:
+        return 0
+    try:
+        golden = load_golden(args.check)
+    except ValueError as exc:
+        print(f"tofd replay: {exc}", file=sys.stderr)
+        return 2
+    problems, notes = compare(golden, rows)
+    notes += [f"the golden file was made with {k} {v[:12]}, this run has {doc['digests'][k][:12]}"
+              for k, v in golden.get("digests", {}).items() if k != "run" and v != doc["digests"].get(k)]
+    for line in notes:
+        print(f"tofd replay: check: {line}", file=sys.stderr)
+    if problems:
+        print(f"tofd replay: check FAILED against {args.check}:", file=sys.stderr)
+        for line in problems:
+            print(f"  {line}", file=sys.stderr)
+        return 1
+    print(f"tofd replay: check passed against {args.check} ({len(rows)} frames)", file=sys.stderr)
+    return 0

@@ -6,7 +6,6 @@ from drivers.frame import Frame
 from drivers.source import FrameSource
 
 
-
 class GapTracker:
     """Device-side gaps between consecutive frames: a reconnect of the source or a frame-counter jump."""
 

@@ -20,7 +20,6 @@ segmentation, fft, nfft, detection (in the worker), logging (inline viewer only)
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import threading
 import time
@@ -31,8 +30,7 @@ from drivers.frame import COUNTER_LIMIT, Frame, frame_problem
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
-from tofd.algorithm.names import MAP_NAMES
-from tofd.config import Config
+from tofd.config import Config, config_table
 from tofd.service.pipeline import monitor
 from tofd.service.pipeline.capture import GapTracker
 from tofd.service.pipeline.ledger import DropLedger
@@ -40,7 +38,7 @@ from tofd.service.pipeline.pool import WorkerPool
 from tofd.service.pipeline.queues import Policy, StageQueue
 from tofd.service.pipeline.reorder import Reorderer
 from tofd.service.pipeline.results import FrameResult
-from tofd.service.pipeline.stages import detection_from
+from tofd.service.pipeline.stages import frame_result
 from tofd.service.pipeline.stats import PipelineStats
 
 log = logging.getLogger(__name__)
@@ -303,14 +301,10 @@ class Pipeline:
             self.pool.release(slot)
             self._drop(seq, "features", f"error: {msg['error']}")
             return
-        views = self.pool.ring.views(slot)
-        result = FrameResult(
-            seq=seq, frame=item.frame, mask=views["mask"].copy(),
-            features={name: views[name].copy() for name in MAP_NAMES},
-            nfft_iterations=msg["nfft_iterations"], nfft_residual=msg["nfft_residual"], arrival_s=item.origin_s,
-            gap_before=item.gap_before, detection=detection_from(msg),
-            timings_ms={"capture": (item.admitted_s - item.origin_s) * 1e3,
-                        "queue": (item.sent_s - item.admitted_s) * 1e3, **msg["timings_ms"]})
+        result = frame_result(seq, item.frame, self.pool.ring.views(slot), msg, arrival_s=item.origin_s,
+                              gap_before=item.gap_before,
+                              timings_ms={"capture": (item.admitted_s - item.origin_s) * 1e3,
+                                          "queue": (item.sent_s - item.admitted_s) * 1e3})
         self.pool.release(slot)
         if not self.order.done(seq, result):
             self._drop(seq, "features", "late")
@@ -367,7 +361,3 @@ def _safe_counter(frame: Frame) -> int:
     """The frame counter for the ledger (-1 when it is not an integer)."""
     return frame.frame_counter if isinstance(frame.frame_counter, int) else -1
 
-
-def config_table(cfg: Config) -> dict:
-    """The config as a TOML-like table (for the worker processes, which rebuild it with config_from_dict)."""
-    return json.loads(json.dumps(dataclasses.asdict(cfg)))

@@ -50,6 +50,11 @@ def _layout(shape: tuple[int, int]) -> tuple[dict[str, tuple[int, type]], int]:
     return offsets, offset
 
 
+def local_slot(shape: tuple[int, int]) -> dict[str, np.ndarray]:
+    """One slot's arrays in this process's memory (for running a FeatureStage without workers)."""
+    return {name: np.empty(shape, dtype) for name, dtype in SLOT_FIELDS}
+
+
 class SlotRing:
     """`n_slots` frame slots of `shape` (rows, columns) in shared memory.
 

@@ -7,11 +7,13 @@ import time
 
 import numpy as np
 
+from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import Detection, NoseDetector, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import FAMILIES, MAP_NAMES, VARIANTS, VIEWED_FAMILIES, families_for
 from tofd.config import Config
+from tofd.service.pipeline.results import FrameResult
 
 
 def pipeline_families(cfg: Config, detect: bool) -> tuple[str, ...]:
@@ -52,6 +54,23 @@ class FeatureStage:
 def detection_dict(det: Detection) -> dict:
     """A Detection as a JSON-ready dict (score may be inf: no foreground)."""
     return {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score, "accepted": det.accepted}
+def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: dict, *, arrival_s: float = 0.0,
+                 gap_before: str = "", timings_ms: dict[str, float] | None = None) -> FrameResult:
+    """The FrameResult of `frame` from a FeatureStage reply and the slot it filled (maps copied out of the slot);
+    `timings_ms` are stages timed outside the worker, put before the worker's."""
+    return FrameResult(
+        seq=seq, frame=frame, mask=views["mask"].copy(), features={name: views[name].copy() for name in MAP_NAMES},
+        nfft_iterations=reply["nfft_iterations"], nfft_residual=reply["nfft_residual"], arrival_s=arrival_s,
+        gap_before=gap_before, detection=detection_from(reply),
+        timings_ms={**(timings_ms or {}), **reply["timings_ms"]})
+
+
+def process_frame(stage: FeatureStage, frame: Frame, slot: dict[str, np.ndarray], seq: int = 0) -> FrameResult:
+    """One frame through `stage` in one process (slot: tofd.service.pipeline.slots.local_slot of the frame's
+    shape): the pipeline workers' computation without shared memory, for batch re-processing."""
+    slot["range_m"][...] = frame.range_m
+    slot["amplitude"][...] = frame.amplitude
+    return frame_result(seq, frame, slot, stage.run(slot))
 
 
 def detection_from(message: dict) -> Detection | None:

@@ -1,0 +1,203 @@
+"""Running a batch plan on Dask: a LocalCluster of worker processes by default, or an existing scheduler; one
+task per partition (only its small JSON description goes through the scheduler, the frames are read by the
+task from storage); a summary of the run.
+
+A task whose worker dies (kill -9, out of memory) is rescheduled by Dask on another worker (`retries` more
+times for errors raised in the task); the result of a partition does not depend on where or how often it ran.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import json
+import logging
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import fsspec
+import numpy as np
+import pyarrow.parquet as pq
+from distributed import Client, LocalCluster, as_completed
+
+from tofd.batch.plan import InputPlan, Partition, expand_inputs, plan_inputs, run_digests
+from tofd.batch.rows import TIMED, rows_digest
+from tofd.batch.task import THREAD_ENV, partition_stats, run_partition
+from tofd.config import Config, config_table
+from tofd.progress import Progress
+from tofd.service.model import load_service_model
+
+log = logging.getLogger(__name__)
+
+SUMMARY_NAME = "summary.json"
+
+
+@contextlib.contextmanager
+def batch_client(scheduler: str | None, workers: int) -> Iterator[Client]:
+    """A Dask client: of the scheduler at `scheduler` (tcp://host:8786), else of a new LocalCluster of `workers`
+    single-threaded worker processes (with the dashboard when bokeh is installed)."""
+    if scheduler:
+        with Client(scheduler) as client:
+            yield client
+        return
+    dashboard = "127.0.0.1:0" if importlib.util.find_spec("bokeh") else None
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=dashboard,
+                      env=THREAD_ENV) as cluster, Client(cluster) as client:
+        yield client
+
+
+@dataclass(slots=True)
+class RunOptions:
+    resume: bool = False
+    retries: int = 2
+    progress: bool = True
+
+
+def run_plan(client: Client, inputs: list[InputPlan], job: dict, out: str, digests: dict[str, str],
+             options: RunOptions, on_done: Callable[[Client, dict], None] | None = None) -> dict:
+    """Process every partition of `inputs` (job: {"config": table, "model": dict or None}); write and return
+    the summary. on_done(client, stats) is called after each finished partition (tests use it)."""
+    t_start = time.perf_counter()
+    parts = [p for inp in inputs for p in inp.partitions]
+    done: dict[str, dict] = {}
+    if options.resume:
+        for p in parts:
+            stats = partition_stats(p.output)
+            if stats is not None:
+                done[p.output] = {**stats, "resumed": True}
+    todo = [p for p in parts if p.output not in done]
+    failed: dict[str, str] = {}
+    total = sum(p.frames for p in parts)
+    progress = Progress("batch", total) if options.progress else None
+    count = sum(s["frames_in"] for s in done.values())
+    dashboard = getattr(client, "dashboard_link", None) if importlib.util.find_spec("bokeh") else None
+    if dashboard and options.progress:
+        log.info("Dask dashboard: %s", dashboard)
+    job_future = client.scatter(json.dumps(job), broadcast=True) if todo else None
+    futures = {client.submit(run_partition, p.to_json(), job_future, key=f"tofd-batch-{_key(p)}",
+                             retries=options.retries, pure=False): p for p in todo}
+    t_submit = time.perf_counter()
+    for future in as_completed(futures):
+        p = futures[future]
+        try:
+            stats = future.result()
+        except Exception as exc:  # noqa: BLE001 (a partition that cannot be done is reported, the rest go on)
+            failed[p.output] = f"{type(exc).__name__}: {exc}"
+            count += p.frames
+        else:
+            done[p.output] = stats
+            count += stats["frames_in"]
+            if on_done is not None:
+                on_done(client, stats)
+        if progress is not None:
+            progress.update(count)
+    wall_s = time.perf_counter() - t_start
+    if progress is not None:
+        progress.done()
+    _remove_partial_files(parts)
+    summary = _summary(inputs, done, failed, digests, out, wall_s, time.perf_counter() - t_submit,
+                       n_workers=len(client.scheduler_info().get("workers", {})), dashboard=dashboard)
+    fs, path = fsspec.core.url_to_fs(out)
+    fs.makedirs(path, exist_ok=True)
+    with fs.open(f"{path}/{SUMMARY_NAME}", "w") as fh:
+        json.dump(summary, fh, indent=2)
+    return summary
+
+
+def _remove_partial_files(parts: list[Partition]) -> None:
+    """Delete the temporary files of tasks whose worker died while writing (each retry writes its own)."""
+    for directory in {p.output.rsplit("/", 1)[0] for p in parts}:
+        fs, path = fsspec.core.url_to_fs(directory)
+        for tmp in fs.glob(f"{path}/part-*.parquet.tmp-*"):
+            fs.rm(tmp)
+
+
+def _key(p: Partition) -> str:
+    return p.output.rsplit("/", 2)[-2].split("=", 1)[-1] + "-" + p.output.rsplit("-", 1)[-1].split(".")[0]
+
+
+def read_rows(outputs: list[str], columns: list[str] | None = None) -> list[dict]:
+    """The rows of partition files, in the given order."""
+    rows: list[dict] = []
+    for output in outputs:
+        with fsspec.open(output, "rb") as fh:
+            rows.extend(pq.read_table(fh, columns=columns).to_pylist())
+    return rows
+
+
+def _percentiles(values: list[float]) -> dict[str, float]:
+    a = np.asarray([v for v in values if v is not None], dtype=float)
+    if a.size == 0:
+        return {}
+    return {"mean": round(float(a.mean()), 3), "p50": round(float(np.percentile(a, 50)), 3),
+            "p99": round(float(np.percentile(a, 99)), 3)}
+
+
+def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, str], digests: dict[str, str],
+             out: str, wall_s: float, run_s: float, n_workers: int, dashboard: str | None) -> dict:
+    dropped: Counter = Counter()
+    per_input = []
+    all_rows: list[dict] = []
+    for inp in inputs:
+        entry: dict = {"input": inp.url, "recording": inp.recording, "indexed": inp.indexed,
+                       "partitions": len(inp.partitions), "frames_in": 0, "frames_out": 0, "errors": []}
+        if inp.error:
+            entry["errors"].append(inp.error)
+        outputs = []
+        for p in inp.partitions:
+            if p.output in failed:
+                entry["errors"].append(f"partition {p.first}-{p.stop}: {failed[p.output]}")
+                if p.frames:
+                    dropped["partition failed"] += p.frames
+                continue
+            s = done[p.output]
+            entry["frames_in"] += s["frames_in"]
+            entry["frames_out"] += s["frames_out"]
+            dropped.update(s["dropped"])
+            entry["errors"].extend(s["errors"])
+            outputs.append(p.output)
+        rows = read_rows(outputs)
+        entry["results_digest"] = rows_digest(rows)
+        entry["parts"] = [o[len(out.rstrip("/")) + 1:] for o in outputs]
+        entry["status"] = "ok" if not entry["errors"] else ("partial" if entry["frames_out"] else "failed")
+        all_rows.extend(rows)
+        per_input.append(entry)
+    computed = [s for s in done.values() if not s.get("resumed")]
+    frames_done = sum(s["frames_out"] for s in computed)
+    n = max(len(computed), 1)
+    per_part = {k: round(sum(s[f"{k}_ms"] for s in computed) / n, 2) for k in ("setup", "read", "compute", "write")}
+    task_ms = sum(s["task_ms"] for s in computed) / n
+    # time a worker slot spent per partition beyond the task itself: scheduling, transfer, result handling
+    per_part["scheduling"] = round(max(0.0, run_s * 1e3 * n_workers / n - task_ms), 2) if computed else 0.0
+    return {
+        "inputs": per_input,
+        "frames_in": sum(e["frames_in"] for e in per_input),
+        "frames_out": sum(e["frames_out"] for e in per_input),
+        "frames_dropped": sum(dropped.values()),
+        "dropped_reasons": dict(sorted(dropped.items())),
+        "partitions": {"total": sum(len(i.partitions) for i in inputs), "computed": len(computed),
+                       "resumed": len(done) - len(computed), "failed": len(failed)},
+        "stage_ms": {stage: _percentiles([r[f"t_{stage}_ms"] for r in all_rows]) for stage in TIMED},
+        "per_partition_ms": per_part,
+        "wall_s": round(wall_s, 3),
+        "throughput_fps": round(frames_done / run_s, 2) if computed and run_s > 0 else None,
+        "workers": n_workers,
+        "dashboard": dashboard,
+        "digests": digests,
+        "results_digest": rows_digest(all_rows),
+    }
+
+
+def prepare(items: list[str], out: str, cfg: Config, partition_frames: int) -> tuple[list[InputPlan], dict, dict]:
+    """The inputs (with their partitions or errors), the job every task gets (config table and model) and the
+    run's digests, for the service config `cfg` and its detector model."""
+    if partition_frames < 1:
+        raise ValueError(f"partition size: expected >= 1 frames, got {partition_frames}")
+    model = load_service_model(cfg)
+    job = {"config": config_table(cfg), "model": None if model is None else model.to_dict()}
+    digests = run_digests(job["config"], job["model"])
+    inputs = expand_inputs(items)
+    plan_inputs(inputs, out, digests["run"], partition_frames)
+    return inputs, job, digests
