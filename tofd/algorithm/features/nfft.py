@@ -53,6 +53,7 @@ import scipy.fft as sfft
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features.eccentricity import Eccentricities
 from tofd.algorithm.features.fft import check_frame
+from tofd.algorithm.features.normal_equations import DampedNormalEquations, solve
 from tofd.algorithm.features.transfer import transfer_functions, unit_square_m
 from tofd.algorithm.params import FeatureConfig
 
@@ -91,7 +92,6 @@ class NFFTFeatures:
         self._real: type[np.floating] = np.float32 if single else np.float64
         self._complex: type[np.complexfloating] = np.complex64 if single else np.complex128
         self._band = self._band.astype(self._real)
-        self._padded = np.zeros((2 * n, n + 1), self._complex)  # half spectrum of the 2N circulant
         self._neg_rows = (-np.arange(n)) % n
         self._neg_cols_src = n - np.arange(n - self._h + 1, n)
         self._plan_options = dict(eps=cfg.nufft_eps, modeord=1, nthreads=1, upsampfac=_upsampfac(cfg.nufft_eps))
@@ -179,63 +179,15 @@ class NFFTFeatures:
         strengths = np.ones((1 + len(values), x.size), np.complex128)
         strengths[1:] = values
         kernel_and_rhs = type1.execute(strengths)
-        kernel = kernel_and_rhs[0, :, : n + 1].copy()
-        kernel[n, :] = 0  # the unpaired -N row and column never enter (A^H A f)_k for |k| < N/2
-        kernel[:, n] = 0
-        circulant = (sfft.irfft2(kernel, s=(2 * n, 2 * n), workers=1) * float(4 * n * n)).astype(self._real)
+        system = DampedNormalEquations(kernel_and_rhs[0], lam, n, self._real, self._complex)
         solved = []
         for rhs_grid in kernel_and_rhs[1:]:
             rhs = np.concatenate((rhs_grid[:h, :h], rhs_grid[2 * n - h + 1:, :h])).astype(self._complex)
-            solved.append(self._solve(circulant, rhs, lam))
+            solved.append(solve(system, rhs, self._band, self.cfg.cg_tolerance, self.cfg.cg_max_iterations))
         type2.setpts(ty, tx)
-        out = type2.execute(np.concatenate([self._filters * self._hermitian_full(f) for f, _, _ in solved]))
-        return [(out[2 * i].real, out[2 * i].imag, out[2 * i + 1].real, it, res)
-                for i, (_, it, res) in enumerate(solved)]
-
-    def _normal(self, circulant: np.ndarray, v: np.ndarray, lam: float, out: np.ndarray) -> np.ndarray:
-        """out = (A^H A + lam I) v on the compact half spectrum, via the 2N circulant (one real FFT pair)."""
-        n, h = self._n, self._h
-        padded = self._padded
-        padded[:h, :h] = v[:h]
-        padded[2 * n - h + 1:, :h] = v[h:]
-        grid = sfft.irfft2(padded, s=(2 * n, 2 * n), workers=1)
-        grid *= circulant
-        spec = sfft.rfft2(grid, workers=1)
-        out[:h] = spec[:h, :h]
-        out[h:] = spec[2 * n - h + 1:, :h]
-        out += lam * v
-        return out
-
-    @staticmethod
-    def _dot(a: np.ndarray, b: np.ndarray) -> float:
-        """Re <a, b> of the full Hermitian spectra, from their halves (kx > 0 counted twice)."""
-        return 2.0 * np.vdot(a, b).real - np.vdot(a[:, 0], b[:, 0]).real
-
-    def _solve(self, circulant: np.ndarray, rhs: np.ndarray, lam: float) -> tuple[np.ndarray, int, float]:
-        """Conjugate gradients on the damped normal equations; returns (f, iterations, relative residual)."""
-        x = np.zeros_like(rhs)
-        r = rhs.copy()
-        p = r.copy()
-        q = np.empty_like(rhs)
-        band = self._band
-        rr = self._dot(r, r)
-        b_band = np.sqrt(self._dot(band * r, band * r))
-        if b_band == 0:
-            return x, 0, 0.0
-        tol2 = (self.cfg.cg_tolerance * b_band) ** 2
-        r_band2 = b_band**2
-        iterations = 0
-        while iterations < self.cfg.cg_max_iterations and r_band2 > tol2:
-            self._normal(circulant, p, lam, q)
-            alpha = rr / self._dot(p, q)
-            x += alpha * p
-            r -= alpha * q
-            rr, rr_old = self._dot(r, r), rr
-            p *= rr / rr_old
-            p += r
-            r_band2 = self._dot(band * r, band * r)
-            iterations += 1
-        return x, iterations, float(np.sqrt(r_band2) / b_band)
+        out = type2.execute(np.concatenate([self._filters * self._hermitian_full(s.f) for s in solved]))
+        return [(out[2 * i].real, out[2 * i].imag, out[2 * i + 1].real, s.iterations, s.residual)
+                for i, s in enumerate(solved)]
 
     def _hermitian_full(self, half: np.ndarray) -> np.ndarray:
         """(N, N) FFT-ordered spectrum from the compact half (kx >= 0) by Hermitian symmetry."""
