@@ -25,17 +25,13 @@ Larger damping smooths range noise more but shrinks the features unevenly: spher
 (bench/tune_detector.py --grid damping, 72 frames per subject: NFFT range 0.7 / 0.4 / 0.4 / 0.3 / 0.3 % at
 0.003 / 0.01 / 0.03 / 0.1 / 0.3), so 0.01 stays.
 
-Stopping. CG stops when the residual weighted by A(rho) (the filters' band) falls below cg_tolerance
-relative to the weighted right-hand side: smooth surfaces put most of A^H z at low frequencies that
-the filters ignore, and the plain residual stopped the sphere after 4-7 iterations with eps0 off by 15 %.
-At the default 1e-4: faces 17-31 iterations, eps0 within 0.1 % of the converged value.
-
-Solver. A^H A is Toeplitz, (A^H A f)_k = sum_l K_{k-l} f_l with K_m = sum_j exp(-2 pi i m.x_j). One
-finufft type-1 per frame gives K on the 2N x 2N grid (and A^H z with it: n_trans=2); then every CG
-iteration is a circulant convolution, i.e. one real FFT pair of size 2N x 2N. The unpaired Nyquist row and
-column (k = -N/2) are held at zero, so the unknowns, kernel and fields are Hermitian/real: CG works on the
-half spectrum (kx >= 0) with real FFTs. A forward type-2 NUFFT (n_trans=2) evaluates c0 + i c2 and s2.
-finufft plans are made once (nthreads=1) and only get new points per frame.
+Solver (normal_equations.py). One finufft type-1 per frame gives K_m = sum_j exp(-2 pi i m.x_j) on the
+2N x 2N grid and A^H z with it (n_trans=2); A^H A is Toeplitz with kernel K, so every CG iteration is a
+circulant convolution (one pruned real FFT pair of size 2N) on the half spectrum (kx >= 0; the unpaired
+Nyquist row and column held at zero keep unknowns and fields Hermitian/real). CG stops on the residual
+weighted by A(rho) (cg_tolerance; at the default 1e-4 eps0 is within 1 % of the converged value wherever it
+is at least a tenth of its peak: bench/bench_features.py). A forward type-2 NUFFT (n_trans=2) evaluates
+c0 + i c2 and s2. finufft plans are made once (nthreads=1) and only get new points per frame.
 
 Amplitude (`features(..., amplitude=...)`): the amplitude at the same points, normalised like the FFT path's,
 is a second surface on the same kernel (one more CG solve): scale-invariant amplitude features for the NFFT

@@ -1,0 +1,61 @@
+import dataclasses
+
+import finufft
+import numpy as np
+import pytest
+
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.features import NFFTFeatures
+from tofd.algorithm.features.normal_equations import DampedNormalEquations, dot
+from tofd.config import FeatureConfig
+from tofd.lab import shapes as synthetic
+
+
+def _half_to_full(half: np.ndarray, n: int) -> np.ndarray:
+    """Compact half spectrum -> the (N - 1) x (N - 1) modes k in (-N/2, N/2)^2, rows ky, columns kx, centred."""
+    h = n // 2
+    rows = np.concatenate((half[h:], half[:h]))  # ky = -h + 1 .. h - 1
+    full = np.zeros((n - 1, n - 1), complex)
+    full[:, h - 1:] = rows
+    full[:, : h - 1] = np.conj(rows[::-1, :0:-1])  # f(-ky, -kx) = conj f(ky, kx)
+    return full
+
+
+@pytest.mark.parametrize("n", [8, 16])
+def test_operator_equals_dense_damped_normal_matrix(n):
+    """(A^H A + lambda I) v through the pruned 2N circulant equals the dense NDFT matrix product."""
+    rng = np.random.default_rng(n)
+    x, y = rng.uniform(-0.3, 0.4, 300), rng.uniform(-0.45, 0.2, 300)
+    kernel = finufft.nufft2d1(2 * np.pi * y, 2 * np.pi * x, np.ones(x.size, complex), (2 * n, 2 * n), eps=1e-13,
+                              modeord=1, isign=-1)
+    lam = 3.7
+    system = DampedNormalEquations(kernel, lam, n, np.float64, np.complex128)
+    field = rng.standard_normal((n, n))  # a real field's half spectrum is Hermitian in its kx = 0 column
+    spec = np.fft.fft2(field)
+    h = n // 2
+    v = np.concatenate((spec[:h, :h], spec[n - h + 1:, :h]))
+    got = _half_to_full(system.apply(v, np.empty_like(v)), n)
+    k = np.arange(-h + 1, h)
+    kx, ky = (g.ravel() for g in np.meshgrid(k, k))
+    a = np.exp(2j * np.pi * (np.outer(x, kx) + np.outer(y, ky)))
+    want = ((a.conj().T @ a + lam * np.eye(k.size**2)) @ _half_to_full(v, n).ravel()).reshape(n - 1, n - 1)
+    np.testing.assert_allclose(got, want, atol=1e-9 * np.abs(want).max())
+    assert dot(v, v) == pytest.approx(np.vdot(_half_to_full(v, n), _half_to_full(v, n)).real)
+
+
+@pytest.mark.parametrize("distance", [0.35, 0.7])
+def test_default_stopping_gives_eps0_within_1_percent_of_converged(distance):
+    """Default CG (single precision, tolerance 1e-4) against a double-precision solve to 1e-10, on a noisy
+    sphere: eps0 within 1 % of the converged peak everywhere, and at its median pixel within 0.2 %."""
+    intr, cfg = Intrinsics(), FeatureConfig()
+    scene = synthetic.sphere(intr, distance, 0.08)
+    noisy = scene.range_m + 0.002 * np.random.default_rng(3).standard_normal(scene.range_m.shape)
+    got = NFFTFeatures(intr, cfg).range_features(noisy, scene.mask)
+    tight = dataclasses.replace(cfg, cg_tolerance=1e-10, cg_max_iterations=3000, cg_precision="double")
+    ref = NFFTFeatures(intr, tight).range_features(noisy, scene.mask)
+    fin = np.isfinite(ref.eps0)
+    assert np.array_equal(fin, np.isfinite(got.eps0)) and fin.sum() > 1000
+    error = np.abs(got.eps0[fin] - ref.eps0[fin])
+    assert np.max(error) < 0.01 * np.max(ref.eps0[fin])
+    assert np.median(error / ref.eps0[fin]) < 0.002
+    assert got.iterations < ref.iterations
