@@ -53,6 +53,8 @@ from tofd.algorithm.features.normal_equations import DampedNormalEquations, solv
 from tofd.algorithm.features.transfer import transfer_functions, unit_square_m
 from tofd.algorithm.params import FeatureConfig
 
+SINGLE_NUFFT_EPS = 2e-5  # finufft's float32 precision floor at upsampfac 1.25 (below it narrows its kernel and warns)
+
 
 def _upsampfac(eps: float) -> float:
     """finufft's small oversampling (much faster here) where it reaches the requested precision."""
@@ -88,9 +90,11 @@ class NFFTFeatures:
         self._real: type[np.floating] = np.float32 if single else np.float64
         self._complex: type[np.complexfloating] = np.complex64 if single else np.complex128
         self._band = self._band.astype(self._real)
+        self._filters = self._filters.astype(self._complex)
         self._neg_rows = (-np.arange(n)) % n
         self._neg_cols_src = n - np.arange(n - self._h + 1, n)
-        self._plan_options = dict(eps=cfg.nufft_eps, modeord=1, nthreads=1, upsampfac=_upsampfac(cfg.nufft_eps))
+        eps = max(cfg.nufft_eps, SINGLE_NUFFT_EPS) if single else cfg.nufft_eps
+        self._plan_options = dict(eps=eps, modeord=1, nthreads=1, upsampfac=_upsampfac(eps), dtype=self._complex)
         self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
 
     def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
@@ -170,9 +174,9 @@ class NFFTFeatures:
         n, h = self._n, self._h
         values = np.atleast_2d(values)
         type1, type2 = self._plans_for(len(values))
-        ty, tx = 2 * np.pi * y, 2 * np.pi * x
+        ty, tx = (2 * np.pi * y).astype(self._real), (2 * np.pi * x).astype(self._real)
         type1.setpts(ty, tx)
-        strengths = np.ones((1 + len(values), x.size), np.complex128)
+        strengths = np.ones((1 + len(values), x.size), self._complex)
         strengths[1:] = values
         kernel_and_rhs = type1.execute(strengths)
         system = DampedNormalEquations(kernel_and_rhs[0], lam, n, self._real, self._complex)
@@ -188,7 +192,7 @@ class NFFTFeatures:
     def _hermitian_full(self, half: np.ndarray) -> np.ndarray:
         """(N, N) FFT-ordered spectrum from the compact half (kx >= 0) by Hermitian symmetry."""
         n, h = self._n, self._h
-        full = np.zeros((n, n), np.complex128)
+        full = np.zeros((n, n), self._complex)
         full[:h, :h] = half[:h]
         full[n - h + 1:, :h] = half[h:]
         full[:, n - h + 1:] = np.conj(full[np.ix_(self._neg_rows, self._neg_cols_src)])
