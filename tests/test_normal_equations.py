@@ -6,7 +6,7 @@ import pytest
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import NFFTFeatures
-from tofd.algorithm.features.normal_equations import DampedNormalEquations, dot
+from tofd.algorithm.features.normal_equations import DampedNormalEquations, HermitianInner, solve
 from tofd.config import FeatureConfig
 from tofd.lab import shapes as synthetic
 
@@ -30,17 +30,34 @@ def test_operator_equals_dense_damped_normal_matrix(n):
                               modeord=1, isign=-1)
     lam = 3.7
     system = DampedNormalEquations(kernel, lam, n, np.float64, np.complex128)
-    field = rng.standard_normal((n, n))  # a real field's half spectrum is Hermitian in its kx = 0 column
-    spec = np.fft.fft2(field)
     h = n // 2
-    v = np.concatenate((spec[:h, :h], spec[n - h + 1:, :h]))
-    got = _half_to_full(system.apply(v, np.empty_like(v)), n)
+
+    def half_of_real_field() -> np.ndarray:  # a real field's half spectrum is Hermitian in its kx = 0 column
+        spec = np.fft.fft2(rng.standard_normal((n, n)))
+        return np.concatenate((spec[:h, :h], spec[n - h + 1:, :h]))
+
+    v = half_of_real_field()[None]
+    got = _half_to_full(system.apply(v, np.empty_like(v))[0], n)
     k = np.arange(-h + 1, h)
     kx, ky = (g.ravel() for g in np.meshgrid(k, k))
     a = np.exp(2j * np.pi * (np.outer(x, kx) + np.outer(y, ky)))
-    want = ((a.conj().T @ a + lam * np.eye(k.size**2)) @ _half_to_full(v, n).ravel()).reshape(n - 1, n - 1)
+    normal = a.conj().T @ a + lam * np.eye(k.size**2)
+    want = (normal @ _half_to_full(v[0], n).ravel()).reshape(n - 1, n - 1)
     np.testing.assert_allclose(got, want, atol=1e-9 * np.abs(want).max())
-    assert dot(v, v) == pytest.approx(np.vdot(_half_to_full(v, n), _half_to_full(v, n)).real)
+    full = _half_to_full(v[0], n)
+    inner = HermitianInner(np.ones(v.shape[1:]))
+    assert inner.dots(v, v)[0] == pytest.approx(np.vdot(full, full).real)
+
+    # two right-hand sides solved together: each equals its dense solution, each stops on its own residual
+    rhs = np.stack((v[0], 1e3 * half_of_real_field()))
+    band = np.ones(v.shape[1:])
+    solved = solve(system, rhs, band, 1e-10, 1000)
+    for s, b in zip(solved, rhs, strict=True):
+        np.testing.assert_allclose(_half_to_full(s.f, n), np.linalg.solve(normal, _half_to_full(b, n).ravel()).reshape(
+            n - 1, n - 1), rtol=1e-8, atol=1e-10 * np.abs(_half_to_full(s.f, n)).max())
+        alone = solve(system, b[None], band, 1e-10, 1000)[0]
+        assert s.residual <= 1e-10 and alone.residual <= 1e-10
+        np.testing.assert_allclose(s.f, alone.f, rtol=1e-7, atol=1e-9 * np.abs(alone.f).max())
 
 
 @pytest.mark.parametrize("distance", [0.35, 0.7])

@@ -180,10 +180,9 @@ class NFFTFeatures:
         strengths[1:] = values
         kernel_and_rhs = type1.execute(strengths)
         system = DampedNormalEquations(kernel_and_rhs[0], lam, n, self._real, self._complex)
-        solved = []
-        for rhs_grid in kernel_and_rhs[1:]:
-            rhs = np.concatenate((rhs_grid[:h, :h], rhs_grid[2 * n - h + 1:, :h])).astype(self._complex)
-            solved.append(solve(system, rhs, self._band, self.cfg.cg_tolerance, self.cfg.cg_max_iterations))
+        grids = kernel_and_rhs[1:]
+        rhs = np.concatenate((grids[:, :h, :h], grids[:, 2 * n - h + 1:, :h]), axis=1)
+        solved = solve(system, rhs, self._band, self.cfg.cg_tolerance, self.cfg.cg_max_iterations)
         type2.setpts(ty, tx)
         out = type2.execute(np.concatenate([self._filters * self._hermitian_full(s.f) for s in solved]))
         return [(out[2 * i].real, out[2 * i].imag, out[2 * i + 1].real, s.iterations, s.residual)

@@ -2,7 +2,9 @@
 
 Unknowns: the Fourier coefficients f_k of a real field on the N x N mode grid k in [-N/2, N/2)^2, stored as
 the compact half spectrum (N - 1, N/2) complex: rows ky = 0 .. N/2 - 1, -N/2 + 1 .. -1 (FFT order without the
-unpaired Nyquist row), columns kx = 0 .. N/2 - 1. The other half follows by Hermitian symmetry.
+unpaired Nyquist row), columns kx = 0 .. N/2 - 1. The other half follows by Hermitian symmetry. Several
+right-hand sides on the same points (range and amplitude) are solved together, (V, N - 1, N/2): one batched
+FFT per step for all of them, each stopping on its own residual.
 
 Operator. A^H A is Toeplitz, (A^H A f)_k = sum_l K_{k-l} f_l with K_m = sum_j exp(-2 pi i m.x_j), so it is
 applied as a circulant convolution on the 2N x 2N grid: one real FFT pair of size 2N, pruned to the modes
@@ -33,31 +35,53 @@ class Solution:
 
 
 class PrunedRealFFT:
-    """Real FFTs of size 2N x 2N between a compact half spectrum (N - 1, N/2) and a (2N, 2N) real field."""
+    """Real FFTs of size 2N x 2N between compact half spectra (V, N - 1, N/2) and (V, 2N, 2N) real fields."""
 
     def __init__(self, n: int, dtype: type[np.complexfloating]):
-        self.h, self.size = n // 2, 2 * n
-        self._columns = np.zeros((2 * n, n // 2), dtype)  # the half spectrum's columns, zero-padded in ky
+        self.h, self.size, self.dtype = n // 2, 2 * n, dtype
+        self._columns: dict[int, np.ndarray] = {}  # per V: the half spectra's columns, zero-padded in ky
 
     def to_space(self, half: np.ndarray) -> np.ndarray:
-        """(2N, 2N) real field whose spectrum is `half`, zero elsewhere (unnormalised inverse transform)."""
-        h, cols = self.h, self._columns
-        cols[:h] = half[:h]
-        cols[self.size - h + 1:] = half[h:]
-        return sfft.irfft(sfft.ifft(cols, axis=0, workers=1), n=self.size, axis=1, workers=1)
+        """(V, 2N, 2N) real fields whose spectra are `half`, zero elsewhere (unnormalised inverse transform)."""
+        h, v = self.h, len(half)
+        if v not in self._columns:
+            self._columns[v] = np.zeros((v, self.size, h), self.dtype)
+        cols = self._columns[v]
+        cols[:, :h] = half[:, :h]
+        cols[:, self.size - h + 1:] = half[:, h:]
+        return sfft.irfft(sfft.ifft(cols, axis=1, workers=1), n=self.size, axis=2, workers=1)
 
     def from_space(self, field: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """out = the compact half of field's spectrum (forward transform)."""
+        """out = the compact halves of the fields' spectra (forward transform)."""
         h = self.h
-        spec = sfft.fft(sfft.rfft(field, axis=1, workers=1)[:, :h], axis=0, workers=1)
-        out[:h] = spec[:h]
-        out[h:] = spec[self.size - h + 1:]
+        spec = sfft.fft(sfft.rfft(field, axis=2, workers=1)[:, :, :h], axis=1, workers=1)
+        out[:, :h] = spec[:, :h]
+        out[:, h:] = spec[:, self.size - h + 1:]
         return out
 
 
-def dot(a: np.ndarray, b: np.ndarray) -> float:
-    """Re <a, b> of the full Hermitian spectra, from their compact halves (kx > 0 counted twice)."""
-    return 2.0 * np.vdot(a, b).real - np.vdot(a[:, 0], b[:, 0]).real
+class HermitianInner:
+    """Re <a, b> of full Hermitian spectra from compact halves (V, N - 1, N/2): kx > 0 counts twice."""
+
+    def __init__(self, band: np.ndarray):
+        weight = np.full(band.shape, 2.0, band.dtype)
+        weight[:, 0] = 1.0
+        self._plain = np.repeat(weight, 2, axis=1).reshape(-1)  # over the interleaved real and imaginary parts
+        self._band = np.repeat(weight * band * band, 2, axis=1).reshape(-1)
+        self._products: dict[int, np.ndarray] = {}
+
+    def _products_of(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        real = a.real.dtype
+        products = self._products.setdefault(len(a), np.empty((len(a), self._plain.size), real))
+        return np.multiply(a.view(real).reshape(len(a), -1), b.view(real).reshape(len(b), -1), out=products)
+
+    def dots(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """(V,) Re <a_v, b_v>."""
+        return self._products_of(a, b) @ self._plain
+
+    def band_norms2(self, r: np.ndarray) -> np.ndarray:
+        """(V,) |A(rho) r_v|^2: the residuals weighted by the filters' band."""
+        return self._products_of(r, r) @ self._band
 
 
 class DampedNormalEquations:
@@ -74,7 +98,7 @@ class DampedNormalEquations:
         self._axpy = get_blas_funcs("axpy", dtype=complex_)
 
     def apply(self, v: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """out = (A^H A + lambda I) v (compact halves)."""
+        """out = (A^H A + lambda I) v for each of the V compact halves."""
         grid = self._fft.to_space(v)
         grid *= self._circulant
         self._fft.from_space(grid, out)
@@ -83,39 +107,42 @@ class DampedNormalEquations:
 
 
 def solve(system: DampedNormalEquations, rhs: np.ndarray, band: np.ndarray, tolerance: float,
-          max_iterations: int) -> Solution:
-    """CG from 0 until |band * r| <= tolerance |band * rhs| or max_iterations.
+          max_iterations: int) -> list[Solution]:
+    """CG from 0 on each rhs (V, N - 1, N/2) until |band * r| <= tolerance |band * rhs| or max_iterations.
 
-    In-place BLAS updates on preallocated arrays: the arrays are small (N - 1, N/2), so allocations and
-    temporaries would cost as much as the arithmetic.
+    In place on preallocated arrays: they are small, so temporaries would cost as much as the arithmetic. A
+    converged rhs leaves the batch, so each answer is (to rounding) the one its own solve would give.
     """
-    x = np.zeros_like(rhs)
-    r = rhs.copy()
-    p = r.copy()
-    q = np.empty_like(rhs)
-    weighted = np.empty_like(rhs)
-    axpy = get_blas_funcs("axpy", (x,))
-    x_flat, r_flat, p_flat, q_flat = (a.reshape(-1) for a in (x, r, p, q))  # views: axpy updates in place
-
-    def band_norm2() -> float:
-        np.multiply(r, band, out=weighted)
-        return dot(weighted, weighted)
-
-    rr = dot(r, r)
-    b_band2 = band_norm2()
-    if b_band2 == 0:
-        return Solution(x, 0, 0.0)
-    tol2 = tolerance**2 * b_band2
-    r_band2 = b_band2
+    inner = HermitianInner(band)
+    axpy = get_blas_funcs("axpy", (rhs,))
+    b_band2 = inner.band_norms2(rhs)
+    solutions: dict[int, Solution] = {int(i): Solution(np.zeros_like(rhs[i]), 0, 0.0)
+                                      for i in np.flatnonzero(b_band2 == 0)}
+    active = np.flatnonzero(b_band2 > 0)
+    if not active.size:
+        return [solutions[i] for i in range(len(rhs))]
+    x, r = np.zeros_like(rhs[active]), rhs[active].copy()
+    p, q = r.copy(), np.empty_like(r)
+    tol2, b_band2 = tolerance**2 * b_band2[active], b_band2[active]
+    rr, r_band2 = inner.dots(r, r), b_band2.copy()
     iterations = 0
-    while iterations < max_iterations and r_band2 > tol2:
+    while True:
+        done = (r_band2 <= tol2) | (iterations >= max_iterations)
+        for j in np.flatnonzero(done):
+            solutions[int(active[j])] = Solution(x[j], iterations, float(np.sqrt(r_band2[j] / b_band2[j])))
+        if done.all():
+            return [solutions[i] for i in range(len(rhs))]
+        if done.any():
+            keep = ~done
+            active, x, r, p, q = active[keep], x[keep], r[keep], p[keep], q[keep]
+            tol2, b_band2, rr, r_band2 = tol2[keep], b_band2[keep], rr[keep], r_band2[keep]
         system.apply(p, q)
-        alpha = rr / dot(p, q)
-        axpy(p_flat, x_flat, a=alpha)
-        axpy(q_flat, r_flat, a=-alpha)
-        rr, rr_old = dot(r, r), rr
-        p *= rr / rr_old
+        alpha = rr / inner.dots(p, q)
+        for row, a in enumerate(alpha.tolist()):
+            axpy(p[row].reshape(-1), x[row].reshape(-1), a=a)
+            axpy(q[row].reshape(-1), r[row].reshape(-1), a=-a)
+        rr, rr_old = inner.dots(r, r), rr
+        p *= (rr / rr_old)[:, None, None]
         p += r
-        r_band2 = band_norm2()
+        r_band2 = inner.band_norms2(r)
         iterations += 1
-    return Solution(x, iterations, float(np.sqrt(r_band2 / b_band2)))
