@@ -34,8 +34,8 @@ is at least a tenth of its peak: bench/bench_features.py). A forward type-2 NUFF
 c0 + i c2 and s2. finufft plans are made once (nthreads=1) and only get new points per frame.
 
 Amplitude (`features(..., amplitude=...)`): the amplitude at the same points, normalised like the FFT path's,
-is a second surface on the same kernel (one more CG solve): scale-invariant amplitude features for the NFFT
-detector variant.
+is a second surface on the same kernel (a second right-hand side in the same CG batch): scale-invariant
+amplitude features for the NFFT detector variant.
 """
 
 from __future__ import annotations
