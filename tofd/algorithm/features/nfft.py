@@ -26,7 +26,8 @@ Larger damping smooths range noise more but shrinks the features unevenly: spher
 0.003 / 0.01 / 0.03 / 0.1 / 0.3), so 0.01 stays.
 
 Solver (normal_equations.py). One finufft type-1 per frame gives K_m = sum_j exp(-2 pi i m.x_j) on the
-2N x 2N grid and A^H z with it (n_trans=2); A^H A is Toeplitz with kernel K, so every CG iteration is a
+2N x 2N grid and A^H z with it, both from the one complex transform of 1 + i z (spectra of real data are
+Hermitian, so the two separate: real_pair_spectra); A^H A is Toeplitz with kernel K, so every CG iteration is a
 circulant convolution (one pruned real FFT pair of size 2N) on the half spectrum (kx >= 0; the unpaired
 Nyquist row and column held at zero keep unknowns and fields Hermitian/real). CG stops on the residual
 weighted by A(rho) (cg_tolerance; at the default 1e-4 eps0 is within 1 % of the converged value wherever it
@@ -72,6 +73,34 @@ class UnitSquarePoints:
     damping: float  # lambda for these points
 
 
+def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int) -> np.ndarray:
+    """(R, 2N, columns) type-1 spectra (first `columns` kx) of R real strength sets, two per complex transform.
+
+    F(u + i v) = F(u) + i F(v) and F(u)_-m = conj F(u)_m for real u, so F(u) = (G + G*_-m) / 2 and
+    F(v) = (G - G*_-m) / 2i, except on the unpaired m = -N row and column (their mirror is off the grid; the
+    solver never uses them). Each set is scaled to mean |value| 1 first so both share finufft's precision.
+    type1: n_trans = ceil(R / 2), onto a 2N x 2N grid in FFT order.
+    """
+    scale = np.mean(np.abs(rows), axis=1)
+    scale[scale == 0] = 1.0
+    unit = rows / scale[:, None]
+    if len(unit) % 2:
+        unit = np.concatenate((unit, np.zeros((1, unit.shape[1]))))
+    spectra = type1.execute((unit[0::2] + 1j * unit[1::2]).astype(type1.dtype))
+    size = spectra.shape[-1]
+    neg = (-np.arange(size)) % size
+    mirrored = np.conj(spectra[:, :, neg[:columns]][:, neg])  # G*_-m
+    spectra = spectra[:, :, :columns]
+    out = np.empty((len(unit), size, columns), spectra.dtype)
+    np.add(spectra, mirrored, out=out[0::2])
+    np.subtract(spectra, mirrored, out=out[1::2])
+    out[0::2] *= 0.5
+    out[1::2] *= -0.5j
+    out = out[: len(rows)]
+    out *= scale[:, None, None].astype(out.real.dtype)
+    return out
+
+
 class NFFTFeatures:
     """Plans, transfer grids and buffers for one camera geometry and config; call per frame."""
 
@@ -100,10 +129,12 @@ class NFFTFeatures:
 
     def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
         """finufft plans (made once) for `surfaces` value sets on shared points: type 1 onto the 2N grid (the
-        kernel and each right-hand side), type 2 back to the points (c0 + i c2 and s2 of each)."""
+        kernel and each right-hand side, two real sets per complex transform), type 2 back to the points
+        (c0 + i c2 and s2 of each)."""
         if surfaces not in self._plans:
             n, opts = self._n, self._plan_options
-            self._plans[surfaces] = (finufft.Plan(1, (2 * n, 2 * n), n_trans=1 + surfaces, isign=-1, **opts),
+            pairs = (2 + surfaces) // 2
+            self._plans[surfaces] = (finufft.Plan(1, (2 * n, 2 * n), n_trans=pairs, isign=-1, **opts),
                                      finufft.Plan(2, (n, n), n_trans=2 * surfaces, isign=1, **opts))
         return self._plans[surfaces]
 
@@ -177,9 +208,7 @@ class NFFTFeatures:
         type1, type2 = self._plans_for(len(values))
         ty, tx = (2 * np.pi * y).astype(self._real), (2 * np.pi * x).astype(self._real)
         type1.setpts(ty, tx)
-        strengths = np.ones((1 + len(values), x.size), self._complex)
-        strengths[1:] = values
-        kernel_and_rhs = type1.execute(strengths)
+        kernel_and_rhs = real_pair_spectra(type1, np.concatenate((np.ones((1, x.size)), values)), n + 1)
         system = DampedNormalEquations(kernel_and_rhs[0], lam, n, self._real, self._complex)
         grids = kernel_and_rhs[1:]
         rhs = np.concatenate((grids[:, :h, :h], grids[:, 2 * n - h + 1:, :h]), axis=1)
