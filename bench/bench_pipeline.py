@@ -149,6 +149,43 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     }
 
 
+MODES = ("live_30fps_rerun", "replay_lossless_rerun", "replay_lossless_no_rerun")
+
+
+def summarise(results: dict) -> None:
+    """Add the goal ratios and two tables (one row per mode, one per mode and process) to the results."""
+    r_on, r_off = results["replay_lossless_rerun"], results["replay_lossless_no_rerun"]
+    bound = r_off["compute_bound_fps"]
+    results["replay_rerun_cost_ratio"] = round(r_off["fps"] / r_on["fps"], 2)
+    results["replay_with_over_without_rerun"] = round(r_on["fps"] / r_off["fps"], 2)  # goal >= 0.9
+    results["replay_over_compute_bound"] = round(r_off["fps"] / bound, 2) if bound else None  # goal >= 0.9
+    results["mode_rows"] = [{"mode": m, **{k: results[m][k] for k in (
+        "fps", "latency_p50_ms", "latency_p99_ms", "frames_in", "frames_out", "frames_dropped", "rss_mb_max",
+        "rss_growth_pct", "worker_cpu_ms_per_frame", "compute_bound_fps")}} for m in MODES]
+    results["process_rows"] = [{"mode": m, "process": name, **usage}
+                               for m in MODES for name, usage in results[m]["processes"].items()]
+
+
+def print_tables(results: dict) -> None:
+    print(f"{'mode':28} {'fps':>7} {'p50 ms':>7} {'p99 ms':>7} {'in':>6} {'out':>6} {'drop':>5} {'RSS MB':>7} "
+          f"{'RSS +%':>7} {'bound fps':>9}")
+    for r in results["mode_rows"]:
+        print(f"{r['mode']:28} {r['fps']:7.1f} {r['latency_p50_ms']:7.1f} {r['latency_p99_ms']:7.1f} "
+              f"{r['frames_in']:6d} {r['frames_out']:6d} {r['frames_dropped']:5d} {r['rss_mb_max'] or 0:7.0f} "
+              f"{r['rss_growth_pct'] if r['rss_growth_pct'] is not None else float('nan'):7.2f} "
+              f"{r['compute_bound_fps'] or float('nan'):9.1f}")
+    live = results["live_30fps_rerun"]
+    print("stage p50/p99 ms (live):", {k: (v, live["stage_p99_ms"][k]) for k, v in live["stage_p50_ms"].items()})
+    print(f"{'mode':28} {'process':>8} {'CPU ms/frame':>12} {'RSS MB':>7}")
+    for r in results["process_rows"]:
+        print(f"{r['mode']:28} {r['process']:>8} {r['cpu_ms_per_frame']:12.2f} {r['rss_mb_max']:7.0f}")
+    r_off = results["replay_lossless_no_rerun"]
+    print(f"replay with / without Rerun: {results['replay_with_over_without_rerun']} (goal >= 0.9); "
+          f"replay without Rerun / compute bound ({r_off['compute_bound_fps']} fps = {results['workers']} / "
+          f"{r_off['worker_cpu_ms_per_frame']} ms worker CPU per frame): {results['replay_over_compute_bound']} "
+          f"(goal >= 0.9); load average at start {results['machine']['load_avg_at_start']}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--minutes", type=float, default=None, help="live run length (default: 20 s)")
@@ -170,28 +207,8 @@ def main() -> None:
         with open_emulated_camera(prerender=True, intrinsics=cfg.intrinsics) as camera:
             results["live_30fps_rerun"] = run(cfg, camera, "latest", live=True, rerun=True, duration_s=live_s,
                                               max_frames=None, tmp=tmp)
-    r_on, r_off = results["replay_lossless_rerun"], results["replay_lossless_no_rerun"]
-    results["replay_rerun_cost_ratio"] = round(r_off["fps"] / r_on["fps"], 2)
-    results["replay_with_over_without_rerun"] = round(r_on["fps"] / r_off["fps"], 2)
-    bound = r_off["compute_bound_fps"]
-    results["replay_over_compute_bound"] = round(r_off["fps"] / bound, 2) if bound else None
-    print(f"{'mode':28} {'fps':>7} {'p50 ms':>7} {'p99 ms':>7} {'in':>6} {'out':>6} {'drop':>5} {'RSS MB':>7} "
-          f"{'RSS +%':>7}")
-    for mode in ("live_30fps_rerun", "replay_lossless_rerun", "replay_lossless_no_rerun"):
-        r = results[mode]
-        print(f"{mode:28} {r['fps']:7.1f} {r['latency_p50_ms']:7.1f} {r['latency_p99_ms']:7.1f} {r['frames_in']:6d} "
-              f"{r['frames_out']:6d} {r['frames_dropped']:5d} {r['rss_mb_max'] or 0:7.0f} "
-              f"{r['rss_growth_pct'] if r['rss_growth_pct'] is not None else float('nan'):7.2f}")
-    print("stage p50/p99 ms (live):", {k: (v, results['live_30fps_rerun']['stage_p99_ms'][k])
-                                       for k, v in results["live_30fps_rerun"]["stage_p50_ms"].items()})
-    print(f"{'mode':28} {'process':>8} {'CPU ms/frame':>12} {'RSS MB':>7}")
-    for mode in ("live_30fps_rerun", "replay_lossless_rerun", "replay_lossless_no_rerun"):
-        for name, p in results[mode]["processes"].items():
-            print(f"{mode:28} {name:>8} {p['cpu_ms_per_frame']:12.2f} {p['rss_mb_max']:7.0f}")
-    print(f"replay with / without Rerun: {results['replay_with_over_without_rerun']} (goal >= 0.9); "
-          f"replay without Rerun / compute bound ({bound} fps = {cfg.pipeline.workers} / "
-          f"{r_off['worker_cpu_ms_per_frame']} ms worker CPU per frame): {results['replay_over_compute_bound']} "
-          f"(goal >= 0.9); load average at start {results['machine']['load_avg_at_start']}")
+    summarise(results)
+    print_tables(results)
     write_json(args.out, results)
 
 
