@@ -14,6 +14,9 @@ nonzero, the forward one only over the N/2 columns that are kept), which saves a
 Stopping. CG stops when the residual weighted by A(rho) (the filters' band) falls below the tolerance
 relative to the weighted right-hand side: smooth surfaces put most of A^H z at low frequencies that the
 filters ignore, and the plain residual stopped a sphere with eps0 off by 15 %.
+
+No preconditioner: the slow modes are band-limited ones straddling the patch border, which a preconditioner
+diagonal in space (T. Chan's optimal circulant, density compensation) cannot separate; both cost iterations.
 """
 
 from __future__ import annotations
