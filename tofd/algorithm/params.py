@@ -57,7 +57,7 @@ class FeatureConfig:
     cg_tolerance: float = 1e-4  # NFFT path: stop CG at this relative band-weighted residual
     cg_max_iterations: int = 100  # NFFT path: CG iteration cap
     nufft_eps: float = 1e-6  # NFFT path: finufft requested relative precision
-    cg_precision: Literal["single", "double"] = "single"  # NFFT path: float width of the CG's FFTs
+    cg_precision: Literal["single", "double"] = "single"  # NFFT path: float width of NUFFTs and CG
 
     def validate(self) -> None:
         positive = ("equivalence_range_m", "tuning_frequency_per_m", "lowpass_sigma_per_m", "damping",

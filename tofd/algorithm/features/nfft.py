@@ -25,21 +25,18 @@ Larger damping smooths range noise more but shrinks the features unevenly: spher
 (bench/tune_detector.py --grid damping, 72 frames per subject: NFFT range 0.7 / 0.4 / 0.4 / 0.3 / 0.3 % at
 0.003 / 0.01 / 0.03 / 0.1 / 0.3), so 0.01 stays.
 
-Stopping. CG stops when the residual weighted by A(rho) (the filters' band) falls below cg_tolerance
-relative to the weighted right-hand side: smooth surfaces put most of A^H z at low frequencies that
-the filters ignore, and the plain residual stopped the sphere after 4-7 iterations with eps0 off by 15 %.
-At the default 1e-4: faces 17-31 iterations, eps0 within 0.1 % of the converged value.
-
-Solver. A^H A is Toeplitz, (A^H A f)_k = sum_l K_{k-l} f_l with K_m = sum_j exp(-2 pi i m.x_j). One
-finufft type-1 per frame gives K on the 2N x 2N grid (and A^H z with it: n_trans=2); then every CG
-iteration is a circulant convolution, i.e. one real FFT pair of size 2N x 2N. The unpaired Nyquist row and
-column (k = -N/2) are held at zero, so the unknowns, kernel and fields are Hermitian/real: CG works on the
-half spectrum (kx >= 0) with real FFTs. A forward type-2 NUFFT (n_trans=2) evaluates c0 + i c2 and s2.
-finufft plans are made once (nthreads=1) and only get new points per frame.
+Solver (normal_equations.py). One finufft type-1 per frame gives K_m = sum_j exp(-2 pi i m.x_j) on the
+2N x 2N grid and A^H z with it, both from the one complex transform of 1 + i z (spectra of real data are
+Hermitian, so the two separate: real_pair_spectra); A^H A is Toeplitz with kernel K, so every CG iteration is a
+circulant convolution (one pruned real FFT pair of size 2N) on the half spectrum (kx >= 0; the unpaired
+Nyquist row and column held at zero keep unknowns and fields Hermitian/real). CG stops on the residual
+weighted by A(rho) (cg_tolerance; at the default 1e-4 eps0 is within 1 % of the converged value wherever it
+is at least a tenth of its peak: bench/bench_features.py). A forward type-2 NUFFT (n_trans=2) evaluates
+c0 + i c2 and s2. finufft plans are made once (nthreads=1) and only get new points per frame.
 
 Amplitude (`features(..., amplitude=...)`): the amplitude at the same points, normalised like the FFT path's,
-is a second surface on the same kernel (one more CG solve): scale-invariant amplitude features for the NFFT
-detector variant.
+is a second surface on the same kernel (a second right-hand side in the same CG batch): scale-invariant
+amplitude features for the NFFT detector variant.
 """
 
 from __future__ import annotations
@@ -53,8 +50,11 @@ import scipy.fft as sfft
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features.eccentricity import Eccentricities
 from tofd.algorithm.features.fft import check_frame
+from tofd.algorithm.features.normal_equations import DampedNormalEquations, solve
 from tofd.algorithm.features.transfer import transfer_functions, unit_square_m
 from tofd.algorithm.params import FeatureConfig
+
+SINGLE_NUFFT_EPS = 2e-5  # finufft's float32 precision floor at upsampfac 1.25 (below it narrows its kernel and warns)
 
 
 def _upsampfac(eps: float) -> float:
@@ -71,6 +71,34 @@ class UnitSquarePoints:
     z: np.ndarray
     index: np.ndarray  # flat pixel index of each kept point
     damping: float  # lambda for these points
+
+
+def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int) -> np.ndarray:
+    """(R, 2N, columns) type-1 spectra (first `columns` kx) of R real strength sets, two per complex transform.
+
+    F(u + i v) = F(u) + i F(v) and F(u)_-m = conj F(u)_m for real u, so F(u) = (G + G*_-m) / 2 and
+    F(v) = (G - G*_-m) / 2i, except on the unpaired m = -N row and column (their mirror is off the grid; the
+    solver never uses them). Each set is scaled to mean |value| 1 first so both share finufft's precision.
+    type1: n_trans = ceil(R / 2), onto a 2N x 2N grid in FFT order.
+    """
+    scale = np.mean(np.abs(rows), axis=1)
+    scale[scale == 0] = 1.0
+    unit = rows / scale[:, None]
+    if len(unit) % 2:
+        unit = np.concatenate((unit, np.zeros((1, unit.shape[1]))))
+    spectra = type1.execute((unit[0::2] + 1j * unit[1::2]).astype(type1.dtype))
+    size = spectra.shape[-1]
+    neg = (-np.arange(size)) % size
+    mirrored = np.conj(spectra[:, :, neg[:columns]][:, neg])  # G*_-m
+    spectra = spectra[:, :, :columns]
+    out = np.empty((len(unit), size, columns), spectra.dtype)
+    np.add(spectra, mirrored, out=out[0::2])
+    np.subtract(spectra, mirrored, out=out[1::2])
+    out[0::2] *= 0.5
+    out[1::2] *= -0.5j
+    out = out[: len(rows)]
+    out *= scale[:, None, None].astype(out.real.dtype)
+    return out
 
 
 class NFFTFeatures:
@@ -92,18 +120,21 @@ class NFFTFeatures:
         self._real: type[np.floating] = np.float32 if single else np.float64
         self._complex: type[np.complexfloating] = np.complex64 if single else np.complex128
         self._band = self._band.astype(self._real)
-        self._padded = np.zeros((2 * n, n + 1), self._complex)  # half spectrum of the 2N circulant
+        self._filters = self._filters.astype(self._complex)
         self._neg_rows = (-np.arange(n)) % n
         self._neg_cols_src = n - np.arange(n - self._h + 1, n)
-        self._plan_options = dict(eps=cfg.nufft_eps, modeord=1, nthreads=1, upsampfac=_upsampfac(cfg.nufft_eps))
+        eps = max(cfg.nufft_eps, SINGLE_NUFFT_EPS) if single else cfg.nufft_eps
+        self._plan_options = dict(eps=eps, modeord=1, nthreads=1, upsampfac=_upsampfac(eps), dtype=self._complex)
         self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
 
     def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
         """finufft plans (made once) for `surfaces` value sets on shared points: type 1 onto the 2N grid (the
-        kernel and each right-hand side), type 2 back to the points (c0 + i c2 and s2 of each)."""
+        kernel and each right-hand side, two real sets per complex transform), type 2 back to the points
+        (c0 + i c2 and s2 of each)."""
         if surfaces not in self._plans:
             n, opts = self._n, self._plan_options
-            self._plans[surfaces] = (finufft.Plan(1, (2 * n, 2 * n), n_trans=1 + surfaces, isign=-1, **opts),
+            pairs = (2 + surfaces) // 2
+            self._plans[surfaces] = (finufft.Plan(1, (2 * n, 2 * n), n_trans=pairs, isign=-1, **opts),
                                      finufft.Plan(2, (n, n), n_trans=2 * surfaces, isign=1, **opts))
         return self._plans[surfaces]
 
@@ -175,73 +206,22 @@ class NFFTFeatures:
         n, h = self._n, self._h
         values = np.atleast_2d(values)
         type1, type2 = self._plans_for(len(values))
-        ty, tx = 2 * np.pi * y, 2 * np.pi * x
+        ty, tx = (2 * np.pi * y).astype(self._real), (2 * np.pi * x).astype(self._real)
         type1.setpts(ty, tx)
-        strengths = np.ones((1 + len(values), x.size), np.complex128)
-        strengths[1:] = values
-        kernel_and_rhs = type1.execute(strengths)
-        kernel = kernel_and_rhs[0, :, : n + 1].copy()
-        kernel[n, :] = 0  # the unpaired -N row and column never enter (A^H A f)_k for |k| < N/2
-        kernel[:, n] = 0
-        circulant = (sfft.irfft2(kernel, s=(2 * n, 2 * n), workers=1) * float(4 * n * n)).astype(self._real)
-        solved = []
-        for rhs_grid in kernel_and_rhs[1:]:
-            rhs = np.concatenate((rhs_grid[:h, :h], rhs_grid[2 * n - h + 1:, :h])).astype(self._complex)
-            solved.append(self._solve(circulant, rhs, lam))
+        kernel_and_rhs = real_pair_spectra(type1, np.concatenate((np.ones((1, x.size)), values)), n + 1)
+        system = DampedNormalEquations(kernel_and_rhs[0], lam, n, self._real, self._complex)
+        grids = kernel_and_rhs[1:]
+        rhs = np.concatenate((grids[:, :h, :h], grids[:, 2 * n - h + 1:, :h]), axis=1)
+        solved = solve(system, rhs, self._band, self.cfg.cg_tolerance, self.cfg.cg_max_iterations)
         type2.setpts(ty, tx)
-        out = type2.execute(np.concatenate([self._filters * self._hermitian_full(f) for f, _, _ in solved]))
-        return [(out[2 * i].real, out[2 * i].imag, out[2 * i + 1].real, it, res)
-                for i, (_, it, res) in enumerate(solved)]
-
-    def _normal(self, circulant: np.ndarray, v: np.ndarray, lam: float, out: np.ndarray) -> np.ndarray:
-        """out = (A^H A + lam I) v on the compact half spectrum, via the 2N circulant (one real FFT pair)."""
-        n, h = self._n, self._h
-        padded = self._padded
-        padded[:h, :h] = v[:h]
-        padded[2 * n - h + 1:, :h] = v[h:]
-        grid = sfft.irfft2(padded, s=(2 * n, 2 * n), workers=1)
-        grid *= circulant
-        spec = sfft.rfft2(grid, workers=1)
-        out[:h] = spec[:h, :h]
-        out[h:] = spec[2 * n - h + 1:, :h]
-        out += lam * v
-        return out
-
-    @staticmethod
-    def _dot(a: np.ndarray, b: np.ndarray) -> float:
-        """Re <a, b> of the full Hermitian spectra, from their halves (kx > 0 counted twice)."""
-        return 2.0 * np.vdot(a, b).real - np.vdot(a[:, 0], b[:, 0]).real
-
-    def _solve(self, circulant: np.ndarray, rhs: np.ndarray, lam: float) -> tuple[np.ndarray, int, float]:
-        """Conjugate gradients on the damped normal equations; returns (f, iterations, relative residual)."""
-        x = np.zeros_like(rhs)
-        r = rhs.copy()
-        p = r.copy()
-        q = np.empty_like(rhs)
-        band = self._band
-        rr = self._dot(r, r)
-        b_band = np.sqrt(self._dot(band * r, band * r))
-        if b_band == 0:
-            return x, 0, 0.0
-        tol2 = (self.cfg.cg_tolerance * b_band) ** 2
-        r_band2 = b_band**2
-        iterations = 0
-        while iterations < self.cfg.cg_max_iterations and r_band2 > tol2:
-            self._normal(circulant, p, lam, q)
-            alpha = rr / self._dot(p, q)
-            x += alpha * p
-            r -= alpha * q
-            rr, rr_old = self._dot(r, r), rr
-            p *= rr / rr_old
-            p += r
-            r_band2 = self._dot(band * r, band * r)
-            iterations += 1
-        return x, iterations, float(np.sqrt(r_band2) / b_band)
+        out = type2.execute(np.concatenate([self._filters * self._hermitian_full(s.f) for s in solved]))
+        return [(out[2 * i].real, out[2 * i].imag, out[2 * i + 1].real, s.iterations, s.residual)
+                for i, s in enumerate(solved)]
 
     def _hermitian_full(self, half: np.ndarray) -> np.ndarray:
         """(N, N) FFT-ordered spectrum from the compact half (kx >= 0) by Hermitian symmetry."""
         n, h = self._n, self._h
-        full = np.zeros((n, n), np.complex128)
+        full = np.zeros((n, n), self._complex)
         full[:h, :h] = half[:h]
         full[n - h + 1:, :h] = half[h:]
         full[:, n - h + 1:] = np.conj(full[np.ix_(self._neg_rows, self._neg_cols_src)])

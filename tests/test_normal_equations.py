@@ -1,0 +1,104 @@
+import dataclasses
+
+import finufft
+import numpy as np
+import pytest
+
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.features import NFFTFeatures
+from tofd.algorithm.features.normal_equations import DampedNormalEquations, HermitianInner, solve
+from tofd.config import FeatureConfig
+from tofd.lab import shapes as synthetic
+
+
+def _half_to_full(half: np.ndarray, n: int) -> np.ndarray:
+    """Compact half spectrum -> the (N - 1) x (N - 1) modes k in (-N/2, N/2)^2, rows ky, columns kx, centred."""
+    h = n // 2
+    rows = np.concatenate((half[h:], half[:h]))  # ky = -h + 1 .. h - 1
+    full = np.zeros((n - 1, n - 1), complex)
+    full[:, h - 1:] = rows
+    full[:, : h - 1] = np.conj(rows[::-1, :0:-1])  # f(-ky, -kx) = conj f(ky, kx)
+    return full
+
+
+@pytest.mark.parametrize("n", [8, 16])
+def test_operator_equals_dense_damped_normal_matrix(n):
+    """(A^H A + lambda I) v through the pruned 2N circulant equals the dense NDFT matrix product."""
+    rng = np.random.default_rng(n)
+    x, y = rng.uniform(-0.3, 0.4, 300), rng.uniform(-0.45, 0.2, 300)
+    kernel = finufft.nufft2d1(2 * np.pi * y, 2 * np.pi * x, np.ones(x.size, complex), (2 * n, 2 * n), eps=1e-13,
+                              modeord=1, isign=-1)
+    lam = 3.7
+    system = DampedNormalEquations(kernel, lam, n, np.float64, np.complex128)
+    h = n // 2
+
+    def half_of_real_field() -> np.ndarray:  # a real field's half spectrum is Hermitian in its kx = 0 column
+        spec = np.fft.fft2(rng.standard_normal((n, n)))
+        return np.concatenate((spec[:h, :h], spec[n - h + 1:, :h]))
+
+    v = half_of_real_field()[None]
+    got = _half_to_full(system.apply(v, np.empty_like(v))[0], n)
+    k = np.arange(-h + 1, h)
+    kx, ky = (g.ravel() for g in np.meshgrid(k, k))
+    a = np.exp(2j * np.pi * (np.outer(x, kx) + np.outer(y, ky)))
+    normal = a.conj().T @ a + lam * np.eye(k.size**2)
+    want = (normal @ _half_to_full(v[0], n).ravel()).reshape(n - 1, n - 1)
+    np.testing.assert_allclose(got, want, atol=1e-9 * np.abs(want).max())
+    full = _half_to_full(v[0], n)
+    inner = HermitianInner(np.ones(v.shape[1:]))
+    assert inner.dots(v, v)[0] == pytest.approx(np.vdot(full, full).real)
+
+    # two right-hand sides solved together: each equals its dense solution, each stops on its own residual
+    rhs = np.stack((v[0], 1e3 * half_of_real_field()))
+    band = np.ones(v.shape[1:])
+    solved = solve(system, rhs, band, 1e-10, 1000)
+    for s, b in zip(solved, rhs, strict=True):
+        np.testing.assert_allclose(_half_to_full(s.f, n), np.linalg.solve(normal, _half_to_full(b, n).ravel()).reshape(
+            n - 1, n - 1), rtol=1e-8, atol=1e-10 * np.abs(_half_to_full(s.f, n)).max())
+        alone = solve(system, b[None], band, 1e-10, 1000)[0]
+        assert s.residual <= 1e-10 and alone.residual <= 1e-10
+        np.testing.assert_allclose(s.f, alone.f, rtol=1e-7, atol=1e-9 * np.abs(alone.f).max())
+
+
+@pytest.mark.parametrize("distance", [0.35, 0.7])
+def test_default_stopping_gives_eps0_within_1_percent_of_converged(distance):
+    """Default CG (single precision, tolerance 1e-4) against a double-precision solve to 1e-10, on a noisy
+    sphere: eps0 within 1 % of the converged peak everywhere, and at its median pixel within 0.2 %."""
+    intr, cfg = Intrinsics(), FeatureConfig()
+    scene = synthetic.sphere(intr, distance, 0.08)
+    noisy = scene.range_m + 0.002 * np.random.default_rng(3).standard_normal(scene.range_m.shape)
+    got = NFFTFeatures(intr, cfg).range_features(noisy, scene.mask)
+    tight = dataclasses.replace(cfg, cg_tolerance=1e-10, cg_max_iterations=3000, cg_precision="double")
+    ref = NFFTFeatures(intr, tight).range_features(noisy, scene.mask)
+    fin = np.isfinite(ref.eps0)
+    assert np.array_equal(fin, np.isfinite(got.eps0)) and fin.sum() > 1000
+    error = np.abs(got.eps0[fin] - ref.eps0[fin])
+    assert np.max(error) < 0.01 * np.max(ref.eps0[fin])
+    assert np.median(error / ref.eps0[fin]) < 0.002
+    assert got.iterations < ref.iterations
+
+
+def test_real_pair_spectra_equal_direct_sums():
+    """Three real strength sets through two packed complex transforms equal their direct sums
+    sum_j v_j exp(-i m.x_j) (m in FFT order; not on the unpaired m = -N row and column, whose mirror is off the
+    grid), in double precision and for a single-precision plan."""
+    from tofd.algorithm.features.nfft import real_pair_spectra
+
+    rng = np.random.default_rng(5)
+    n = 6
+    x, y = rng.uniform(-np.pi, np.pi, 50), rng.uniform(-np.pi, np.pi, 50)
+    rows = np.stack((np.ones(50), 0.01 * rng.standard_normal(50), 1 + rng.random(50)))
+    m = np.fft.fftfreq(2 * n, 1.0 / (2 * n))
+    direct = np.einsum("vj,yj,xj->vyx", rows, np.exp(-1j * np.outer(m, y)), np.exp(-1j * np.outer(m, x)))
+    for dtype, rtol in ((np.complex128, 1e-10), (np.complex64, 1e-4)):
+        plan = finufft.Plan(1, (2 * n, 2 * n), n_trans=2, isign=-1, modeord=1, dtype=dtype,
+                            eps=1e-12 if dtype == np.complex128 else 1e-5)
+        real = np.float64 if dtype == np.complex128 else np.float32
+        plan.setpts(y.astype(real), x.astype(real))
+        got = real_pair_spectra(plan, rows, n + 1)
+        assert got.shape == (3, 2 * n, n + 1)
+        paired = np.ones((2 * n, n + 1), bool)
+        paired[n, :] = paired[:, n] = False
+        for v in range(3):  # each set to the precision of its own scale
+            err = np.abs(got[v] - direct[v, :, : n + 1])[paired].max()
+            assert err <= rtol * np.abs(rows[v]).sum()
