@@ -32,6 +32,8 @@ GRIDS = {
     "quick": {"quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001]},  # the current defaults
     "front": {"quantile": [0.05], "border_margin_m": [0.006],
               "front_depth_m": [0.0, 0.0005, 0.001, 0.0015, 0.002, 0.003, 0.005, 0.008]},
+    "front_noise": {"quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001],
+                    "front_noise_factor": [0.0, 0.25, 0.5, 0.75, 1.0, 1.5]},
     "plane_iter": {"plane_iterations": [2, 4, 8], "plane_depth_m": [0.04, 0.05], "quantile": [0.05],
                    "border_margin_m": [0.006], "front_depth_m": [0.001]},
     "plane_fine": {"plane_iterations": [1, 2, 3], "plane_depth_m": [0.03, 0.04], "depth_margin_m": [0.025, 0.03],
@@ -65,7 +67,7 @@ GRIDS = {
 }
 SEGMENTATION_KEYS = ("depth_margin_m", "range_percentile", "median_px", "morphology_px", "head_height_m",
                      "plane_iterations", "plane_depth_m", "plane_max_tilt_deg")
-CANDIDATE_KEYS = ("border_margin_m", "front_depth_m")  # tofd.algorithm.detector.Candidates
+CANDIDATE_KEYS = ("border_margin_m", "front_depth_m", "front_noise_factor")  # tofd.algorithm.detector.Candidates
 BOX_KEYS = ("quantile", "positive_radius_m", *CANDIDATE_KEYS)  # cheap: no feature recomputation
 
 

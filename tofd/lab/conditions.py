@@ -32,5 +32,6 @@ def parse_conditions(text: str) -> tuple[str, ...]:
     names = tuple(CONDITIONS) if text.strip() == "all" else tuple(n.strip() for n in text.split(",") if n.strip())
     unknown = [n for n in names if n not in CONDITIONS]
     if unknown or not names:
-        raise ValueError(f"unknown condition(s) {', '.join(unknown) or '(none given)'} (known: {', '.join(CONDITIONS)})")
+        bad = ", ".join(unknown) or "(none given)"
+        raise ValueError(f"unknown condition(s) {bad} (known: {', '.join(CONDITIONS)})")
     return names

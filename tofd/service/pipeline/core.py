@@ -32,6 +32,7 @@ from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
 from tofd.algorithm.names import MAP_NAMES
+from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config
 from tofd.service.pipeline.ledger import DropLedger
 from tofd.service.pipeline.queues import Policy, StageQueue
@@ -93,6 +94,7 @@ class Pipeline:
         self._gone: set[int] = set()  # lossless ordering: dropped seqs the collector must skip
         self._done: dict[int, FrameResult] = {}
         self._next_emit = 0
+        self.tracker = None if model is None else NoseTracker()  # updated in sequence order (_emit_ordered)
         self._failures = 0
         self._capture_done = threading.Event()
         self._dispatch_done = threading.Event()
@@ -379,7 +381,10 @@ class Pipeline:
             if gone:
                 self._next_emit += 1
             elif self._next_emit in self._done:
-                self._to_sink(self._done.pop(self._next_emit))
+                result = self._done.pop(self._next_emit)
+                if self.tracker is not None:
+                    result.track = self.tracker.update(result.detection, result.frame.timestamp_us / 1e6)
+                self._to_sink(result)
                 self._next_emit += 1
             else:
                 return
