@@ -6,8 +6,9 @@ time since the last associated detection, metres in 3-D) corrects it: p += alpha
 residual. A detection outside the gate is not believed at once (a wrong pixel of the detector looks like that):
 it starts a challenger, which replaces the track after `confirm_hits` mutually-gated detections with none
 associated to the track in between (the head really moved there). Confidence rises by `confidence_gain` of its
-shortfall on each associated detection and decays as exp(-dt / confidence_tau_s) otherwise; the track is lost after `lost_after_s` without an
-associated detection. The reported nose is the predicted or corrected position while the track is confirmed.
+shortfall on each associated detection and decays as exp(-dt / confidence_tau_s) otherwise; the track is lost after
+`lost_after_s` without an associated detection. The reported nose is the predicted or corrected position while the
+track is confirmed.
 """
 
 from __future__ import annotations
