@@ -36,6 +36,13 @@ class Intrinsics:
         """
         return _unit_rays(self)
 
+    def pixel_rays(self, u: np.ndarray | float, v: np.ndarray | float) -> np.ndarray:
+        """(..., 3) float64 unit rays through (sub)pixel coordinates u (column), v (row) of broadcastable shapes."""
+        x = (np.asarray(u, dtype=np.float64) - self.cx) / self.fx
+        y = (np.asarray(v, dtype=np.float64) - self.cy) / self.fy
+        rays = np.stack(np.broadcast_arrays(x, y, np.ones_like(x)), axis=-1)
+        return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
     def backproject(self, range_m: np.ndarray) -> np.ndarray:
         """(H, W, 3) camera-frame points in metres from a radial range map (metres along each pixel's ray)."""
         if range_m.shape != self.shape:
@@ -61,9 +68,6 @@ class Intrinsics:
 
 @functools.lru_cache(maxsize=8)
 def _unit_rays(intrinsics: Intrinsics) -> np.ndarray:
-    u = (np.arange(intrinsics.width) - intrinsics.cx) / intrinsics.fx
-    v = (np.arange(intrinsics.height) - intrinsics.cy) / intrinsics.fy
-    rays = np.stack(np.broadcast_arrays(u[None, :], v[:, None], np.ones((1, 1))), axis=-1)
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    rays = intrinsics.pixel_rays(np.arange(intrinsics.width)[None, :], np.arange(intrinsics.height)[:, None])
     rays.setflags(write=False)
     return rays

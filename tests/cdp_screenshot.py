@@ -1,7 +1,7 @@
 """Screenshot of a page in headless Chromium via the DevTools protocol, after waiting real seconds.
 
 The Rerun web viewer is a wasm app that needs real time to start; `chromium --screenshot` with virtual
-time captures only its loading screen (see ../shared/design/rerun_notes.md, section 4). Outbound DNS is
+time captures only its loading screen (the wasm viewer needs real seconds to start). Outbound DNS is
 blocked (the viewer's fonts/analytics requests fail harmlessly); software WebGL via SwiftShader.
 """
 

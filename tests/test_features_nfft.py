@@ -49,7 +49,8 @@ def test_nfft_matches_dense_ndft_solution(distance):
     lx, ly = unit_square_m(INTR, cfg.equivalence_range_m)
     for values, got in ((z, maps), (amp, amp_maps)):
         coeffs = np.linalg.solve(a.conj().T @ a + lam * np.eye(k.size**2), a.conj().T @ values)
-        c0, c2, s2 = (a @ (t * coeffs) for t in transfer_functions(kx / lx, ky / ly, cfg))
+        c0, c2, s2 = (a @ (t * coeffs) for t in transfer_functions(kx / lx, ky / ly, cfg.tuning_frequency_per_m,
+                                                                        cfg.lowpass_sigma_per_m))
         eps0_ref, eps2_ref = np.abs(c0) ** 2, np.abs(c2) ** 2 + np.abs(s2) ** 2
         eps0 = got.eps0[mask][keep]
         eps2 = got.eps2[mask][keep]

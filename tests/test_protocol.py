@@ -1,4 +1,4 @@
-"""drivers.usb.protocol against the literal values of ../shared/design/sr3000_usb_protocol.md."""
+"""drivers.usb.protocol against the literal values of docs/protocol.md."""
 
 from __future__ import annotations
 

@@ -3,36 +3,47 @@ import pytest
 import scipy.fft as sfft
 
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.features.transfer import pixel_frequencies_per_m, radial_tuning, transfer_functions, unit_square_m
+from tofd.algorithm.features.transfer import (
+    pixel_frequencies_per_m,
+    radial_tuning,
+    transfer_functions,
+    unit_square_m,
+)
 from tofd.config import ConfigError, FeatureConfig, config_from_dict
 
 CFG = FeatureConfig()
 
 
+def band(cfg: FeatureConfig) -> tuple[float, float]:
+    """The filter's (rho0, sigma) in cycles per metre."""
+    return cfg.tuning_frequency_per_m, cfg.lowpass_sigma_per_m
+
+
 def test_tuning_peaks_at_rho0_without_lowpass_and_vanishes_at_zero():
     cfg = FeatureConfig(lowpass_sigma_per_m=1e9)
     rho = np.linspace(0, 100, 100001)
-    a = radial_tuning(rho, cfg)
+    a = radial_tuning(rho, *band(cfg))
     assert a[0] == 0
     assert rho[np.argmax(a)] == pytest.approx(cfg.tuning_frequency_per_m, abs=1e-3)
     assert a.max() == pytest.approx(1.0)
     # near 0 it grows like rho^2 (so planes give exactly zero)
-    assert radial_tuning(0.02, cfg) / radial_tuning(0.01, cfg) == pytest.approx(4.0, rel=1e-3)
+    assert radial_tuning(0.02, *band(cfg)) / radial_tuning(0.01, *band(cfg)) == pytest.approx(4.0, rel=1e-3)
 
 
 def test_lowpass_attenuates_high_frequencies():
-    assert radial_tuning(60.0, CFG) < 0.5 * radial_tuning(60.0, FeatureConfig(lowpass_sigma_per_m=1e9))
+    assert radial_tuning(60.0, *band(CFG)) < 0.5 * radial_tuning(60.0, *band(FeatureConfig(lowpass_sigma_per_m=1e9)))
 
 
 def test_filters_are_even_and_rotate_like_cos_sin_2theta():
     kx = np.array([7.0, 0.0, 5.0, -7.0])
     ky = np.array([0.0, 7.0, 5.0, 0.0])
-    c0, c2, s2 = transfer_functions(kx, ky, CFG)
-    a = radial_tuning(7.0, CFG)
+    c0, c2, s2 = transfer_functions(kx, ky, *band(CFG))
+    a = radial_tuning(7.0, *band(CFG))
     np.testing.assert_allclose(c0[:2], [a, a])
     np.testing.assert_allclose(c2[:2], [-a, a])  # i^2 cos(2 theta): theta = 0 and 90 degrees
-    assert s2[2] == pytest.approx(-radial_tuning(np.hypot(5, 5), CFG))  # theta = 45 degrees
-    np.testing.assert_allclose(transfer_functions(-kx, -ky, CFG), transfer_functions(kx, ky, CFG), atol=1e-15)
+    assert s2[2] == pytest.approx(-radial_tuning(np.hypot(5, 5), *band(CFG)))  # theta = 45 degrees
+    np.testing.assert_allclose(transfer_functions(-kx, -ky, *band(CFG)), transfer_functions(kx, ky, *band(CFG)),
+                               atol=1e-15)
     np.testing.assert_allclose(c0 ** 2, c2 ** 2 + s2 ** 2, atol=1e-15)
 
 

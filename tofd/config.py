@@ -25,6 +25,10 @@ def default_file(name: str) -> Path:
 DEFAULT_CONFIG_PATH = default_file("tofd.toml")
 
 
+RERUN_SINKS = ("none", "save", "web", "connect", "spawn")
+"""Where the Rerun stream can go: nowhere, an .rrd file, a served web viewer, a running viewer, a desktop viewer."""
+
+
 class ConfigError(ValueError):
     """A config file that cannot be used; the message names the offending key."""
 
@@ -101,8 +105,8 @@ class RerunConfig:
     point_cloud: bool = True  # log the foreground as a 3-D point cloud coloured by NFFT eps0
 
     def validate(self) -> None:
-        if self.sink not in ("none", "save", "web", "connect", "spawn"):
-            raise ValueError(f"sink: {self.sink!r} is not one of 'none', 'save', 'web', 'connect', 'spawn'")
+        if self.sink not in RERUN_SINKS:
+            raise ValueError(f"sink: {self.sink!r} is not one of {', '.join(RERUN_SINKS)}")
         for key in ("grpc_port", "web_port"):
             if not 0 < getattr(self, key) < 65536:
                 raise ValueError(f"{key}: {getattr(self, key)} is not a TCP port")

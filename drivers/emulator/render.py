@@ -105,8 +105,7 @@ def place_mesh(mesh: FaceMesh, pose: Pose, intrinsics: Intrinsics) -> np.ndarray
     """(N, 3) camera-frame vertices in metres for a pose."""
     rotated = mesh.vertices @ _rotation(pose.yaw_deg, pose.pitch_deg, pose.roll_deg).T
     u, v = pose.nose_px if pose.nose_px is not None else (intrinsics.cx, intrinsics.cy)
-    ray = np.array([(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, 1.0])
-    target = pose.distance_m * ray / np.linalg.norm(ray)
+    target = pose.distance_m * intrinsics.pixel_rays(u, v)
     return rotated + (target - rotated[mesh.nose])
 
 

@@ -99,7 +99,7 @@ class _DropTally:
 
 
 class UsbCamera(FrameSource):
-    """An SR3000-style camera (protocol of ../shared/design/sr3000_usb_protocol.md) as a stream of Frames.
+    """An SR3000-style camera (protocol of docs/protocol.md) as a stream of Frames.
 
     Keyword names match tofd's [camera] config section, so `UsbCamera(**asdict(config.camera))` works.
     serial: 8 hex digits, "" = the first camera found (then that camera's serial is kept for reconnects).

@@ -1,4 +1,4 @@
-"""SR3000-style USB protocol, version 1 (../shared/design/sr3000_usb_protocol.md): constants and structs.
+"""SR3000-style USB protocol, version 1 (docs/protocol.md): constants and structs.
 
 Shared by the USB backend (host side) and the emulated camera (device side), so both speak one definition.
 All multi-byte fields are little-endian.

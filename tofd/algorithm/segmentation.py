@@ -1,54 +1,19 @@
-"""Foreground segmentation as in the paper: adaptive amplitude threshold, then an iso-range cut of the head.
+"""Foreground segmentation: an adaptive amplitude threshold, then a range cut that follows an iso-depth line of the head.
 
-1. Amplitude: Otsu's threshold on log amplitude over every finite amplitude, floored at 1e-4 of the
-   maximum (pixels without a return have amplitude ~0 and count as dark background). Amplitude falls as
-   1/r^2, so in log space a near object and a far wall are two compact classes; on linear amplitude
-   Otsu splits the broad bright class (a lit face) instead. Foreground = amplitude above it AND a valid
-   range (finite, > 0; the driver turns 0xFFFF into NaN). Invalid pixels are never foreground.
-2. Depth. The paper puts a range threshold "at the top 20th percentile" so that there is "a smooth
-   transition between foreground and background all along the border": the features set the background
-   to the maximum foreground range (FFT path; the NFFT path offsets z to max 0 and its damping pulls the
-   field to 0 where there are no points), so the cut must follow an iso-range line of the head for the
-   clamped surface to be continuous. Our reading: a cut a fixed depth behind the nearest point, on the depth
-   z = range * (z of the pixel's unit ray) that both feature paths filter (on radial range the cut surface
-   is a sphere about the camera, which bends 6 mm towards it 7 cm off-axis at 0.35 m and 3 mm at 0.7 m).
-   A share of the pixel count (the literal reading) is not that: the share is of whatever the amplitude
-   step kept (head alone, or head and shoulders, which grow with proximity), and on our renders it left a
-   ragged ~3 cm-deep strip of the face whose border ran 1-2 cm from the nose tip. So:
-   - the depth is median-filtered (`median_px` x `median_px`; invalid pixels count as far), so single
-     noisy or flying pixels neither fray the cut nor become the nearest point;
-   - reference = the `range_percentile` (default 1) percentile of the filtered depths of the step-1
-     pixels in the head band: a robust nearest point (the nose tip on a face). Head band (`head_height_m`,
-     default 0.18 m; 0 = the whole step-1 foreground): the rows at most that far below the top of the body
-     (step-1 pixels within head_height_m in depth of the nearest one; rows converted to metres at that
-     depth). The head is the top of a body seen by an upright camera; on a head-and-shoulders view a turned
-     and nodded-down head can have a shoulder nearer than its nose, which the plain nearest point would pick;
-   - face frame (`plane_iterations` > 0, default 2): depth is measured along the face's viewing direction
-     instead of the camera's z axis -- minus the normal of a plane fitted (SVD) to the face front, the head-band
-     points within `plane_depth_m` (0.04 m) of the nearest one, refitted along the new direction. A nodding
-     head otherwise makes its chin or forehead the nearest point, the cut a slab around it and the nose tip
-     sit on the slab's border, where the clamped background dominates its features (the misses at 0.6-0.7 m
-     before). The fit follows pitch (a face is flat from brow to chin) better than yaw (it is round across;
-     each refit moves the front slab, and the direction, further towards the turned face: estimated against
-     true angle over 240 rendered test frames, yaw slope 0.41 / 0.63 / 0.91 after 2 / 4 / 8 fits, pitch
-     0.76 / 0.84 / 0.82, residuals 2.4-3.6 deg), and a tilted disc's direction comes back within 0.1 deg
-     (tests). More fits did not help robustly (bench/tune_detector.py --grid plane_iter, 3 draws, mean EER
-     % FFT range / NFFT range / NFFT range+amplitude: 2 fits 1.1 / 0.7 / 0.6, 4 fits 0.8 / 0.5 / 0.4, 8 fits
-     1.3 / 1.0 / 1.0; but with 4 fits the default split's NFFT range EER rose 0.6 -> 1.8 % and 0.4 -> 1.7 % on
-     two draws, and holding out each identity in turn NFFT range was 0.8 vs 1.0 % but NFFT range+amplitude
-     1.1 vs 0.6 %, 4 vs 2 fits), so 2 stay. Both range feature paths then filter the surface in this frame
-     (`Foreground.rotation`): the NFFT features of a tilted disc with a cap equal the frontal ones
-     (tests/test_features_nfft.py). Measured (bench/tune_detector.py --grid plane): mean
-     leave-one-subject-out EER NFFT range 5.3 -> 3.3 %, FFT range 14.2 -> 9.7 % at rho0 = 30 /m;
-   - keep step-1 pixels whose filtered depth is <= reference + `depth_margin_m` (default 0.025 m: the
-     nose and the face around it, chosen by cross-validation on the training subjects,
-     bench/tune_detector.py). A depth in metres is the same at every distance, unlike a pixel-count share.
-3. Clean-up: morphological opening then closing with a `morphology_px` ellipse and holes filled; then
-   pixels whose own (unfiltered) depth is invalid or beyond the cut are dropped again -- flying pixels on
-   the silhouette and noise spikes that the median hid: the features clamp them to the background value,
-   i.e. to the cut, which is the continuous surface the cut is for. Finally, with `nearest_component`,
-   only the 8-connected region holding the nearest kept pixel of the head band (the head, not a speck or a
-   shoulder that also passed the cut).
+1. Amplitude: Otsu's threshold on log amplitude (floored at 1e-4 of the maximum); in log space a near object and
+   a far wall are two compact classes, since amplitude falls as 1/r^2. Foreground = above it and `valid_pixels`.
+2. Depth: the paper's range threshold at "the top 20th percentile", read as a cut a fixed depth behind the
+   nearest point, so that the background clamped to the cut joins the surface smoothly all along the border:
+   - depth z = range * (z of the pixel's unit ray), median-filtered over `median_px` (invalid pixels count as far);
+   - reference = the `range_percentile` percentile of the filtered depths inside the head band (`head_height_m`
+     below the top of the body), a robust nearest point;
+   - with `plane_iterations` > 0 depth is measured along the face's viewing direction (minus the normal of a
+     plane fitted by SVD to the face front within `plane_depth_m`), so a nodding head keeps its nose tip inside
+     the cut; both range feature paths filter the surface in this frame (`Foreground.rotation`);
+   - keep pixels whose filtered depth <= reference + `depth_margin_m`.
+3. Clean-up: opening and closing with a `morphology_px` ellipse, holes filled, pixels whose own depth is invalid
+   or beyond the cut dropped again (flying pixels), and with `nearest_component` only the 8-connected region
+   holding the nearest pixel.
 """
 
 from __future__ import annotations
@@ -64,6 +29,13 @@ from tofd.algorithm.params import SegmentationConfig
 OTSU_BINS = 256
 LOG_FLOOR = 1e-4  # amplitudes below this fraction of the maximum count as this fraction
 FAR_M = 1e4  # metres: invalid pixels' range in the median filter (they never pull a neighbour nearer)
+
+
+def valid_pixels(range_m: np.ndarray, amplitude: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) bool: pixels with a finite, positive range (and a finite amplitude, if given)."""
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(range_m) & (range_m > 0)
+    return valid if amplitude is None else valid & np.isfinite(amplitude)
 
 
 def otsu_threshold(values: np.ndarray) -> float:
@@ -183,8 +155,7 @@ def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationCo
     if range_m.shape != amplitude.shape or range_m.ndim != 2:
         raise ValueError(f"range_m {range_m.shape} and amplitude {amplitude.shape} must be equal 2-D shapes")
     rotation = np.eye(3)
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(amplitude) & np.isfinite(range_m) & (range_m > 0)
+    valid = valid_pixels(range_m, amplitude)
     if not valid.any():
         return Foreground(np.zeros(range_m.shape, dtype=bool), rotation)
     intrinsics = intrinsics or Intrinsics()

@@ -107,11 +107,7 @@ def _nose_from_range(range_m: np.ndarray, nose_px: np.ndarray, intrinsics: Intri
     has_tip = np.isfinite(tip).any(axis=1)
     tip_range = np.full(f, np.nan)
     tip_range[has_tip] = np.nanmedian(tip[has_tip], axis=1)
-    u = (nose_px[:, 0] - intrinsics.cx) / intrinsics.fx
-    v = (nose_px[:, 1] - intrinsics.cy) / intrinsics.fy
-    ray = np.stack([u, v, np.ones_like(u)], axis=1)
-    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-    return ray * tip_range[:, None]
+    return intrinsics.pixel_rays(nose_px[:, 0], nose_px[:, 1]) * tip_range[:, None]
 
 
 def _check_arrays(d: dict[str, np.ndarray], intrinsics: Intrinsics, where: str) -> None:

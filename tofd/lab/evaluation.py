@@ -41,7 +41,7 @@ from tofd.algorithm.detector import (
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import MAP_NAMES
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
-from tofd.algorithm.segmentation import filtered
+from tofd.algorithm.segmentation import filtered, valid_pixels
 from tofd.lab.dataset import Dataset
 from tofd.lab.roc import Answers, RocCurve, answers_at, margin_scale, roc_from_min_distances
 
@@ -59,8 +59,7 @@ def label_points(range_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     pixels 2-3 px from the nose pixel whose noise-free point is 8-13 mm from the tip. Invalid pixels count as
     far (segmentation.filtered).
     """
-    valid = np.isfinite(range_m) & (range_m > 0)
-    return intrinsics.backproject(filtered(range_m, valid, LABEL_MEDIAN_PX))
+    return intrinsics.backproject(filtered(range_m, valid_pixels(range_m), LABEL_MEDIAN_PX))
 
 
 @dataclass(slots=True)

@@ -37,8 +37,7 @@ class SyntheticImage:
 
 def pixel_ray(intrinsics: Intrinsics, pixel: tuple[float, float]) -> np.ndarray:
     """Unit ray (3,) through pixel (u, v)."""
-    ray = np.array([(pixel[0] - intrinsics.cx) / intrinsics.fx, (pixel[1] - intrinsics.cy) / intrinsics.fy, 1.0])
-    return ray / np.linalg.norm(ray)
+    return intrinsics.pixel_rays(pixel[0], pixel[1])
 
 
 def _lambertian(rays: np.ndarray, range_m: np.ndarray, normals: np.ndarray, gain: float) -> np.ndarray:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from drivers.source import FrameSource
-from tofd.config import Config, ConfigError
+from tofd.config import RERUN_SINKS, Config, ConfigError
 from tofd.service.health import HealthServer, sd_notify, watchdog_interval_s
 from tofd.service.model import load_service_model
 from tofd.service.pipeline.core import Pipeline, Sink
@@ -35,7 +35,7 @@ def parse_rerun_spec(spec: str | None, cfg: Config) -> Config:
         return replace(cfg, rerun=replace(cfg.rerun, sink="save", path=arg))
     if kind == "connect":
         return replace(cfg, rerun=replace(cfg.rerun, sink="connect", url=arg or cfg.rerun.url))
-    if kind in ("web", "spawn", "none", "save") and not arg:
+    if kind in RERUN_SINKS and not arg:
         return replace(cfg, rerun=replace(cfg.rerun, sink=kind))
     raise ConfigError(f"--rerun: {spec!r} is not one of {RERUN_SPEC_HELP}")
 

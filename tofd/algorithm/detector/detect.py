@@ -45,8 +45,7 @@ def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrins
     if not score <= scale:
         return Detection(None, None, score, False)
     row, col = int(rows[best]), int(cols[best])
-    ray = np.array([(col - intrinsics.cx) / intrinsics.fx, (row - intrinsics.cy) / intrinsics.fy, 1.0])
-    xyz = ray / np.linalg.norm(ray) * float(range_m[row, col])
+    xyz = intrinsics.unit_rays()[row, col] * float(range_m[row, col])
     return Detection((col, row), (float(xyz[0]), float(xyz[1]), float(xyz[2])), score, True)
 
 

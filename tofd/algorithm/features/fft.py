@@ -39,7 +39,8 @@ class FFTFeatures:
         self._window = (slice(pad, pad + h), slice(pad, pad + w))
         kx, ky = pixel_frequencies_per_m(sfft.rfftfreq(self._shape[1])[None, :], sfft.fftfreq(self._shape[0])[:, None],
                                          intrinsics, cfg.equivalence_range_m)
-        self._transfer = transfer_functions(kx, ky, cfg)  # (3, rows, cols // 2 + 1): C0, C2, S2
+        # (3, rows, cols // 2 + 1): C0, C2, S2
+        self._transfer = transfer_functions(kx, ky, cfg.tuning_frequency_per_m, cfg.lowpass_sigma_per_m)
         self._buffer = np.empty(self._shape)
         self._rays = intrinsics.unit_rays()
         self._ray_z = self._rays[..., 2]

@@ -83,7 +83,8 @@ class NFFTFeatures:
         self._rays = intrinsics.unit_rays()
         self._square = unit_square_m(intrinsics, cfg.equivalence_range_m)
         k = sfft.fftfreq(n, 1.0 / n)  # integer modes in FFT order (finufft modeord=1)
-        c0, c2, s2 = transfer_functions(k[None, :] / self._square[0], k[:, None] / self._square[1], cfg)
+        c0, c2, s2 = transfer_functions(k[None, :] / self._square[0], k[:, None] / self._square[1],
+                                        cfg.tuning_frequency_per_m, cfg.lowpass_sigma_per_m)
         self._filters = np.stack([c0 + 1j * c2, s2 + 0j])  # (2, N, N) rows ky, columns kx
         # stopping weight: A(rho) (= |C0|) on the compact half spectrum, rows ky, columns kx = 0 .. N/2 - 1
         self._band = np.concatenate((c0[: self._h, : self._h], c0[n - self._h + 1:, : self._h]))
