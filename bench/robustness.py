@@ -21,6 +21,10 @@ from tofd.config import load_config
 from tofd.lab.conditions import parse_conditions
 from tofd.lab.robustness import MatrixSpec, condition_table, run_matrix, summarize
 
+ABOUT = ("Shipped model, held-out identities (never trained or tuned on) x sensor conditions training never saw "
+         "(tofd.lab.conditions) x nose distance, yaw +-30 deg, pitch +-15 deg; per cell EER and found/wrong at the "
+         "operating scale.")
+
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -52,7 +56,8 @@ def main() -> int:
             c = s[key]
             print(f"  {key}: {c['condition']} {c['subject']} {c['distance_m']:.2f} m: EER {100 * c['eer']:.1f} %, "
                   f"found {100 * c['found']:.1f} %, wrong {100 * c['wrong']:.1f} % ({c['frames']} frames)")
-    write_json(args.out, {"model": args.model, "model_training": model.training, "spec": dataclasses.asdict(spec),
+    write_json(args.out, {"title": "Robustness matrix (bench/robustness.py)", "about": ABOUT, "model": args.model,
+                          "model_training": model.training, "spec": dataclasses.asdict(spec),
                           "summary": summary, "cells": [dataclasses.asdict(c) for c in cells],
                           "seconds": round(time.monotonic() - start, 1)})
     return 0

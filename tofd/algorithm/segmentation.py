@@ -1,4 +1,4 @@
-"""Foreground segmentation: an adaptive amplitude threshold, then a range cut that follows an iso-depth line of the head.
+"""Foreground segmentation: an adaptive amplitude threshold, then a range cut along an iso-depth line of the head.
 
 1. Amplitude: Otsu's threshold on log amplitude (floored at 1e-4 of the maximum); in log space a near object and
    a far wall are two compact classes, since amplitude falls as 1/r^2. Foreground = above it and `valid_pixels`.
