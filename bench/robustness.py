@@ -14,7 +14,7 @@ import dataclasses
 import time
 from pathlib import Path
 
-from report import write_json
+from report import add_model_arguments, write_json
 
 from tofd.algorithm.detector import Candidates, load_model
 from tofd.config import load_config
@@ -28,8 +28,7 @@ ABOUT = ("Shipped model, held-out identities (never trained or tuned on) x senso
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model", default=str(Path(__file__).parents[1] / "config" / "nose_model.json"))
-    parser.add_argument("--config", default=None, help="config file (default config/tofd.toml)")
+    add_model_arguments(parser)
     parser.add_argument("--frames", type=int, default=60, help="frames per subject, condition and distance")
     parser.add_argument("--conditions", default="all", help="comma-separated names or 'all' (tofd.lab.conditions)")
     parser.add_argument("--seed", type=int, default=1000)

@@ -18,7 +18,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from report import write_json
+from report import add_model_arguments, write_json
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import NoseDetector, load_model
@@ -54,8 +54,7 @@ ABOUT = ("Rendered head-motion sequences (0.35-0.70 m sweep, yaw +-30, pitch +-1
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model", default=str(Path(__file__).parents[1] / "config" / "nose_model.json"))
-    parser.add_argument("--config", default=None, help="config file (default config/tofd.toml)")
+    add_model_arguments(parser)
     parser.add_argument("--frames", type=int, default=240, help="frames per sequence (20 fps)")
     parser.add_argument("--conditions", default="train_sensor,noise_x2,dark_face")
     parser.add_argument("--replay-results", default=None, metavar="JSONL")
