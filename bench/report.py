@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -13,3 +14,9 @@ def write_json(path: str | Path, results: dict) -> Path:
     path.write_text(json.dumps(results, indent=1) + "\n")
     print(f"wrote {path}")
     return path
+
+
+def add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    """--model (default: the shipped config/nose_model.json) and --config (default config/tofd.toml)."""
+    parser.add_argument("--model", default=str(Path(__file__).parents[1] / "config" / "nose_model.json"))
+    parser.add_argument("--config", default=None, help="config file (default config/tofd.toml)")

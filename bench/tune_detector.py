@@ -25,6 +25,7 @@ from report import write_json
 
 from tofd.algorithm.detector import VARIANTS, Candidates
 from tofd.config import Config
+from tofd.lab.conditions import CONDITIONS, TRAIN_CONDITION
 from tofd.lab.evaluation import evaluate_model, extract_samples, train_model
 from tofd.lab.faces import CV_SUBJECTS, TEST_DISTANCES_M, TRAIN_DISTANCES_M, render_frames
 
@@ -32,6 +33,8 @@ GRIDS = {
     "quick": {"quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001]},  # the current defaults
     "front": {"quantile": [0.05], "border_margin_m": [0.006],
               "front_depth_m": [0.0, 0.0005, 0.001, 0.0015, 0.002, 0.003, 0.005, 0.008]},
+    "front_noise": {"quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001],
+                    "front_noise_factor": [0.0, 0.25, 0.5, 0.75, 1.0, 1.5]},
     "plane_iter": {"plane_iterations": [2, 4, 8], "plane_depth_m": [0.04, 0.05], "quantile": [0.05],
                    "border_margin_m": [0.006], "front_depth_m": [0.001]},
     "plane_fine": {"plane_iterations": [1, 2, 3], "plane_depth_m": [0.03, 0.04], "depth_margin_m": [0.025, 0.03],
@@ -65,16 +68,18 @@ GRIDS = {
 }
 SEGMENTATION_KEYS = ("depth_margin_m", "range_percentile", "median_px", "morphology_px", "head_height_m",
                      "plane_iterations", "plane_depth_m", "plane_max_tilt_deg")
-CANDIDATE_KEYS = ("border_margin_m", "front_depth_m")  # tofd.algorithm.detector.Candidates
+CANDIDATE_KEYS = ("border_margin_m", "front_depth_m", "front_noise_factor")  # tofd.algorithm.detector.Candidates
 BOX_KEYS = ("quantile", "positive_radius_m", *CANDIDATE_KEYS)  # cheap: no feature recomputation
 
 
-def render_subjects(frames: int, seed: int) -> dict[str, dict[str, object]]:
-    """Per training subject: `frames` frames at the training distance and 2 * `frames` at the test distances."""
+def render_subjects(frames: int, seed: int, condition: str = TRAIN_CONDITION) -> dict[str, dict[str, object]]:
+    """Per training subject: `frames` frames at the training distance and 2 * `frames` at the test distances, the
+    test frames under the sensor `condition` (tofd.lab.conditions; training always under the training sensor)."""
     out = {}
     for i, name in enumerate(CV_SUBJECTS):
         out[name] = {"train": render_frames((name,), TRAIN_DISTANCES_M, frames, seed + 2 * i),
-                     "test": render_frames((name,), TEST_DISTANCES_M, 2 * frames, seed + 2 * i + 1)}
+                     "test": render_frames((name,), TEST_DISTANCES_M, 2 * frames, seed + 2 * i + 1,
+                                           model=CONDITIONS[condition])}
     return out
 
 
@@ -111,11 +116,13 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=36, help="frames per subject at 0.60 m (test: twice this)")
     parser.add_argument("--seed", type=int, default=100)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--condition", choices=sorted(CONDITIONS), default=TRAIN_CONDITION,
+                        help="sensor condition of the held-out folds' test frames (tofd.lab.conditions)")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "tune_detector.json"))
     args = parser.parse_args()
 
     start = time.monotonic()
-    data = render_subjects(args.frames, args.seed)
+    data = render_subjects(args.frames, args.seed, args.condition)
     grid = GRIDS[args.grid]
     keys = [k for k in grid if k not in BOX_KEYS] + [k for k in grid if k in BOX_KEYS]
     rows, cache = [], {}
@@ -134,6 +141,7 @@ def main() -> int:
     write_json(args.out, {"protocol": "leave-one-training-subject-out: train 2 subjects at "
                           f"{TRAIN_DISTANCES_M} m, test the third at {TEST_DISTANCES_M} m",
                           "subjects": list(CV_SUBJECTS), "frames_per_subject": args.frames,
+                          "test_condition": args.condition,
                           "seed": args.seed, "grid": grid, "rows": rows, "best": best,
                           "seconds": round(time.monotonic() - start, 1)})
     return 0

@@ -17,6 +17,7 @@ from tofd.algorithm.detector import (
     NoseModel,
     VariantModel,
     border_distance_m,
+    depth_noise_m,
     detect,
     front_gap_m,
     learn_box,
@@ -203,3 +204,25 @@ def test_shipped_model_matches_the_bundled_config():
     except ModelMismatch as exc:
         pytest.fail(f"config/nose_model.json is stale, retrain with the command in tofd/commands/train.py ({exc})")
     assert det.scale > 0 and det.box.features == VARIANTS["nfft_range"]
+
+
+@pytest.mark.parametrize("sigma", [0.001, 0.004])
+def test_depth_noise_estimates_the_noise_of_a_plane(sigma):
+    intrinsics = Intrinsics()
+    rays_z = intrinsics.unit_rays()[..., 2]
+    rng = np.random.default_rng(4)
+    range_m = (0.6 + sigma * rng.standard_normal(intrinsics.shape)) / rays_z
+    mask = np.zeros(intrinsics.shape, bool)
+    mask[30:110, 40:140] = True
+    noise = depth_noise_m(mask, range_m, intrinsics)
+    assert np.median(noise[40:100, 50:130]) == pytest.approx(sigma, rel=0.15)
+    assert np.all(noise[~mask] == 0)
+
+
+def test_front_test_allowance_grows_with_the_local_noise():
+    """A pixel 3 mm behind the front: rejected with the fixed 1 mm allowance, kept where 1 mm + 1 x sigma (4 mm
+    noise) covers it, still rejected where the noise is 1 mm."""
+    cand = Candidates(front_depth_m=0.001, front_noise_factor=1.0)
+    gap, border = np.array([0.003, 0.003]), np.array([1.0, 1.0])
+    assert list(Candidates(front_depth_m=0.001).keep(border, gap, np.array([0.004, 0.001]))) == [False, False]
+    assert list(cand.keep(border, gap, np.array([0.004, 0.001]))) == [True, False]

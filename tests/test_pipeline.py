@@ -12,6 +12,7 @@ from chaos_helpers import wait_for
 from pipeline_sources import RenderedSource, write_config
 
 from tofd.algorithm.extract import FeatureExtractor
+from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config, load_config
 from tofd.service.model import load_detector
 from tofd.service.pipeline import DropLedger, Pipeline
@@ -204,3 +205,6 @@ def test_detection_in_the_workers_equals_the_detector_on_the_frame(tmp_path):
         assert r.detection == detector.detect_frame(r.frame.range_m, r.frame.amplitude)
         assert r.timings_ms["detection"] > 0
     assert any(r.detection.accepted for r in sink.results)
+    tracker = NoseTracker()  # the pipeline tracks the detections in frame order
+    for r in sink.results:
+        assert r.track == tracker.update(r.detection, r.frame.timestamp_us / 1e6)

@@ -108,3 +108,23 @@ def test_smooth_shading_follows_the_true_normal_of_a_tessellated_sphere():
     analytic = np.abs(np.einsum("hwk,hwk->hw", normal, INTR.unit_rays()))
     centre_region = hit & (analytic > 0.5)
     assert np.percentile(np.abs(cosine - analytic)[centre_region], 95) < 0.01
+
+
+def test_constant_noise_model_is_the_same_at_every_distance():
+    mesh = load_face("mediapipe_canonical")
+    rng = np.random.default_rng(2)
+    model = SensorModel(flying_pixel_fraction=0.0, noise_model="constant", range_noise_m=0.003)
+    err = []
+    for d in (0.35, 0.7):
+        clean = render_face(mesh, Pose(d))
+        noisy = render_face(mesh, Pose(d), rng=rng, model=model)
+        err.append(np.std((noisy.range_m - clean.range_m)[clean.face_mask]))
+    assert err == pytest.approx([0.003, 0.003], rel=0.1)
+
+
+def test_no_wall_leaves_the_background_without_a_return():
+    mesh = load_face("mediapipe_canonical")
+    r = render_face(mesh, Pose(0.5), rng=np.random.default_rng(3), model=SensorModel(wall_distance_m=None))
+    assert np.all(np.isnan(r.range_m[~r.face_mask]))
+    assert np.all(r.amplitude[~r.face_mask] == 0)
+    assert np.isfinite(r.range_m[r.face_mask]).mean() > 0.99

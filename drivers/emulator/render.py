@@ -7,15 +7,18 @@ keeping the nearest hit per pixel.
 
 Sensor model (documented, deliberately simple):
 - amplitude = gain * albedo * cos(incidence) / range^2, plus 2 % multiplicative noise;
-- range noise: Gaussian, standard deviation inversely proportional to amplitude
-  (range_noise_m at reference_amplitude, capped at max_range_noise_m);
-- flying pixels: pixels on a depth discontinuity mix foreground and background range with a random weight.
+- range noise: Gaussian; noise_model "amplitude": standard deviation inversely proportional to amplitude
+  (range_noise_m at reference_amplitude, capped at max_range_noise_m), "constant": range_noise_m everywhere;
+- flying pixels: pixels on a depth discontinuity mix foreground and background range with a random weight
+  (flying_pixel_fraction 0: none);
+- background: a fronto-parallel wall at wall_distance_m, or none (None: no return, range NaN, amplitude 0).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from importlib import resources
+from typing import Literal
 
 import numpy as np
 
@@ -63,11 +66,12 @@ class Pose:
 class SensorModel:
     """Parameters of the SR3000-like sensor effects (amplitude in sensor units, ranges in metres)."""
 
-    wall_distance_m: float = 1.6  # a fronto-parallel wall behind the head (depth along z)
+    wall_distance_m: float | None = 1.6  # a fronto-parallel wall behind the head (depth along z); None: no wall
     wall_albedo: float = 0.35
     face_albedo: float = 1.0
     gain: float = 5000.0  # amplitude of an albedo-1 surface facing the camera at 1 m
-    range_noise_m: float = 0.002  # range noise standard deviation at reference_amplitude
+    range_noise_m: float = 0.002  # range noise standard deviation at reference_amplitude (constant: everywhere)
+    noise_model: Literal["amplitude", "constant"] = "amplitude"  # what the range noise depends on
     reference_amplitude: float = 20000.0
     max_range_noise_m: float = 0.15
     amplitude_noise: float = 0.02  # relative standard deviation
@@ -174,11 +178,21 @@ def rasterize(
 
 
 def _depth_edges(range_m: np.ndarray, jump_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels with a 4-neighbour more than jump_m farther away, and that farthest neighbour's range."""
+    """Pixels with a 4-neighbour more than jump_m farther away, and that farthest neighbour's range (NaN
+    neighbours, no return, are ignored)."""
     padded = np.pad(range_m, 1, mode="edge")
     neighbours = np.stack([padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]])
-    far = neighbours.max(axis=0)
-    return far - range_m > jump_m, far
+    far = np.fmax.reduce(neighbours, axis=0)
+    with np.errstate(invalid="ignore"):
+        return far - range_m > jump_m, far
+
+
+def range_noise_sigma(amplitude: np.ndarray, model: SensorModel) -> np.ndarray:
+    """(H, W) range noise standard deviation in metres of the model's noise_model at these amplitudes."""
+    if model.noise_model == "constant":
+        return np.full(np.shape(amplitude), model.range_noise_m)
+    return np.minimum(model.range_noise_m * model.reference_amplitude / np.maximum(amplitude, 1e-6),
+                      model.max_range_noise_m)
 
 
 def sensor_effects(
@@ -188,8 +202,10 @@ def sensor_effects(
     rng: np.random.Generator | None,
     model: SensorModel,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Amplitude from geometry, then noise and flying pixels (skipped when rng is None); float32 (H, W) each."""
-    amplitude = model.gain * albedo * cosine / range_m**2
+    """Amplitude from geometry, then noise and flying pixels (skipped when rng is None); float32 (H, W) each.
+    Pixels without a return (range NaN) keep range NaN and amplitude 0."""
+    with np.errstate(invalid="ignore"):
+        amplitude = np.nan_to_num(model.gain * albedo * cosine / range_m**2, nan=0.0)
     if rng is None:
         return range_m.astype(np.float32), amplitude.astype(np.float32)
     edges, far = _depth_edges(range_m, model.edge_jump_m)
@@ -197,8 +213,7 @@ def sensor_effects(
     weight = rng.random(range_m.shape)
     mixed = np.where(fly, weight * range_m + (1 - weight) * far, range_m)
     amplitude = np.where(fly, amplitude * (0.3 + 0.7 * weight), amplitude)
-    sigma = np.minimum(model.range_noise_m * model.reference_amplitude / np.maximum(amplitude, 1e-6),
-                       model.max_range_noise_m)
+    sigma = range_noise_sigma(amplitude, model)
     noisy_range = mixed + sigma * rng.standard_normal(range_m.shape)
     noisy_amp = amplitude * (1 + model.amplitude_noise * rng.standard_normal(range_m.shape))
     return noisy_range.astype(np.float32), np.maximum(noisy_amp, 0).astype(np.float32)
@@ -219,7 +234,7 @@ def render_face(
     face_mask = np.isfinite(face_range)
 
     rays = intrinsics.unit_rays()
-    wall_range = model.wall_distance_m / rays[..., 2]
+    wall_range = rays[..., 2] * np.nan if model.wall_distance_m is None else model.wall_distance_m / rays[..., 2]
     range_m = np.where(face_mask, face_range, wall_range)
     cosine = np.where(face_mask, face_cos, rays[..., 2])
     albedo = np.where(face_mask, model.face_albedo, model.wall_albedo)

@@ -85,6 +85,8 @@ class DetectorConfig:
     border_margin_m: float = 0.006  # metres: pixels nearer than this to the mask border are never the nose
     front_depth_m: float = 0.001  # metres: pixels this far behind the front-most one within 12 mm are never the
     # nose (0 = no front test; tofd/algorithm/detector.py)
+    front_noise_factor: float = 0.0  # the front test allows front_depth_m + this x the pixel's local range noise
+    # sigma (estimated from the frame; tofd/algorithm/detector/candidates.py); 0 = fixed allowance
 
     def validate(self) -> None:
         if self.variant not in VARIANTS:
@@ -95,3 +97,5 @@ class DetectorConfig:
             raise ValueError(f"border_margin_m: {self.border_margin_m} must be >= 0 (0 = no exclusion)")
         if not self.front_depth_m >= 0:
             raise ValueError(f"front_depth_m: {self.front_depth_m} must be >= 0 (0 = no front test)")
+        if not self.front_noise_factor >= 0:
+            raise ValueError(f"front_noise_factor: {self.front_noise_factor} must be >= 0 (0 = fixed allowance)")

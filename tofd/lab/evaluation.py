@@ -33,6 +33,7 @@ from tofd.algorithm.detector import (
     NoseModel,
     VariantModel,
     border_distance_m,
+    depth_noise_m,
     front_gap_m,
     learn_box,
     to_log_features,
@@ -69,6 +70,7 @@ class FrameSamples:
     tip_distance_m: np.ndarray  # (P,) float32 3-D distance to the ground-truth nose tip (NaN if unknown)
     border_m: np.ndarray  # (P,) float32 distance to the mask border, metres (tofd.algorithm.detector.border_distance_m)
     front_gap: np.ndarray  # (P,) float32 metres behind the front-most pixel nearby (detector.front_gap_m)
+    noise_m: np.ndarray  # (P,) float32 local range noise sigma, metres (detector.depth_noise_m)
     nfft_iterations: int = 0
 
 
@@ -81,7 +83,8 @@ def frame_samples(extractor: FeatureExtractor, range_m: np.ndarray, amplitude: n
     feats = np.stack([ff.maps[n][ff.mask] for n in MAP_NAMES], axis=1)
     border = border_distance_m(ff.mask, range_m, extractor.intrinsics)[ff.mask]
     front = front_gap_m(ff.mask, range_m, extractor.intrinsics, ff.rotation[2])[ff.mask]
-    return FrameSamples(to_log_features(feats).astype(np.float32), tip, border, front, ff.nfft_iterations)
+    noise = depth_noise_m(ff.mask, range_m, extractor.intrinsics, ff.rotation[2])[ff.mask]
+    return FrameSamples(to_log_features(feats).astype(np.float32), tip, border, front, noise, ff.nfft_iterations)
 
 
 _worker_extractor: FeatureExtractor | None = None
@@ -134,7 +137,7 @@ class PixelTable:
     def __init__(self, samples: list[FrameSamples], variant: str, radius_m: float,
                  candidates: Candidates = ALL_FOREGROUND):
         cols = _columns(variant)
-        keep = [candidates.keep(s.border_m, s.front_gap) for s in samples]
+        keep = [candidates.keep(s.border_m, s.front_gap, s.noise_m) for s in samples]
         self.n_frames = len(samples)
         self.features = np.concatenate([s.log_features[k][:, cols] for s, k in zip(samples, keep, strict=True)]
                                         or [np.empty((0, len(cols)), np.float32)]).astype(np.float64)
@@ -216,8 +219,8 @@ def train_model(samples: list[FrameSamples], features: FeatureConfig, segmentati
     found: lps_long 95.7 -> 99.4 %, mp_bignose 89.8 -> 97.8 %, lps_smallnose 4.4 -> 33.5 %; wrong answers
     0.0 % at both scales; `tofd evaluate [--test-subjects S]`). The candidate rule is recorded in the model's
     training info."""
-    positive = [s.log_features[(s.tip_distance_m <= positive_radius_m) & candidates.keep(s.border_m, s.front_gap)]
-                for s in samples]
+    positive = [s.log_features[(s.tip_distance_m <= positive_radius_m)
+                               & candidates.keep(s.border_m, s.front_gap, s.noise_m)] for s in samples]
     pos = np.concatenate(positive) if positive else np.empty((0, len(MAP_NAMES)), np.float32)
     has_nose = _has_nose(samples, radius_m)
     out = {}

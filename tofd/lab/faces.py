@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.emulator.render import FaceMesh, Pose, load_face, render_face
+from drivers.emulator.render import FaceMesh, Pose, SensorModel, load_face, render_face
 from drivers.intrinsics import Intrinsics
 from tofd.lab.dataset import Dataset
 
@@ -146,8 +146,11 @@ def render_frames(
     seed: int = 0,
     intrinsics: Intrinsics | None = None,
     progress: Callable[[int, int], None] | None = None,
+    model: SensorModel | None = None,
+    yaw_deg: float = YAW_DEG,
 ) -> Dataset:
-    """Render `frames` labelled frames of these SUBJECTS at these nose distances (metres), cycling evenly."""
+    """Render `frames` labelled frames of these SUBJECTS at these nose distances (metres), cycling evenly;
+    model: the sensor (default: the renderer's, which training uses), yaw uniform in +-yaw_deg."""
     check_subjects(subjects)
     if frames < 1:
         raise ValueError(f"frames must be >= 1, got {frames}")
@@ -161,13 +164,13 @@ def render_frames(
     nose_px = np.empty((frames, 2), np.float32)
     nose_xyz = np.empty((frames, 3))
     visible = np.empty(frames, bool)
-    yaw = rng.uniform(-YAW_DEG, YAW_DEG, frames)
+    yaw = rng.uniform(-yaw_deg, yaw_deg, frames)
     pitch = rng.uniform(-PITCH_DEG, PITCH_DEG, frames)
     jitter = rng.uniform(-CENTRE_JITTER_PX, CENTRE_JITTER_PX, (frames, 2))
     subject, distance = zip(*(combos[i % len(combos)] for i in range(frames)), strict=True)
     for i in range(frames):
         pose = Pose(distance[i], yaw[i], pitch[i], nose_px=(intrinsics.cx + jitter[i, 0], intrinsics.cy + jitter[i, 1]))
-        r = render_face(meshes[subject[i]], pose, intrinsics, rng)
+        r = render_face(meshes[subject[i]], pose, intrinsics, rng, model)
         range_m[i], amplitude[i] = r.range_m, r.amplitude
         nose_px[i], nose_xyz[i], visible[i] = r.nose_px, r.nose_xyz_m, r.nose_visible
         if progress is not None:

@@ -5,7 +5,13 @@ detect.py: one frame's detection.
 """
 
 from tofd.algorithm.detector.box import Box, learn_box, stack_features, to_log_features
-from tofd.algorithm.detector.candidates import ALL_FOREGROUND, Candidates, border_distance_m, front_gap_m
+from tofd.algorithm.detector.candidates import (
+    ALL_FOREGROUND,
+    Candidates,
+    border_distance_m,
+    depth_noise_m,
+    front_gap_m,
+)
 from tofd.algorithm.detector.detect import Detection, NoseDetector, detect
 from tofd.algorithm.detector.model_file import (
     ModelError,
@@ -18,5 +24,5 @@ from tofd.algorithm.detector.model_file import (
 from tofd.algorithm.names import VARIANTS
 
 __all__ = ["ALL_FOREGROUND", "VARIANTS", "Box", "Candidates", "Detection", "ModelError", "ModelMismatch",
-           "NoseDetector", "NoseModel", "VariantModel", "border_distance_m", "detect", "front_gap_m", "learn_box",
-           "load_model", "save_model", "stack_features", "to_log_features"]
+           "NoseDetector", "NoseModel", "VariantModel", "border_distance_m", "depth_noise_m", "detect", "front_gap_m",
+           "learn_box", "load_model", "save_model", "stack_features", "to_log_features"]

@@ -3,7 +3,10 @@
 Border test: pixels nearer than `border_margin_m` to the mask border are never candidates, because the filters'
 response within about one filter width of the border is the clamped background's. Front test: the tip is the
 front-most point of its surroundings, so a pixel more than `front_depth_m` behind the front-most foreground
-pixel within FRONT_RADIUS_M (depth along the face's viewing direction) is never a candidate.
+pixel within FRONT_RADIUS_M (depth along the face's viewing direction) is never a candidate. The allowance
+scales with the expected noise at the pixel: front_depth_m + front_noise_factor * sigma, sigma the local range
+noise estimated from the frame itself (depth_noise_m), because range noise grows with distance and falls with
+amplitude and a fixed allowance rejects the true tip wherever the noise is larger than on the training data.
 """
 
 from __future__ import annotations
@@ -42,17 +45,45 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
     pixels (the segmentation's filter: a minimum of unfiltered noisy depths lies in front of the surface);
     the disc's radius in pixels is radius_m at the mask's median depth.
     """
-    rays = intrinsics.unit_rays()
-    with np.errstate(invalid="ignore"):
-        depth = np.asarray(range_m) * (rays[..., 2] if direction is None else rays @ direction)
-    valid = np.asarray(mask, dtype=bool) & np.isfinite(depth)
+    depth, valid, smooth = _face_depth(mask, range_m, intrinsics, direction, median_px)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
-    smooth = filtered(depth, valid, median_px)
     median_m = float(np.median(depth[valid]))
     r_px = max(1, round(min(radius_m * intrinsics.fx / median_m if median_m > 0 else np.inf, max(valid.shape))))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r_px + 1, 2 * r_px + 1))
     return np.where(valid, smooth - cv2.erode(smooth, disc), 0.0).astype(np.float32)
+
+
+def _face_depth(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None,
+                median_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Depth along direction (H, W), the valid mask pixels, and the median_px median-filtered depth."""
+    rays = intrinsics.unit_rays()
+    with np.errstate(invalid="ignore"):
+        depth = np.asarray(range_m) * (rays[..., 2] if direction is None else rays @ direction)
+    valid = np.asarray(mask, dtype=bool) & np.isfinite(depth)
+    return depth, valid, filtered(depth, valid, median_px)
+
+
+NOISE_WINDOW_PX = 7  # window of the local noise estimate, pixels
+
+
+def depth_noise_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None = None,
+                  median_px: int = 5) -> np.ndarray:
+    """(H, W) float32 local range noise standard deviation in metres (0 off the mask), estimated from the frame.
+
+    sigma = sqrt(pi / 2) * mean |depth - median_px median of depth| over the mask pixels of a NOISE_WINDOW_PX
+    window (the mean absolute deviation of Gaussian noise is sigma sqrt(2 / pi)); the face's own curvature within
+    the median window adds well under a millimetre.
+    """
+    depth, valid, smooth = _face_depth(mask, range_m, intrinsics, direction, median_px)
+    if not valid.any():
+        return np.zeros(valid.shape, np.float32)
+    residual = np.where(valid, np.abs(np.nan_to_num(depth - smooth)), 0.0).astype(np.float32)
+    size = (NOISE_WINDOW_PX, NOISE_WINDOW_PX)
+    weight = cv2.blur(valid.astype(np.float32), size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sigma = np.sqrt(np.pi / 2) * cv2.blur(residual, size) / weight
+    return np.where(valid, np.nan_to_num(sigma), 0.0).astype(np.float32)
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,17 +91,21 @@ class Candidates:
     """Which foreground pixels may be the nose at all (module docstring); metres, 0 switches a test off."""
 
     border_margin_m: float = 0.0  # at least this far from the mask border
-    front_depth_m: float = 0.0  # at most this far behind the front-most pixel within FRONT_RADIUS_M
+    front_depth_m: float = 0.0  # at most this far (plus the noise allowance) behind the front-most pixel nearby
     median_px: int = 5  # depth median filter of the front test, pixels (the segmentation's median_px)
+    front_noise_factor: float = 0.0  # front test allowance: + this x the pixel's local noise sigma (depth_noise_m)
 
     @classmethod
     def from_config(cls, detector: DetectorConfig, segmentation: SegmentationConfig) -> Candidates:
-        return cls(detector.border_margin_m, detector.front_depth_m, segmentation.median_px)
+        return cls(detector.border_margin_m, detector.front_depth_m, segmentation.median_px,
+                   detector.front_noise_factor)
 
-    def keep(self, border_m: np.ndarray, front_gap: np.ndarray) -> np.ndarray:
-        """Bool per pixel from its border distance and front gap (metres)."""
+    def keep(self, border_m: np.ndarray, front_gap: np.ndarray, noise_m: np.ndarray | float = 0.0) -> np.ndarray:
+        """Bool per pixel from its border distance, front gap and local noise sigma (metres)."""
         ok = np.asarray(border_m) >= self.border_margin_m
-        return ok & (np.asarray(front_gap) <= self.front_depth_m) if self.front_depth_m > 0 else ok
+        if self.front_depth_m <= 0:
+            return ok
+        return ok & (np.asarray(front_gap) <= self.front_depth_m + self.front_noise_factor * np.asarray(noise_m))
 
     def mask(self, foreground: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
              direction: np.ndarray | None = None) -> np.ndarray:
@@ -80,9 +115,11 @@ class Candidates:
         """
         off = np.zeros(np.shape(foreground), np.float32)
         border = border_distance_m(foreground, range_m, intrinsics) if self.border_margin_m > 0 else off + np.inf
-        gap = (front_gap_m(foreground, range_m, intrinsics, direction, median_px=self.median_px)
-               if self.front_depth_m > 0 else off)
-        return np.asarray(foreground, dtype=bool) & self.keep(border, gap)
+        front = self.front_depth_m > 0
+        gap = front_gap_m(foreground, range_m, intrinsics, direction, median_px=self.median_px) if front else off
+        noise = (depth_noise_m(foreground, range_m, intrinsics, direction, self.median_px)
+                 if front and self.front_noise_factor > 0 else off)
+        return np.asarray(foreground, dtype=bool) & self.keep(border, gap, noise)
 
 
 ALL_FOREGROUND = Candidates()

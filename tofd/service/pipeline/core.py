@@ -30,6 +30,7 @@ from drivers.frame import COUNTER_LIMIT, Frame, frame_problem
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
+from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config, config_table
 from tofd.service.pipeline import monitor
 from tofd.service.pipeline.capture import GapTracker
@@ -91,6 +92,7 @@ class Pipeline:
                                max_failures=pc.max_worker_failures)
         self.workers = self.pool.workers
         self.order: Reorderer[FrameResult] = Reorderer(policy)
+        self.tracker = None if model is None else NoseTracker()  # updated in frame order (_to_sink)
         self.inq: StageQueue[_Queued] = StageQueue(policy, 1 if policy == "latest" else pc.input_queue)
         self.outq: StageQueue[FrameResult] = StageQueue(policy, pc.sink_queue)
         self.source: FrameSource | None = None
@@ -317,6 +319,8 @@ class Pipeline:
         with self._items_lock:
             if self._items.pop(result.seq, None) is None:
                 return
+        if self.tracker is not None:
+            result.track = self.tracker.update(result.detection, result.frame.timestamp_us / 1e6)
         self.ledger.advance(result.seq, "viewer")
         for old in self.outq.put(result, self._abort):
             self.ledger.drop(old.seq, "viewer", "queue_full" if old is not result else "shutdown")

@@ -27,6 +27,7 @@ class FrameResult:
     arrival_s: float  # time.monotonic() when the capture thread received the frame
     timings_ms: dict[str, float] = field(default_factory=dict)  # keys from stats.TIMED_STAGES
     detection: Any = None  # tofd.algorithm.detector.Detection, or None without a detector model
+    track: Any = None  # tofd.algorithm.tracking.TrackState after this frame, or None without a detector model
     gap_before: str = ""  # "counter_gap" or "reconnect" if the device skipped frames just before this one
 
 
