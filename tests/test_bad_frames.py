@@ -89,8 +89,8 @@ def test_damaged_frames_are_ledgered_and_the_run_goes_on(tmp_path):
     assert summary["consistent"] and summary["frames_in"] == 14
     drops = {d["seq"]: (d["stage"], d["reason"]) for d in summary["drops"]}
     assert set(drops) == {8, 9}, drops  # the bad-pixel frames were processed, not dropped
-    assert drops[8][0] == "capture" and drops[8][1].startswith("invalid_frame: range_m shape (10, 10)")
-    assert drops[9][0] == "capture" and "frame_counter" in drops[9][1]
+    assert drops[8][0] == "capture" and drops[8][1].startswith("invalid_frame: range_m is float32 (10, 10)")
+    assert drops[9][0] == "capture" and "frame counter" in drops[9][1]
     by_counter = {r.frame.frame_counter: r for r in delivered}
     assert sorted(by_counter) == [c for c in range(14) if c not in (8, 9)]
     for c in DamagedSource.BAD_PIXELS:
