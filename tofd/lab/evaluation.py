@@ -6,10 +6,7 @@ four variants and every box scale. True nose pixels: foreground pixels within `r
 each pixel's 3-D point taken from the 3x3-median-filtered range (`label_points`);
 the box is learned from the tighter `positive_radius_m` neighbourhood of the tip (the tip's own features,
 not those of the nose's flanks, which also sit 15 mm away from it), and its half-widths are then shaped with
-all training pixels, nose and not (`shape_box`). Measured (bench/tune_detector.py, leave-one-training-subject-
-out, no border exclusion): mean EER NFFT range 8.9 -> 7.5 %, NFFT range+amplitude 13.6 -> 6.1 %, FFT
-range+amplitude 24.4 -> 20.8 % against the plain quantile box (before the segmentation's face frame and
-rho0 = 35 /m; with them and border exclusion, --grid quick: NFFT range 1.7 %, FFT range 10.8 %). Only the
+all training pixels, nose and not (`shape_box`). Only the
 candidate pixels (detector.Candidates: border margin, front test) are ever classified nose, in training as in
 testing, as in the pipeline.
 """
@@ -52,12 +49,8 @@ LABEL_MEDIAN_PX = 3  # median filter (pixels) of the range the true-nose labels 
 def label_points(range_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """(H, W, 3) camera-frame points (metres) of the LABEL_MEDIAN_PX median-filtered range, for the labels.
 
-    A label is ground truth, so range noise must not move a pixel across the true-nose radius. On the raw range
-    it did: at 0.60-0.70 m (noise sigma ~4-5 mm, more on the nose's flanks) 7 % of the pixels within 3 cm of the
-    tip were labelled otherwise than by the noise-free render of the same pose, 4.4 % on the 3x3 median (median
-    point error 1.8 -> 1.0 mm); 7 of the 10 false positives of NFFT range+amplitude on the default split were
-    pixels 2-3 px from the nose pixel whose noise-free point is 8-13 mm from the tip. Invalid pixels count as
-    far (segmentation.filtered).
+    A label is ground truth, so range noise must not move a pixel across the true-nose radius; invalid pixels
+    count as far (segmentation.filtered).
     """
     return intrinsics.backproject(filtered(range_m, valid_pixels(range_m), LABEL_MEDIAN_PX))
 

@@ -10,20 +10,13 @@ Per frame:
 4. multiply by the transfer functions (transfer.py, mode k <-> k / L cycles per metre) and evaluate the
    filtered fields c0, c2, s2 back at the points with a forward NUFFT; eps0 = c0^2, eps2 = c2^2 + s2^2.
 
-Regularisation (step 3). The paper's minimum-norm inverse is ill-posed on a face patch (the modes living
-outside the patch are undetermined; see design/nfft_notes.md). We solve the damped normal equations
+Regularisation (step 3). The paper's minimum-norm inverse is ill-posed on a face patch (the modes outside the
+patch are undetermined), so we solve the damped normal equations
     (A^H A + lambda I) f = A^H z,   lambda = damping * (points per unit area of the square),
-the points per unit area being 1 / mean pixel footprint, (z/fx)(z/fy) / (Lx Ly). Well-sampled modes of
-A^H A have eigenvalues ~ that density, so damping (0.01) is the relative shrinkage of the resolved part:
-the bias is the same for every patch size and distance (scale-invariant), the system's condition number
-is ~1/damping whatever the patch, and the field is pulled to 0 (= max z, like the FFT path's background)
-where there are no points. nfft_notes' lambda = 0.01 M shrinks less on small patches and needed 50-100
-CG iterations on 250-1800-point face patches where this needs 12-30 (measured, rendered faces).
-Larger damping smooths range noise more but shrinks the features unevenly: sphere apex eps0 spread over
-0.3-0.9 m 1.9 / 4.3 / 12.4 % and FFT/NFFT at e 1.009 / 1.015 / 1.038 at damping 0.01 / 0.03 / 0.1
-(`tofd experiment sphere`), while the detector's cross-validated EER moved by about one frame
-(bench/tune_detector.py --grid damping, 72 frames per subject: NFFT range 0.7 / 0.4 / 0.4 / 0.3 / 0.3 % at
-0.003 / 0.01 / 0.03 / 0.1 / 0.3), so 0.01 stays.
+the points per unit area being 1 / mean pixel footprint, (z/fx)(z/fy) / (Lx Ly). Well-sampled modes of A^H A
+have eigenvalues ~ that density, so `damping` is the same relative shrinkage for every patch size and distance
+(scale-invariant), and the field is pulled to 0 (= max z, like the FFT path's background) where there are no
+points. The sphere experiment (`tofd experiment sphere`) measures what larger damping costs in invariance.
 
 Solver (normal_equations.py). One finufft type-1 per frame gives K_m = sum_j exp(-2 pi i m.x_j) on the
 2N x 2N grid and A^H z with it, both from the one complex transform of 1 + i z (spectra of real data are
