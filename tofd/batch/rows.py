@@ -9,7 +9,7 @@ import numpy as np
 import pyarrow as pa
 
 from tofd.algorithm.names import MAP_NAMES
-from tofd.service.pipeline.results import FrameResult, result_record
+from tofd.service.pipeline.results import FrameResult, finite_or_none, result_record
 
 TIMED = ("read", "segmentation", "fft", "nfft", "detection")
 """Stages timed per frame in batch rows (ms): reading from storage, then the worker's stages."""
@@ -45,7 +45,7 @@ def frame_row(r: FrameResult) -> dict:
     row = result_record(r)
     timings = row.pop("timings_ms")
     row["host_wall_s"] = r.frame.host_wall_s
-    row["nfft_residual"] = r.nfft_residual if np.isfinite(r.nfft_residual) else None
+    row["nfft_residual"] = finite_or_none(r.nfft_residual)
     row["mask_digest"] = array_digest(r.mask)
     for name in MAP_NAMES:
         m = r.features[name]

@@ -31,7 +31,8 @@ class FrameResult:
     gap_before: str = ""  # "counter_gap" or "reconnect" if the device skipped frames just before this one
 
 
-def _finite_or_none(x: float) -> float | None:
+def finite_or_none(x: float) -> float | None:
+    """x, or None where it is NaN or infinite (JSON has no such numbers)."""
     return x if math.isfinite(x) else None
 
 
@@ -44,7 +45,7 @@ def result_record(r: FrameResult) -> dict:
         "foreground_px": int(np.count_nonzero(r.mask)),
         "nose_px": list(det.nose_px) if det is not None and det.nose_px is not None else None,
         "nose_xyz_m": [round(c, 5) for c in det.nose_xyz_m] if det is not None and det.nose_xyz_m else None,
-        "score": _finite_or_none(det.score) if det is not None else None,
+        "score": finite_or_none(det.score) if det is not None else None,
         "accepted": bool(det.accepted) if det is not None else None,
         "ground_truth_px": list(r.frame.ground_truth.nose_px) if r.frame.ground_truth else None,
         "nfft_iterations": r.nfft_iterations,
