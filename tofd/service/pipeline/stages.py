@@ -54,6 +54,8 @@ class FeatureStage:
 def detection_dict(det: Detection) -> dict:
     """A Detection as a JSON-ready dict (score may be inf: no foreground)."""
     return {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score, "accepted": det.accepted}
+
+
 def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: dict, *, arrival_s: float = 0.0,
                  gap_before: str = "", timings_ms: dict[str, float] | None = None) -> FrameResult:
     """The FrameResult of `frame` from a FeatureStage reply and the slot it filled (maps copied out of the slot);

@@ -15,10 +15,10 @@ from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.names import MAP_NAMES
 from tofd.service.pipeline.results import FrameResult
+from tofd.service.pipeline.slots import SLOT_FIELDS
 from tofd.service.pipeline.stages import detection_dict, detection_from
 
-PLANES: tuple[tuple[str, type], ...] = (("range_m", np.float32), ("amplitude", np.float32), ("mask", np.bool_),
-                                        *((name, np.float32) for name in MAP_NAMES))
+PLANES = SLOT_FIELDS  # the frame's planes and what the workers computed: the slot's fields, in the slot's order
 
 OWN_TIMINGS = ("logging", "latency")  # the viewer process measures these itself (RerunLogger)
 
