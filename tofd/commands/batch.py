@@ -28,13 +28,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    import logging
     import sys
 
     from tofd.batch.runner import RunOptions, batch_client, prepare, run_plan
     from tofd.config import load_config
 
-    logging.basicConfig(level=logging.INFO, format="tofd: %(message)s")
     if args.workers < 1:
         print(f"tofd batch: --workers: expected >= 1, got {args.workers}", file=sys.stderr)
         return 2

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import logging
 import signal
 import sys
 import threading
@@ -73,16 +72,9 @@ def main(args: argparse.Namespace) -> int:
     from tofd.config import load_config
     from tofd.service.camera import open_camera
 
-    logging.basicConfig(level=logging.INFO, format="tofd: %(message)s")
     config = load_config(args.config)
-    if args.serial is not None:
-        camera = dataclasses.replace(config.camera, serial=args.serial)
-        try:
-            camera.validate()
-        except ValueError as exc:
-            print(f"tofd record: --serial: {exc}", file=sys.stderr)
-            return 2
-        config = dataclasses.replace(config, camera=camera)
+    if args.serial is not None:  # checked by arguments.serial when parsed
+        config = dataclasses.replace(config, camera=dataclasses.replace(config.camera, serial=args.serial))
     try:
         source = open_camera(config, args.emulate)
     except (DriverError, OSError) as exc:
