@@ -149,7 +149,12 @@ def test_replay_uses_the_configured_model_not_one_in_the_cwd_and_reports_accurac
     out = tmp_path / "out"
     proc = tofd("replay", str(CLIP), "--out", str(out), "--frames", "12", "--rerun", "none", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    shipped = ROOT / "config" / "nose_model.json"
+    # the bundled model as the tofd that ran resolves it from cwd=tmp_path: config/ of a source checkout, the
+    # installed tofd/defaults/ of a non-editable install
+    shipped = Path(subprocess.run([sys.executable, "-c", "from tofd.config import default_file; "
+                                   "print(default_file('nose_model.json'))"], cwd=tmp_path, capture_output=True,
+                                  text=True, check=True).stdout.strip())
+    assert shipped.read_bytes() == (ROOT / "config" / "nose_model.json").read_bytes()
     summary = json.loads((out / "emulated_face_035_070.summary.json").read_text())
     import hashlib
 
