@@ -9,6 +9,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -73,18 +74,27 @@ def test_resume_skips_finished_partitions_and_redoes_a_missing_one(client, clip_
 
 def test_killed_worker_costs_only_a_retry(client, clip_run, tmp_path):
     killed: list[int] = []
+    stop = threading.Event()
 
-    def kill_a_busy_worker(c, stats):
-        if killed:
-            return
-        busy = [w for w, keys in c.processing().items() if keys]
-        if busy:
-            pid = c.run(os.getpid, workers=[busy[0]])[busy[0]]
-            os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
+    def kill_a_busy_worker() -> None:
+        """From the start of the run, SIGKILL the first worker seen holding a partition (polled, so the kill
+        does not depend on when a partition happens to finish)."""
+        while not killed and not stop.is_set():
+            busy = [w for w, keys in client.processing().items() if any(k.startswith("tofd-batch-") for k in keys)]
+            if busy:
+                pid = client.run(os.getpid, workers=[busy[0]])[busy[0]]
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+            stop.wait(0.005)
 
-    summary = run(client, tmp_path, [str(CLIP)], on_done=kill_a_busy_worker)
-    assert killed, "no worker was busy after the first partition"
+    killer = threading.Thread(target=kill_a_busy_worker, daemon=True)
+    killer.start()
+    try:
+        summary = run(client, tmp_path, [str(CLIP)])
+    finally:
+        stop.set()
+        killer.join(30)
+    assert killed, "no worker was seen holding a partition"
     assert summary["partitions"]["failed"] == 0
     assert summary["results_digest"] == clip_run[0]["results_digest"]
     assert killed[0] not in {_pid(p) for p in outputs(summary, tmp_path)}  # what it held was redone elsewhere
