@@ -1,4 +1,5 @@
-"""The `tofd` command: one subcommand per module in tofd/commands/ (each has add_arguments and main)."""
+"""The `tofd` command: one subcommand per module in tofd/commands/ (each has add_arguments and main); a trailing
+underscore of a module name (import_) keeps a Python keyword out of the module name and out of the command name."""
 
 from __future__ import annotations
 
@@ -41,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name in sorted(m.name for m in pkgutil.iter_modules(tofd.commands.__path__)):
         module = importlib.import_module(f"tofd.commands.{name}")
         summary = (module.__doc__ or "").strip().splitlines()[0]
-        p = sub.add_parser(name, help=summary, description=module.__doc__,
+        p = sub.add_parser(name.removesuffix("_"), help=summary, description=module.__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(p)
         p.set_defaults(func=module.main)
