@@ -154,7 +154,8 @@ def test_a_missing_topic_lists_the_topics_the_bag_has(tmp_path, clip_frames):
     bag = write_frames_bag(tmp_path, "sqlite3", clip_frames[:1])
     one_line_error(tofd("import", str(bag), str(tmp_path / "out.mcap"), "--amplitude-topic", "/tof/amplitude"), 2,
                    "no amplitude topic /tof/amplitude (--amplitude-topic)",
-                   f"{TOPICS['range']} (sensor_msgs/msg/Image)", f"{TOPICS['camera_info']} (sensor_msgs/msg/CameraInfo)")
+                   f"{TOPICS['range']} (sensor_msgs/msg/Image)",
+                   f"{TOPICS['camera_info']} (sensor_msgs/msg/CameraInfo)")
     one_line_error(tofd("import", str(bag), str(tmp_path / "out.mcap"), "--camera-info-topic", TOPICS["range"]), 2,
                    f"camera_info topic {TOPICS['range']} is sensor_msgs/msg/Image, expected sensor_msgs/msg/CameraInfo")
     assert not (tmp_path / "out.mcap").exists()

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from tofd import arguments
 
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from drivers.rosbag import DEPTH_CONVENTIONS, RANGE_UNITS, RangeOptions
 
