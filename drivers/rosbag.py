@@ -74,6 +74,26 @@ class RangeOptions:
         return {"range": self.range_topic, "amplitude": self.amplitude_topic, "camera_info": self.camera_info_topic}
 
 
+def is_rosbag(path: str | Path) -> bool:
+    """Whether `path` is a ROS bag rather than a tofd recording: a .bag or .db3 file, a directory (a ROS 2 bag), or
+    an .mcap file whose MCAP profile is not tofd's (ROS 2 writes "ros2")."""
+    from mcap.stream_reader import StreamReader
+
+    from drivers.recording.format import PROFILE
+
+    path = Path(path)
+    if path.suffix in (".bag", ".db3") or path.is_dir():
+        return True
+    if path.suffix != ".mcap":
+        return False
+    try:
+        with open(path, "rb") as f:
+            header = next(StreamReader(f, skip_magic=False).records)
+    except Exception:  # noqa: BLE001 (an unreadable file is left to the recording reader, which says why)
+        return False
+    return getattr(header, "profile", PROFILE) != PROFILE
+
+
 def _reader(path: Path) -> Any:
     """An open rosbags AnyReader on `path` (a ROS 1 bag by its .bag suffix, else a ROS 2 bag)."""
     from rosbags.highlevel import AnyReader

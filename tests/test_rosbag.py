@@ -88,12 +88,13 @@ def test_an_imported_bag_replays_and_finds_the_nose_like_the_emulated_recording(
     assert f"wrote {out}: {N_FRAMES} frames of 176x144" in proc.stderr
     for got, want in zip(iter_frames(out), clip_frames, strict=True):
         assert np.array_equal(got.range_m.view(np.uint32), want.range_m.view(np.uint32))
-    for source in (out, CLIP):
+    for source in (out, CLIP, bag):  # the bag also straight into `tofd replay`, imported on the fly
         proc = tofd("replay", str(source), "--out", str(tmp_path / "r"), "--frames", str(N_FRAMES), "--rerun", "none")
         assert proc.returncode == 0, proc.stderr
     imported = results(tmp_path / "r" / "imported.results.jsonl")
     emulated = results(tmp_path / "r" / f"{CLIP.stem}.results.jsonl")
-    assert [r["nose_px"] for r in imported] == [r["nose_px"] for r in emulated]
+    direct = results(tmp_path / "r" / f"{bag.name}.results.jsonl")
+    assert [r["nose_px"] for r in imported] == [r["nose_px"] for r in emulated] == [r["nose_px"] for r in direct]
     truth = [f.ground_truth.nose_px for f in clip_frames]  # type: ignore[union-attr]
     assert all(math.dist(r["nose_px"], t) <= 5 for r, t in zip(imported, truth, strict=True))
 
@@ -145,9 +146,11 @@ def bad_bag(tmp_path: Path, clip_frames: list[Frame], change: str) -> Path:
     ("unpaired", ["no header stamp has a range image, an amplitude image and a camera_info", "2 camera_info"]),
 ])
 def test_a_bad_bag_is_one_line_exit_2_and_nothing_written(tmp_path, clip_frames, change, words):
-    out = tmp_path / "out.mcap"
-    one_line_error(tofd("import", str(bad_bag(tmp_path, clip_frames, change)), str(out)), 2, *words)
+    out, bag = tmp_path / "out.mcap", bad_bag(tmp_path, clip_frames, change)
+    one_line_error(tofd("import", str(bag), str(out)), 2, *words)
     assert sorted(p.name for p in tmp_path.iterdir()) == [change]  # no OUT, no temp file
+    assert one_line_error(tofd("replay", str(bag), "--out", str(tmp_path / "r")), 2, *words).startswith("tofd replay")
+    assert not (tmp_path / "r").exists()
 
 
 def test_a_missing_topic_lists_the_topics_the_bag_has(tmp_path, clip_frames):

@@ -7,7 +7,7 @@ from the CameraInfo, so any image size works. Defaults are the topics of the Swi
 in device units (--range-unit device: raw / 65535 x c / (2 f_mod), 0xFFFF = no return) or millimetres
 (--range-unit mm, REP 118: 0 = no return); radial range or z-depth along the optical axis (--depth z, converted
 to radial range with the CameraInfo's rays). The recording is written to a temporary file and renamed to OUT
-only when every frame is in; a bad bag is one line and exit status 2.
+only when every frame is in; a bad bag is one line and exit status 2. `tofd replay BAG` imports on the fly.
 """
 
 from __future__ import annotations
@@ -16,52 +16,37 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tofd import arguments
 
+if TYPE_CHECKING:
+    from drivers.rosbag import RangeOptions
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from drivers.rosbag import DEPTH_CONVENTIONS, RANGE_UNITS, RangeOptions
-
-    d = RangeOptions()
     parser.add_argument("bag", type=Path, help="ROS 1 .bag file, or ROS 2 bag directory, .db3 or .mcap file")
     parser.add_argument("out", type=Path, help="tofd recording to write (.mcap; replaced if it exists)")
-    parser.add_argument("--range-topic", default=d.range_topic,
-                        help="sensor_msgs/Image of range (default: %(default)s)")
-    parser.add_argument("--amplitude-topic", default=d.amplitude_topic,
-                        help="sensor_msgs/Image of amplitude/intensity (default: %(default)s)")
-    parser.add_argument("--camera-info-topic", default=d.camera_info_topic,
-                        help="sensor_msgs/CameraInfo with the intrinsics (default: %(default)s)")
-    parser.add_argument("--range-unit", choices=RANGE_UNITS, default=d.range_unit,
-                        help="unit of 16-bit range images: SwissRanger device units or millimetres; 32FC1 is "
-                             "always metres (default: %(default)s)")
-    parser.add_argument("--depth", choices=DEPTH_CONVENTIONS, default=d.depth,
-                        help="range along each pixel's ray (radial) or along the optical axis (z) "
-                             "(default: %(default)s)")
-    parser.add_argument("--mod-freq-mhz", type=arguments.positive_float, default=d.mod_freq_mhz,
-                        help="modulation frequency for --range-unit device, MHz (default: %(default)s)")
+    arguments.add_bag_arguments(parser)
 
 
-def main(args: argparse.Namespace) -> int:
+def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import") -> str:
+    """Write the frames of `bag` to the recording `out` (renamed into place when complete) with a progress bar;
+    returns what was written, e.g. "12 frames of 176x144". UsageError names a bad bag."""
     from drivers.recording.writer import RecordingWriter
-    from drivers.rosbag import BagError, RangeOptions, RosbagSource
+    from drivers.rosbag import BagError, RosbagSource
     from tofd.errors import UsageError
-    from tofd.outputs import AtomicFile, check_output_file
+    from tofd.outputs import AtomicFile
     from tofd.progress import Progress
 
-    options = RangeOptions(args.range_topic, args.amplitude_topic, args.camera_info_topic, args.range_unit,
-                           args.depth, args.mod_freq_mhz)
-    check_output_file(args.out, "OUT")
-    if args.out.resolve() == args.bag.resolve():
-        raise UsageError(f"OUT {args.out}: is the bag itself")
     try:
-        source = RosbagSource(args.bag, options)
+        source = RosbagSource(bag, options)
     except BagError as exc:
         raise UsageError(str(exc)) from None
-    provenance = {"import": {"bag": str(args.bag), **dataclasses.asdict(options)}}
-    progress = Progress("import", source.range_messages)
-    # the writer opens the temp file by name; AtomicFile renames it to OUT only when every frame is in
-    with source, AtomicFile(args.out, "wb") as target:
+    provenance = {"import": {"bag": str(bag), **dataclasses.asdict(options)}}
+    progress = Progress(command, source.range_messages)
+    # the writer opens the temp file by name; AtomicFile renames it to `out` only when every frame is in
+    with source, AtomicFile(out, "wb") as target:
         try:
             with RecordingWriter(target.tmp_path, config=provenance) as writer:
                 for frame in source:
@@ -71,13 +56,23 @@ def main(args: argparse.Namespace) -> int:
             raise UsageError(str(exc)) from None
         finally:
             progress.done()
-        if writer.frames_written == 0:
-            raise UsageError(f"{args.bag}: no header stamp has a range image, an amplitude image and a camera_info "
-                             f"({_unpaired(source.counters) or 'its topics are empty'}); nothing written")
-    first = source.intrinsics
-    print(f"tofd import: wrote {args.out}: {writer.frames_written} frames of {first.width}x{first.height} from "
-          f"{args.bag}" + (f"; skipped {_unpaired(source.counters)}" if _unpaired(source.counters) else ""),
-          file=sys.stderr)
+        unpaired = _unpaired(source.counters)
+        if source.intrinsics is None:
+            raise UsageError(f"{bag}: no header stamp has a range image, an amplitude image and a camera_info "
+                             f"({unpaired or 'its topics are empty'}); nothing written")
+    size = f"{source.intrinsics.width}x{source.intrinsics.height}"
+    return f"{writer.frames_written} frames of {size}" + (f"; skipped {unpaired}" if unpaired else "")
+
+
+def main(args: argparse.Namespace) -> int:
+    from tofd.errors import UsageError
+    from tofd.outputs import check_output_file
+
+    check_output_file(args.out, "OUT")
+    if args.out.resolve() == args.bag.resolve():
+        raise UsageError(f"OUT {args.out}: is the bag itself")
+    done = convert(args.bag, args.out, arguments.bag_options(args))
+    print(f"tofd import: wrote {args.out}: {done} from {args.bag}", file=sys.stderr)
     return 0
 
 
