@@ -24,9 +24,11 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from mcap.stream_reader import StreamReader
 
 from drivers.frame import DeviceInfo, Frame, Registers
 from drivers.intrinsics import Intrinsics
+from drivers.recording.format import PROFILE
 from drivers.source import DriverError, FrameSource
 from drivers.usb import protocol
 
@@ -77,10 +79,6 @@ class RangeOptions:
 def is_rosbag(path: str | Path) -> bool:
     """Whether `path` is a ROS bag rather than a tofd recording: a .bag or .db3 file, a directory (a ROS 2 bag), or
     an .mcap file whose MCAP profile is not tofd's (ROS 2 writes "ros2")."""
-    from mcap.stream_reader import StreamReader
-
-    from drivers.recording.format import PROFILE
-
     path = Path(path)
     if path.suffix in (".bag", ".db3") or path.is_dir():
         return True
@@ -158,9 +156,10 @@ class RosbagSource(FrameSource):
     """Frames of a ROS bag: each header stamp with a range image, an amplitude image and a CameraInfo.
 
     Frame counters count the paired frames from 0; the device timestamp is the header stamp, the host times are
-    the bag's receive time of the range image. Messages whose stamp never completes a frame are counted in
-    counters["unpaired_<role>"]. Opening checks the topics (BagError names a missing one and lists the bag's
-    topics); iterating raises BagError at the first image tofd cannot use.
+    the bag's receive time of the range image; the device is backend "rosbag", model = the header's frame_id.
+    Messages whose stamp never completes a frame are counted in counters["unpaired_<role>"]. Opening checks the
+    topics (BagError names a missing one and lists the bag's topics); iterating raises BagError at the first
+    image tofd cannot use.
     """
 
     def __init__(self, path: str | Path, options: RangeOptions | None = None) -> None:
@@ -187,8 +186,7 @@ class RosbagSource(FrameSource):
             expected = CAMERA_INFO_TYPE if role == "camera_info" else IMAGE_TYPE
             if topic not in topics:
                 have = ", ".join(f"{name} ({info.msgtype})" for name, info in sorted(topics.items())) or "none"
-                raise BagError(f"{self.path}: no {role} topic {topic} (--{role.replace('_', '-')}-topic); the bag "
-                               f"has: {have}")
+                raise BagError(f"{self.path}: no {role} topic {topic}; the bag has: {have}")
             if topics[topic].msgtype != expected:
                 raise BagError(f"{self.path}: {role} topic {topic} is {topics[topic].msgtype}, expected {expected}")
         return int(topics[self.options.range_topic].msgcount)
@@ -205,7 +203,7 @@ class RosbagSource(FrameSource):
         if self.intrinsics is None:
             self.intrinsics = intrinsics
         elif intrinsics != self.intrinsics:
-            raise BagError(f"{self.options.camera_info_topic}: the calibration changes at stamp {_stamp(info)} "
+            raise BagError(f"{self.options.camera_info_topic}: the calibration changes at stamp {_seconds(info)} "
                            f"({self.intrinsics} -> {intrinsics}); a tofd recording holds one camera calibration")
         if not self._distortion_logged and np.any(np.asarray(_field(info, "d")) != 0):
             log.warning("%s: distortion %s is ignored (tofd uses a pinhole model)", self.options.camera_info_topic,
@@ -216,7 +214,7 @@ class RosbagSource(FrameSource):
         sizes = {"range image": range_image.shape, "amplitude image": amplitude.shape,
                  "camera_info": intrinsics.shape}
         if len(set(sizes.values())) > 1:
-            raise BagError(f"stamp {_stamp(rng)}: sizes differ: "
+            raise BagError(f"stamp {_seconds(rng)}: sizes differ: "
                            + ", ".join(f"{name} {w}x{h}" for name, (h, w) in sizes.items()))
         return Frame(range_m=range_plane(range_image, self.options, intrinsics), amplitude=amplitude,
                      frame_counter=counter, timestamp_us=_stamp(rng) // 1000, host_monotonic_s=log_ns / 1e9,
@@ -262,3 +260,8 @@ class RosbagSource(FrameSource):
 def _stamp(msg: Any) -> int:
     """A message's header stamp in nanoseconds."""
     return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def _seconds(msg: Any) -> str:
+    """A message's header stamp as ROS prints it, e.g. "1700000000.033333000" (seconds)."""
+    return f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"

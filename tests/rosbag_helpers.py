@@ -38,13 +38,15 @@ def _header(ts: Any, stamp_ns: int, seq: int) -> Any:
     return Header(seq=seq, **fields) if "seq" in Header.__dataclass_fields__ else Header(**fields)
 
 
-def image(ts: Any, plane: np.ndarray, encoding: str, stamp_ns: int, seq: int = 0, big_endian: bool = False) -> Any:
-    """A sensor_msgs/Image of an (H, W) array (its dtype's bytes, rows packed)."""
-    data = plane.astype(plane.dtype.newbyteorder(">" if big_endian else "<"))
+def image(ts: Any, plane: np.ndarray, encoding: str, stamp_ns: int, seq: int = 0, big_endian: bool = False,
+          row_padding: int = 0) -> Any:
+    """A sensor_msgs/Image of an (H, W) array: its dtype's bytes in the given byte order, each row followed by
+    `row_padding` bytes."""
     h, w = plane.shape
+    rows = plane.astype(plane.dtype.newbyteorder(">" if big_endian else "<")).view(np.uint8).reshape(h, -1)
+    data = np.concatenate([rows, np.full((h, row_padding), 0xAB, np.uint8)], axis=1)
     return ts.types[IMAGE_TYPE](header=_header(ts, stamp_ns, seq), height=h, width=w, encoding=encoding,
-                                is_bigendian=int(big_endian), step=w * plane.dtype.itemsize,
-                                data=np.frombuffer(data.tobytes(), np.uint8))
+                                is_bigendian=int(big_endian), step=data.shape[1], data=data.ravel())
 
 
 def camera_info(ts: Any, frame: Frame, stamp_ns: int, seq: int = 0, distortion: float = 0.0) -> Any:

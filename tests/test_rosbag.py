@@ -20,6 +20,7 @@ from rosbag_helpers import (
     camera_info,
     frame_messages,
     image,
+    range_image,
     typestore,
     write_bag,
     write_frames_bag,
@@ -63,6 +64,19 @@ def test_every_bag_kind_and_encoding_gives_the_frames_back(tmp_path, clip_frames
             assert np.array_equal(g.range_m.view(np.uint32), f.range_m.view(np.uint32))
         else:  # millimetres: within the unit
             assert np.nanmax(np.abs(g.range_m - f.range_m)) <= 0.5e-3 + 1e-6
+
+
+def test_big_endian_padded_rows_and_8_bit_amplitude_decode_like_the_rest(tmp_path, clip_frames):
+    frame, ts = clip_frames[0], typestore("ros1")
+    stamp = frame.timestamp_us * 1000
+    amplitude8 = np.clip(frame.amplitude / 256, 0, 255).astype(np.uint8)
+    bag = write_bag(tmp_path / "be.bag", "ros1", [
+        (TOPICS["range"], image(ts, range_image(frame, "mono16"), "mono16", stamp, big_endian=True, row_padding=6)),
+        (TOPICS["amplitude"], image(ts, amplitude8, "mono8", stamp, row_padding=3)),
+        (TOPICS["camera_info"], camera_info(ts, frame, stamp))])
+    (got,), _ = read_bag(bag)
+    assert np.array_equal(got.range_m.view(np.uint32), frame.range_m.view(np.uint32))
+    assert np.array_equal(got.amplitude, amplitude8.astype(np.float32))
 
 
 def test_z_depth_is_converted_to_radial_range_with_the_camera_info_rays(tmp_path, clip_frames):
@@ -156,7 +170,7 @@ def test_a_bad_bag_is_one_line_exit_2_and_nothing_written(tmp_path, clip_frames,
 def test_a_missing_topic_lists_the_topics_the_bag_has(tmp_path, clip_frames):
     bag = write_frames_bag(tmp_path, "sqlite3", clip_frames[:1])
     one_line_error(tofd("import", str(bag), str(tmp_path / "out.mcap"), "--amplitude-topic", "/tof/amplitude"), 2,
-                   "no amplitude topic /tof/amplitude (--amplitude-topic)",
+                   "no amplitude topic /tof/amplitude; the bag has:",
                    f"{TOPICS['range']} (sensor_msgs/msg/Image)",
                    f"{TOPICS['camera_info']} (sensor_msgs/msg/CameraInfo)")
     one_line_error(tofd("import", str(bag), str(tmp_path / "out.mcap"), "--camera-info-topic", TOPICS["range"]), 2,
