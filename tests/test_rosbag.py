@@ -3,6 +3,7 @@ tofd recordings that replay like the emulated source, in every encoding; bad bag
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -32,7 +33,7 @@ from drivers.emulator.render import Pose, load_face, render_face
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
 from drivers.recording.replay import iter_frames
-from drivers.rosbag import RangeOptions, RosbagSource
+from drivers.rosbag import BagError, RangeOptions, RosbagSource
 from tofd.service.viewer import blueprint as bp
 
 N_FRAMES = 12
@@ -66,17 +67,32 @@ def test_every_bag_kind_and_encoding_gives_the_frames_back(tmp_path, clip_frames
             assert np.nanmax(np.abs(g.range_m - f.range_m)) <= 0.5e-3 + 1e-6
 
 
-def test_big_endian_padded_rows_and_8_bit_amplitude_decode_like_the_rest(tmp_path, clip_frames):
+def test_big_endian_padded_rows_and_8_bit_amplitude_decode_like_the_rest(tmp_path, clip_frames, caplog):
     frame, ts = clip_frames[0], typestore("ros1")
     stamp = frame.timestamp_us * 1000
     amplitude8 = np.clip(frame.amplitude / 256, 0, 255).astype(np.uint8)
     bag = write_bag(tmp_path / "be.bag", "ros1", [
         (TOPICS["range"], image(ts, range_image(frame, "mono16"), "mono16", stamp, big_endian=True, row_padding=6)),
         (TOPICS["amplitude"], image(ts, amplitude8, "mono8", stamp, row_padding=3)),
-        (TOPICS["camera_info"], camera_info(ts, frame, stamp))])
+        (TOPICS["camera_info"], camera_info(ts, frame, stamp, distortion=-0.2))])
     (got,), _ = read_bag(bag)
     assert np.array_equal(got.range_m.view(np.uint32), frame.range_m.view(np.uint32))
     assert np.array_equal(got.amplitude, amplitude8.astype(np.float32))
+    assert "distortion [-0.2, 0.0, 0.0, 0.0, 0.0] is ignored" in caplog.text
+
+
+def test_a_calibration_that_changes_or_is_missing_is_refused(tmp_path, clip_frames):
+    ts = typestore("sqlite3")
+    later = dataclasses.replace(clip_frames[1], intrinsics=dataclasses.replace(clip_frames[1].intrinsics, fx=150.0))
+    bag = write_bag(bag_path(tmp_path, "sqlite3", "changes"), "sqlite3",
+                    frame_messages(ts, clip_frames[0]) + frame_messages(ts, later))
+    with pytest.raises(BagError, match=r"calibration changes at stamp \d+\.\d{9} .*fx=150\.0"):
+        read_bag(bag)
+    uncalibrated = dataclasses.replace(clip_frames[0], intrinsics=dataclasses.replace(
+        clip_frames[0].intrinsics, fx=0.0, fy=0.0))
+    bag = write_bag(bag_path(tmp_path, "sqlite3", "zero"), "sqlite3", frame_messages(ts, uncalibrated))
+    with pytest.raises(BagError, match="no usable calibration"):
+        read_bag(bag)
 
 
 def test_z_depth_is_converted_to_radial_range_with_the_camera_info_rays(tmp_path, clip_frames):
