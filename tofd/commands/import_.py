@@ -48,7 +48,7 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
     # the writer opens the temp file by name; AtomicFile renames it to `out` only when every frame is in
     with source, AtomicFile(out, "wb") as target:
         try:
-            with RecordingWriter(target.tmp_path, config=provenance) as writer:
+            with RecordingWriter(target.tmp_path, config=provenance, fsync_interval_s=None) as writer:
                 for frame in source:
                     writer.write(frame)
                     progress.update(writer.frames_written)
