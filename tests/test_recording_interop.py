@@ -15,8 +15,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from recording_helpers import assert_frames_equal, write_recording
-from rrd_helpers import image_at
 from rerun.chunk import RrdReader
+from rrd_helpers import image_at
 
 from drivers.recording import format as fmt
 from drivers.recording.replay import iter_frames, read_recording_info

@@ -1,9 +1,10 @@
 """Random access to a finished recording's frames through MCAP's chunk index (its summary section).
 
-A tofd recording holds one frame per chunk (format 2: its header, images and calibration messages), so chunk k (in file order) is frame k: reading frames [first, stop)
-seeks straight to chunk `first` and never scans the chunks before it. Works on any seekable binary file object
-(a local file or an fsspec file). A recording without an intact summary (its writer was killed) has no index:
-read it sequentially with drivers.recording.replay.
+A tofd recording holds one frame per chunk (format 2: its header, images and calibration messages), so chunk k
+(in file order) is frame k: reading frames [first, stop) seeks straight to chunk `first` and never scans the
+chunks before it. Works on any seekable binary file object (a local file or an fsspec file). A recording
+without an intact summary (its writer was killed) has no index: read it sequentially with
+drivers.recording.replay.
 """
 
 from __future__ import annotations

@@ -1,9 +1,10 @@
 """RecordingWriter: writes Frames to a crash-safe, self-describing MCAP recording.
 
 Crash safety: every frame is its own zstd-compressed, CRC-checked MCAP chunk (its header, range and amplitude
-images and calibration), handed to the operating system (flushed) before write() returns, so a process killed at any moment (kill -9) leaves a file whose
-every completed frame replays; only the frame being written is lost. With `fsync_interval_s` the file is
-also forced to disk that often, which bounds the loss on power failure. Layout: drivers/recording/format.py.
+images and calibration), handed to the operating system (flushed) before write() returns, so a process killed
+at any moment (kill -9) leaves a file whose every completed frame replays; only the frame being written is
+lost. With `fsync_interval_s` the file is also forced to disk that often, which bounds the loss on power
+failure. Layout: drivers/recording/format.py.
 """
 
 from __future__ import annotations

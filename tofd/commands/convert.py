@@ -40,7 +40,8 @@ def main(args: argparse.Namespace) -> int:
     finally:
         tmp.unlink(missing_ok=True)
     left_out = len(source.take_rejected())
-    print(f"tofd convert: wrote {args.out}: {writer.frames_written} frames (format {info.format_version} -> {FORMAT_VERSION})"
+    print(f"tofd convert: wrote {args.out}: {writer.frames_written} frames "
+          f"(format {info.format_version} -> {FORMAT_VERSION})"
           + (f", {left_out} left out (see the log)" if left_out else "")
           + ("" if source.stopped_reason == "end" else f"; {args.file} is {source.stopped_reason}: "
                                                      f"{source.stop_detail}"), file=sys.stderr)
