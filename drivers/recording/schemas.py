@@ -29,7 +29,7 @@ from typing import Any
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-from google.protobuf.descriptor import FileDescriptor
+from mcap_protobuf.schema import build_file_descriptor_set
 
 FieldProto = descriptor_pb2.FieldDescriptorProto
 _TYPES = {"int64": FieldProto.TYPE_INT64, "uint32": FieldProto.TYPE_UINT32, "double": FieldProto.TYPE_DOUBLE,
@@ -72,29 +72,12 @@ def frame_header_class() -> Any:
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(f"{PACKAGE}.FrameHeader"))
 
 
-def _file_descriptor_set(file: FileDescriptor) -> bytes:
-    """Serialized FileDescriptorSet of `file` and its dependencies, dependencies first (MCAP's protobuf schema)."""
-    out = descriptor_pb2.FileDescriptorSet()
-    seen: set[str] = set()
-
-    def add(fd: FileDescriptor) -> None:
-        for dep in fd.dependencies:
-            if dep.name not in seen:
-                seen.add(dep.name)
-                add(dep)
-        fd.CopyToProto(out.file.add())
-
-    add(file)
-    return out.SerializeToString()
-
-
 @functools.cache
 def schema_data(name: str) -> bytes:
-    """MCAP schema data (encoding "protobuf") of the message type `name`."""
-    if name == f"{PACKAGE}.FrameHeader":
-        return descriptor_pb2.FileDescriptorSet(file=[_header_file()]).SerializeToString()
-    return _file_descriptor_set({"foxglove.RawImage": RawImage, "foxglove.CameraCalibration": CameraCalibration}[
-        name].DESCRIPTOR.file)
+    """MCAP schema data (encoding "protobuf": a FileDescriptorSet with dependencies) of the message type `name`."""
+    message = {"tofd.FrameHeader": frame_header_class(), "foxglove.RawImage": RawImage,
+               "foxglove.CameraCalibration": CameraCalibration}[name]
+    return build_file_descriptor_set(message).SerializeToString()
 
 
 __all__ = ["CameraCalibration", "RawImage", "frame_header_class", "schema_data"]
