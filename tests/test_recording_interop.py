@@ -19,6 +19,7 @@ from rerun.chunk import RrdReader
 from rrd_helpers import image_at
 
 from drivers.recording import format as fmt
+from drivers.recording.index import frame_index, read_chunks
 from drivers.recording.replay import iter_frames, read_recording_info
 from drivers.usb import protocol
 from tofd import cli
@@ -129,3 +130,14 @@ def test_convert_command_rewrites_a_format_1_recording_in_the_current_format(tmp
     assert (info.config, info.intrinsics, info.device, info.registers) == (old.config, old.intrinsics, old.device,
                                                                           old.registers)
     assert [p.name for p in tmp_path.iterdir()] == ["v2.mcap"]  # no temp file left beside it
+
+
+@pytest.mark.parametrize("path", [V1_CLIP, BUNDLED], ids=["format-1", "format-2"])
+def test_chunk_index_reads_frames_of_either_format(path):
+    with open(path, "rb") as f:
+        index = frame_index(f)
+        chunks = list(read_chunks(f, index, 1, 3))
+    assert [c.error for c in chunks] == ["", ""]
+    for chunk, expected in zip(chunks, list(iter_frames(path, start=1, stop=3)), strict=True):
+        (frame,) = chunk.frames
+        assert_frames_equal(expected, frame)

@@ -197,12 +197,12 @@ class RecordingReader:
             messages = []
             self._unindexed = set()
             for rec in breakup_chunk(self._chunk(body), validate_crc=True):
-                if isinstance(rec, Message):
-                    self._unindexed.add(rec.channel_id)
                 if isinstance(rec, Channel):
                     self._roles[rec.id] = channel_role(rec)
-                elif isinstance(rec, Message) and (role := self._role(rec.channel_id)) is not None:
-                    messages.append((role, rec.data))
+                elif isinstance(rec, Message):
+                    self._unindexed.add(rec.channel_id)
+                    if (role := self._role(rec.channel_id)) is not None:
+                        messages.append((role, rec.data))
             return frames_of(messages)
         if opcode == Opcode.CHANNEL:
             channel = Channel.read(stream)
