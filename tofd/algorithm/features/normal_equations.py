@@ -92,7 +92,7 @@ class DampedNormalEquations:
         half = kernel[:, : n + 1].copy()
         half[n, :] = 0  # the unpaired -N row and column never enter (A^H A f)_k for |k| < N/2
         half[:, n] = 0
-        self._circulant = (sfft.irfft2(half, s=(2 * n, 2 * n), workers=1) * float(4 * n * n)).astype(real)
+        self._circulant = sfft.irfft2(half, s=(2 * n, 2 * n), norm="forward", workers=1).astype(real, copy=False)
         self._axpy = get_blas_funcs("axpy", dtype=complex_)
 
     def apply(self, v: np.ndarray, out: np.ndarray) -> np.ndarray:
