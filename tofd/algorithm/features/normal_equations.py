@@ -17,6 +17,8 @@ filters ignore, and the plain residual stopped a sphere with eps0 off by 15 %.
 
 No preconditioner: the slow modes are band-limited ones straddling the patch border, which a preconditioner
 diagonal in space (T. Chan's optimal circulant, density compensation) cannot separate; both cost iterations.
+Smoothed and floored densities save iterations on spheres but not on faces for the same eps0 accuracy, and
+weights diagonal in frequency (following the band) slow CG down.
 """
 
 from __future__ import annotations
@@ -66,7 +68,7 @@ class PrunedRealFFT:
 class HermitianInner:
     """Re <a, b> of full Hermitian spectra from compact halves (N - 1, N/2): kx > 0 counts twice."""
 
-    def __init__(self, band: np.ndarray, dtype: type[np.complexfloating]):
+    def __init__(self, band: np.ndarray, dtype: np.dtype):
         root = np.full(band.shape, np.sqrt(2.0), band.dtype)
         root[:, 0] = 1.0
         self._band_root = root * band  # |band_root * r|^2 = sum over the full spectrum of A(rho)^2 |r|^2
