@@ -158,7 +158,8 @@ class NFFTFeatures:
         z = pts[:, 2]
         # points per unit area of the square: 1 / mean pixel footprint, (z/fx)(z/fy) m^2 over Lx Ly
         footprint = np.mean(z * z) / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
-        return UnitSquarePoints(x, y, z - z.max() if z.size else z, flat, self.cfg.damping / footprint if z.size else 0.0)
+        return UnitSquarePoints(x, y, z - z.max() if z.size else z, flat,
+                                self.cfg.damping / footprint if z.size else 0.0)
 
     def range_features(self, range_m: np.ndarray, mask: np.ndarray,
                        rotation: np.ndarray | None = None) -> Eccentricities:
