@@ -174,3 +174,14 @@ def test_replay_loop_results_carry_the_loop_index(tmp_path):
     assert loops == sorted(loops) and set(loops) == {0, 1} and len(rows) == 110
     first = [r["frame_counter"] for r in rows if r["loop"] == 0]
     assert first == sorted(first) and rows[-1]["frame_counter"] < first[-1]
+
+
+def test_help_and_version_import_no_command_module():
+    """`tofd --help` lists every command from its docstring without importing the commands (their imports are slow)."""
+    code = ("import sys, contextlib, io; from tofd.cli import main\n"
+            "with contextlib.suppress(SystemExit), contextlib.redirect_stdout(io.StringIO()) as out: main(['--help'])\n"
+            "assert 'replay' in out.getvalue() and 'import' in out.getvalue()\n"
+            "heavy = ('tofd.commands.', 'tofd.service', 'rerun', 'scipy')\n"
+            "print(sorted(m for m in sys.modules if m.startswith(heavy)))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "[]", proc.stdout
