@@ -138,8 +138,9 @@ def test_replay_out_that_cannot_be_a_directory_is_one_line_exit_2(tmp_path, kind
 
 def test_replay_argument_mistakes(tmp_path):
     one_line_error(tofd("replay", str(CLIP), "--speed", "2", "--out", str(tmp_path)), 2, "--speed needs --realtime")
-    one_line_error(tofd("replay", str(CLIP), "--seek", "100000", "--out", str(tmp_path)), 2, "--seek 100000",
-                   "past the end")
+    err = one_line_error(tofd("replay", str(CLIP), "--seek", "100000", "--out", str(tmp_path)), 2, "--seek 100000",
+                         "past the end")
+    assert err.count(CLIP.name) == 1, err
     one_line_error(tofd("replay", str(tmp_path / "absent.mcap"), "--out", str(tmp_path)), 2, "absent.mcap")
     assert list(tmp_path.iterdir()) == []
 

@@ -46,9 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     arguments.add_bag_arguments(parser)
 
 
-def _check_seek(path: Path, seek: int, shown: Path) -> None:
-    """UsageError (naming the file `shown`) when no frame of the recording has a counter >= seek (reads until one
-    does)."""
+def _check_seek(path: Path, seek: int) -> None:
+    """UsageError when no frame of the recording has a counter >= seek (reads until one does)."""
     from drivers.recording.replay import RecordingReader
     from tofd.errors import UsageError
 
@@ -58,7 +57,7 @@ def _check_seek(path: Path, seek: int, shown: Path) -> None:
             if frame.frame_counter >= seek:
                 return
             last = frame.frame_counter
-    raise UsageError(f"--seek {seek}: past the end of {shown} (last frame counter {last})")
+    raise UsageError(f"--seek {seek}: past the end (last frame counter {last})")
 
 
 def _report_accuracy(results: Path, plot: Path) -> None:
@@ -113,7 +112,7 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     try:
         info = read_recording_info(recording)
         if args.seek is not None:
-            _check_seek(recording, args.seek, args.file)
+            _check_seek(recording, args.seek)
         source = ReplaySource(recording, mode="realtime" if args.realtime else "lossless", speed=args.speed or 1.0,
                               loop=args.loop, seek=args.seek)
     except (DriverError, OSError, ValueError) as exc:
