@@ -22,9 +22,10 @@ import numpy as np
 import pyarrow.parquet as pq
 from distributed import Client, LocalCluster, as_completed
 
+from tofd.algorithm.threads import THREAD_ENV
 from tofd.batch.plan import InputPlan, Partition, expand_inputs, plan_inputs, run_digests
 from tofd.batch.rows import TIMED, rows_digest
-from tofd.batch.task import THREAD_ENV, partition_stats, run_partition
+from tofd.batch.task import PrepareWorker, partition_stats, run_partition
 from tofd.config import Config, config_table
 from tofd.progress import Progress
 from tofd.service.model import load_service_model
@@ -75,6 +76,10 @@ def run_plan(client: Client, inputs: list[InputPlan], job: dict, out: str, diges
     dashboard = getattr(client, "dashboard_link", None) if importlib.util.find_spec("bokeh") else None
     if dashboard and options.progress:
         log.info("Dask dashboard: %s", dashboard)
+    t_setup = time.perf_counter()
+    if todo:
+        client.register_plugin(PrepareWorker())
+    setup_s = time.perf_counter() - t_setup
     job_future = client.scatter(json.dumps(job), broadcast=True) if todo else None
     futures = {client.submit(run_partition, p.to_json(), job_future, key=f"tofd-batch-{_key(p)}",
                              retries=options.retries, pure=False): p for p in todo}
@@ -98,7 +103,7 @@ def run_plan(client: Client, inputs: list[InputPlan], job: dict, out: str, diges
         progress.done()
     _remove_partial_files(parts)
     summary = _summary(inputs, done, failed, digests, out, wall_s, time.perf_counter() - t_submit,
-                       n_workers=len(client.scheduler_info().get("workers", {})), dashboard=dashboard)
+                       setup_s, n_workers=len(client.scheduler_info().get("workers", {})), dashboard=dashboard)
     fs, path = fsspec.core.url_to_fs(out)
     fs.makedirs(path, exist_ok=True)
     with fs.open(f"{path}/{SUMMARY_NAME}", "w") as fh:
@@ -136,7 +141,7 @@ def _percentiles(values: list[float]) -> dict[str, float]:
 
 
 def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, str], digests: dict[str, str],
-             out: str, wall_s: float, run_s: float, n_workers: int, dashboard: str | None) -> dict:
+             out: str, wall_s: float, run_s: float, setup_s: float, n_workers: int, dashboard: str | None) -> dict:
     dropped: Counter = Counter()
     per_input = []
     all_rows: list[dict] = []
@@ -182,6 +187,7 @@ def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, s
         "stage_ms": {stage: _percentiles([r[f"t_{stage}_ms"] for r in all_rows]) for stage in TIMED},
         "per_partition_ms": per_part,
         "wall_s": round(wall_s, 3),
+        "worker_setup_s": round(setup_s, 3),
         "throughput_fps": round(frames_done / run_s, 2) if computed and run_s > 0 else None,
         "workers": n_workers,
         "dashboard": dashboard,

@@ -18,25 +18,48 @@ from dataclasses import replace
 import fsspec
 import pyarrow as pa
 import pyarrow.parquet as pq
+from distributed.diagnostics.plugin import WorkerPlugin
 
 from drivers.frame import Frame
 from drivers.recording.index import FrameIndex, read_chunks
+from tofd.algorithm.detector import NoseModel
+from tofd.algorithm.threads import use_one_thread
 from tofd.batch.plan import Partition
 from tofd.batch.rows import ROW_SCHEMA, frame_row
+from tofd.config import config_from_dict
+from tofd.service.pipeline.slots import local_slot
+from tofd.service.pipeline.stages import FeatureStage, process_frame
 
 STATS_KEY = b"tofd.partition"
-THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-"""One thread per task in numerical libraries: deterministic results, and one core per Dask worker process."""
+
+
+class PrepareWorker(WorkerPlugin):
+    """Dask worker plugin: prepare_process on every worker, those running when it is registered and those that
+    join or restart later, so a worker's first partition does not pay for imports and set-up."""
+
+    name = "tofd-batch-prepare"
+
+    def setup(self, worker: object) -> None:
+        prepare_process()
+
+
+def prepare_process() -> None:
+    """Make this process ready to run partitions (idempotent): one thread in numerical libraries
+    (tofd.algorithm.threads, the pipeline workers' rule) and keep_arrays_on_the_heap."""
+    global _prepared
+    if not _prepared:
+        use_one_thread()
+        keep_arrays_on_the_heap()
+        _prepared = True
+
+
+_prepared = False
 
 
 def keep_arrays_on_the_heap() -> None:
     """Raise glibc's mmap threshold to 64 MiB in this process (no-op elsewhere than glibc). Dask's nanny sets
     MALLOC_TRIM_THRESHOLD_ for its workers, which pins the threshold at 128 KiB: every (H, W) map buffer of a
     frame is then mmap'd and unmapped again, page-faulting on each use, and the per-frame work runs ~2x slower."""
-    global _heap_tuned
-    if _heap_tuned:
-        return
-    _heap_tuned = True
     try:
         libc = ctypes.CDLL("libc.so.6")
         libc.mallopt(_M_MMAP_THRESHOLD, 64 << 20)
@@ -46,7 +69,6 @@ def keep_arrays_on_the_heap() -> None:
 
 
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc mallopt parameters
-_heap_tuned = False
 
 
 def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[Frame, float]]:
@@ -88,13 +110,7 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
 def run_partition(part_json: str, job_json: str) -> dict:
     """Process one partition (JSON of plan.Partition; job: {"config": table, "model": dict or None}); returns
     its statistics (frames in/out, drops by reason, errors, time spent setting up, reading, computing, writing)."""
-    os.environ.update(THREAD_ENV)
-    keep_arrays_on_the_heap()
-    from tofd.algorithm.detector import NoseModel
-    from tofd.config import config_from_dict
-    from tofd.service.pipeline.slots import local_slot
-    from tofd.service.pipeline.stages import FeatureStage, process_frame
-
+    prepare_process()
     t_start = time.perf_counter()
     part = Partition.from_json(part_json)
     job = json.loads(job_json)

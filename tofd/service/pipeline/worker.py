@@ -18,6 +18,7 @@ import time
 from multiprocessing.connection import Connection
 
 from drivers.intrinsics import Intrinsics
+from tofd.algorithm.threads import THREAD_ENV
 
 
 def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
@@ -27,12 +28,13 @@ def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
     die_with_parent()  # a kill -9 of the parent leaves no worker behind
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    os.environ["OMP_NUM_THREADS"] = "1"  # one core per worker: finufft must not oversubscribe
     from tofd.algorithm.detector import NoseModel
+    from tofd.algorithm.threads import use_one_thread
     from tofd.config import config_from_dict
     from tofd.service.pipeline.slots import SlotRing
     from tofd.service.pipeline.stages import FeatureStage
 
+    use_one_thread()
     spec = json.loads(spec_json)
     ring = SlotRing.attach(spec["shm"], spec["n_slots"], tuple(spec["shape"]))
     model = None if spec["model"] is None else NoseModel.from_dict(spec["model"])
@@ -69,6 +71,9 @@ class WorkerHandle:
         self.started_s = 0.0
 
     def start(self) -> None:
+        """Spawn the worker process; THREAD_ENV goes into this process's environment first, which the child
+        inherits, so its BLAS/OpenMP are single-threaded from the moment they load (before worker_main runs)."""
+        os.environ.update(THREAD_ENV)
         ctx = mp.get_context("spawn")
         task_r, task_w = ctx.Pipe(duplex=False)
         result_r, result_w = ctx.Pipe(duplex=False)
