@@ -4,6 +4,7 @@ replay's results bit for bit (its golden file), also when a worker is killed mid
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import signal
@@ -60,6 +61,23 @@ def test_partitions_equal_the_replay(clip_run):
     assert summary["frames_in"] == summary["frames_out"] == 101 and summary["frames_dropped"] == 0
     assert {s for s in summary["stage_ms"] if summary["stage_ms"][s]} == {"read", "segmentation", "fft", "nfft",
                                                                          "detection"}
+
+
+def test_summary_evaluates_against_the_ground_truth(clip_run):
+    """The emulated clip carries the nose pixel and 3-D tip per frame: found within 5 px overall and per 5 cm of
+    distance (0.35 to 0.70 m), as `tofd evaluate` bins them."""
+    evaluation = clip_run[0]["evaluation"]
+    frames = load_golden(GOLDEN)["frames"]
+    errors = [math.dist(f["nose_px"], f["ground_truth_px"]) for f in frames]
+    assert evaluation["frames"] == 101 and evaluation["radius_px"] == 5
+    assert evaluation["found"] == sum(e <= 5 for e in errors)
+    assert evaluation["max_error_px"] == round(max(errors), 3)
+    assert evaluation["line"].startswith(f"nose found {evaluation['found']} of 101 within 5 px")
+    per_distance = evaluation["per_distance"]
+    assert list(per_distance) == ["0.35", "0.40", "0.45", "0.50", "0.55", "0.60", "0.65", "0.70"]
+    assert sum(d["frames"] for d in per_distance.values()) == 101
+    near = [e for f, e in zip(frames, errors, strict=True) if math.hypot(*f["ground_truth_xyz_m"]) < 0.375]
+    assert per_distance["0.35"]["frames"] == len(near) and per_distance["0.35"]["max_error_px"] == round(max(near), 3)
 
 
 def test_resume_skips_finished_partitions_and_redoes_a_missing_one(client, clip_run, tmp_path):

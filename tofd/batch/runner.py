@@ -27,6 +27,7 @@ from tofd.batch.plan import InputPlan, Partition, expand_inputs, plan_inputs, ru
 from tofd.batch.rows import TIMED, rows_digest
 from tofd.batch.task import PrepareWorker, partition_stats, run_partition
 from tofd.config import Config, config_table
+from tofd.lab.accuracy import accuracy_from_records
 from tofd.progress import Progress
 from tofd.service.model import load_service_model
 
@@ -165,10 +166,13 @@ def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, s
             outputs.append(p.output)
         rows = read_rows(outputs)
         entry["results_digest"] = rows_digest(rows)
+        input_accuracy = accuracy_from_records(rows)
+        entry["accuracy"] = None if input_accuracy is None else input_accuracy.line()
         entry["parts"] = [o[len(out.rstrip("/")) + 1:] for o in outputs]
         entry["status"] = "ok" if not entry["errors"] else ("partial" if entry["frames_out"] else "failed")
         all_rows.extend(rows)
         per_input.append(entry)
+    accuracy = accuracy_from_records(all_rows)
     computed = [s for s in done.values() if not s.get("resumed")]
     frames_done = sum(s["frames_out"] for s in computed)
     n = max(len(computed), 1)
@@ -193,6 +197,7 @@ def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, s
         "dashboard": dashboard,
         "digests": digests,
         "results_digest": rows_digest(all_rows),
+        "evaluation": None if accuracy is None else accuracy.to_dict(),
     }
 
 

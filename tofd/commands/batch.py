@@ -32,6 +32,7 @@ def main(args: argparse.Namespace) -> int:
 
     from tofd.batch.runner import RunOptions, batch_client, prepare, run_plan
     from tofd.config import load_config
+    from tofd.lab.accuracy import accuracy_table
 
     if args.workers < 1:
         print(f"tofd batch: --workers: expected >= 1, got {args.workers}", file=sys.stderr)
@@ -57,6 +58,9 @@ def main(args: argparse.Namespace) -> int:
     bad = [e for e in summary["inputs"] if e["status"] != "ok"]
     for e in bad:
         print(f"tofd batch: {e['input']}: {e['status']}: {'; '.join(e['errors'][:3])}", file=sys.stderr)
+    if summary["evaluation"] is not None:
+        print(f"tofd batch: {summary['evaluation']['line']}", file=sys.stderr)
+        print(accuracy_table(summary["evaluation"]), file=sys.stderr)
     p = summary["partitions"]
     print(f"tofd batch: {summary['frames_out']} frames processed, {summary['frames_dropped']} dropped, "
           f"{p['computed']} partitions computed, {p['resumed']} resumed, {p['failed']} failed; "

@@ -62,12 +62,14 @@ def _check_seek(path: Path, seek: int) -> None:
 
 def _report_accuracy(results: Path, plot: Path) -> None:
     """Print the accuracy line and write the plot when the recording carries ground truth."""
-    from tofd.lab.accuracy import accuracy_from_results, plot_accuracy
+    from tofd.lab.accuracy import accuracy_from_results, accuracy_table, plot_accuracy
 
     acc = accuracy_from_results(results)
     if acc is not None:
         plot_accuracy(acc, plot)
         print(f"tofd replay: {acc.line()}; plot {plot}", file=sys.stderr)
+        if acc.distance_m is not None:
+            print(accuracy_table(acc.to_dict()), file=sys.stderr)
 
 
 def main(args: argparse.Namespace) -> int:

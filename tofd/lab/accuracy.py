@@ -1,17 +1,20 @@
 """Nose accuracy of a replay against the recording's ground truth, from its per-frame results (JSON Lines).
 
 Error = Euclidean pixel distance between the detected and the ground-truth nose pixel; a frame counts as found
-when a nose was detected within `radius_px` of the truth. Frames without ground truth are ignored.
+when a nose was detected within `radius_px` of the truth. Frames without ground truth are ignored; frames whose
+ground-truth 3-D nose tip is known are also grouped by distance, in the bins of `tofd evaluate`.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from tofd.lab.evaluation import distance_bins
 from tofd.outputs import save_figure
 
 RADIUS_PX = 5.0
@@ -19,12 +22,14 @@ RADIUS_PX = 5.0
 
 @dataclass(frozen=True, slots=True)
 class Accuracy:
-    """Per frame with ground truth: counter, error in pixels (NaN: no detection) and detector score (NaN: none)."""
+    """Per frame with ground truth: counter, error in pixels (NaN: no detection), detector score (NaN: none) and
+    the ground-truth nose distance in metres (NaN: unknown)."""
 
     frame_counter: np.ndarray  # (M,) int
     error_px: np.ndarray  # (M,) float
     score: np.ndarray  # (M,) float
     radius_px: float = RADIUS_PX
+    distance_m: np.ndarray | None = None  # (M,) float; None: no frame knows its distance
 
     @property
     def found(self) -> int:
@@ -37,23 +42,68 @@ class Accuracy:
                   else "no detection")
         return f"nose found {self.found} of {len(self.error_px)} within {self.radius_px:g} px; {errors}"
 
+    def counts(self) -> dict:
+        """JSON-ready: frames, found, radius, frames with a detection, median and max error (px, over frames with a
+        detection; None if none)."""
+        detected = self.error_px[np.isfinite(self.error_px)]
+        return {"frames": len(self.error_px), "found": self.found, "radius_px": self.radius_px,
+                "detected": int(detected.size),
+                "median_error_px": round(float(np.median(detected)), 3) if detected.size else None,
+                "max_error_px": round(float(detected.max()), 3) if detected.size else None}
+
+    def to_dict(self) -> dict:
+        """counts(), the line, and counts() per distance bin ("0.35": ...; empty when no distance is known)."""
+        return {**self.counts(), "line": self.line(),
+                "per_distance": {f"{d:.2f}": a.counts() for d, a in self.per_distance().items()}}
+
+    def per_distance(self) -> dict[float, Accuracy]:
+        """The frames of known distance grouped by tofd.lab.evaluation.distance_bins (the bins of `tofd evaluate`)."""
+        if self.distance_m is None:
+            return {}
+        known = np.isfinite(self.distance_m)
+        bins = distance_bins(self.distance_m[known])
+        return {float(b): self._subset(np.flatnonzero(known)[bins == b]) for b in np.unique(bins)}
+
+    def _subset(self, index: np.ndarray) -> Accuracy:
+        return Accuracy(self.frame_counter[index], self.error_px[index], self.score[index], self.radius_px,
+                        None if self.distance_m is None else self.distance_m[index])
+
+
+def accuracy_table(report: dict) -> str:
+    """Text of an Accuracy.to_dict(): found / frames, median and max error (px), overall then per distance bin."""
+    lines = [f"{'distance':>9}{'found':>13}{'median px':>11}{'max px':>9}"]
+    for label, d in [("all", report), *((f"{k} m", v) for k, v in report["per_distance"].items())]:
+        median, worst = (f"{d[k]:.1f}" if d[k] is not None else "-" for k in ("median_error_px", "max_error_px"))
+        found = f"{d['found']} / {d['frames']}"
+        lines.append(f"{label:>9}{found:>13}{median:>11}{worst:>9}")
+    return "\n".join(lines)
+
+
+def accuracy_from_records(records: Iterable[dict], radius_px: float = RADIUS_PX) -> Accuracy | None:
+    """The accuracy over per-frame results records (tofd.service.pipeline.results.result_record, or batch rows)
+    that carry ground truth; None when none does."""
+    counters, errors, scores, distances = [], [], [], []
+    for rec in records:
+        truth = rec.get("ground_truth_px")
+        if truth is None:
+            continue
+        nose = rec.get("nose_px")
+        xyz = rec.get("ground_truth_xyz_m")
+        counters.append(rec["frame_counter"])
+        errors.append(float(np.hypot(nose[0] - truth[0], nose[1] - truth[1])) if nose is not None else np.nan)
+        scores.append(rec["score"] if rec.get("score") is not None else np.nan)
+        distances.append(float(np.linalg.norm(xyz)) if xyz is not None else np.nan)
+    if not counters:
+        return None
+    distance = np.array(distances, float)
+    return Accuracy(np.array(counters), np.array(errors, float), np.array(scores, float), radius_px,
+                    distance if np.isfinite(distance).any() else None)
+
 
 def accuracy_from_results(path: str | Path, radius_px: float = RADIUS_PX) -> Accuracy | None:
     """The accuracy over the frames of a results .jsonl that carry ground truth; None when none does."""
-    counters, errors, scores = [], [], []
     with Path(path).open() as fh:
-        for line in fh:
-            rec = json.loads(line)
-            truth = rec.get("ground_truth_px")
-            if truth is None:
-                continue
-            nose = rec.get("nose_px")
-            counters.append(rec["frame_counter"])
-            errors.append(float(np.hypot(nose[0] - truth[0], nose[1] - truth[1])) if nose is not None else np.nan)
-            scores.append(rec["score"] if rec.get("score") is not None else np.nan)
-    if not counters:
-        return None
-    return Accuracy(np.array(counters), np.array(errors, float), np.array(scores, float), radius_px)
+        return accuracy_from_records((json.loads(line) for line in fh), radius_px)
 
 
 def plot_accuracy(acc: Accuracy, path: str | Path) -> Path:

@@ -39,6 +39,7 @@ def finite_or_none(x: float) -> float | None:
 def result_record(r: FrameResult) -> dict:
     """The JSON-ready per-frame record written to the results file."""
     det = r.detection
+    truth = r.frame.ground_truth
     return {
         "frame_counter": r.frame.frame_counter,
         "timestamp_us": r.frame.timestamp_us,
@@ -47,7 +48,8 @@ def result_record(r: FrameResult) -> dict:
         "nose_xyz_m": [round(c, 5) for c in det.nose_xyz_m] if det is not None and det.nose_xyz_m else None,
         "score": finite_or_none(det.score) if det is not None else None,
         "accepted": bool(det.accepted) if det is not None else None,
-        "ground_truth_px": list(r.frame.ground_truth.nose_px) if r.frame.ground_truth else None,
+        "ground_truth_px": list(truth.nose_px) if truth else None,
+        "ground_truth_xyz_m": list(truth.nose_xyz_m) if truth and truth.nose_xyz_m else None,
         "nfft_iterations": r.nfft_iterations,
         "timings_ms": {k: round(v, 3) for k, v in r.timings_ms.items()},
     }
