@@ -11,16 +11,26 @@ import signal
 import subprocess
 import sys
 import threading
+from dataclasses import replace
 from pathlib import Path
 
+import fsspec
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from drivers.frame import Frame, GroundTruth
 from drivers.recording.index import frame_index
 from tofd.batch.golden import load_golden
-from tofd.batch.rows import without_timings
+from tofd.batch.rows import frame_row, without_timings
 from tofd.batch.runner import RunOptions, batch_client, prepare, read_rows, run_plan
 from tofd.config import load_config
+from tofd.lab.dataset import load_dataset, save_dataset, sidecar_path
+from tofd.lab.evaluation import distance_bins
+from tofd.lab.faces import generate
+from tofd.service.model import load_service_model
+from tofd.service.pipeline.slots import local_slot
+from tofd.service.pipeline.stages import FeatureStage, process_frame
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -35,8 +45,9 @@ def client():
         yield c
 
 
-def run(client, out: Path, inputs: list[str], options: RunOptions = QUIET, on_done=None) -> dict:
-    plans, job, digests = prepare(inputs, str(out), load_config(), PARTITION)
+def run(client, out: Path, inputs: list[str], options: RunOptions = QUIET, on_done=None,
+        partition: int = PARTITION) -> dict:
+    plans, job, digests = prepare(inputs, str(out), load_config(), partition)
     return run_plan(client, plans, job, str(out), digests, options, on_done)
 
 
@@ -78,6 +89,62 @@ def test_summary_evaluates_against_the_ground_truth(clip_run):
     assert sum(d["frames"] for d in per_distance.values()) == 101
     near = [e for f, e in zip(frames, errors, strict=True) if math.hypot(*f["ground_truth_xyz_m"]) < 0.375]
     assert per_distance["0.35"]["frames"] == len(near) and per_distance["0.35"]["max_error_px"] == round(max(near), 3)
+
+
+@pytest.fixture(scope="module")
+def dataset_file(tmp_path_factory) -> Path:
+    """10 frames of the rendered test split (0.35-0.70 m), saved as `tofd dataset generate` saves them."""
+    return save_dataset(generate("test", 10, 3), tmp_path_factory.mktemp("dataset") / "faces.npz")
+
+
+@pytest.fixture(scope="module")
+def dataset_run(client, dataset_file, tmp_path_factory) -> tuple[dict, Path]:
+    out = tmp_path_factory.mktemp("batch_dataset")
+    return run(client, out, [str(dataset_file)], partition=4), out
+
+
+def test_dataset_partitions_equal_the_whole_dataset_in_one_process(dataset_file, dataset_run):
+    """A dataset .npz in 3 partitions of frame ranges gives the rows of its frames, with their labels as ground
+    truth, run through the pipeline's per-frame code in this process."""
+    summary, out = dataset_run
+    assert summary["partitions"] == {"total": 3, "computed": 3, "resumed": 0, "failed": 0}
+    assert summary["inputs"][0]["status"] == "ok" and summary["frames_out"] == 10
+    ds = load_dataset(dataset_file)
+    cfg = load_config()
+    stage = FeatureStage(replace(cfg, intrinsics=ds.intrinsics), ds.intrinsics, load_service_model(cfg))
+    slot = local_slot(ds.intrinsics.shape)
+    tips = ds.nose_points()
+    expected = []
+    for i in range(len(ds)):
+        truth = GroundTruth((float(ds.nose_px[i, 0]), float(ds.nose_px[i, 1])), bool(ds.nose_visible[i]),
+                            tuple(map(float, tips[i])))
+        frame = Frame(ds.range_m[i], ds.amplitude[i], i, 0, 0.0, 0.0, ds.intrinsics, ground_truth=truth)
+        expected.append(without_timings(frame_row(process_frame(stage, frame, slot))))
+    assert [without_timings(r) for r in read_rows(outputs(summary, out))] == expected
+    evaluation = summary["evaluation"]
+    visible = ds.nose_visible
+    assert evaluation["frames"] == int(visible.sum())
+    assert list(evaluation["per_distance"]) == [f"{d:.2f}" for d in np.unique(distance_bins(ds.distance_m[visible]))]
+
+
+def test_fsspec_urls_directories_and_globs(client, clip_run, dataset_file, dataset_run, tmp_path):
+    """A memory:// directory holding a recording and a dataset (copied into the memory file system of this process
+    and of every worker: it is per process), and a file:// glob, give the results of the local paths."""
+    files = {"/archive/clip.mcap": CLIP.read_bytes(), "/archive/sub/faces.npz": dataset_file.read_bytes(),
+             "/archive/sub/faces.json": sidecar_path(dataset_file).read_bytes()}
+    _put_in_memory(files)
+    client.run(_put_in_memory, files)
+    summary = run(client, tmp_path / "memory", ["memory://archive/"], partition=4)
+    digests = {Path(e["input"]).name: e["results_digest"] for e in summary["inputs"]}
+    assert digests == {"clip.mcap": clip_run[0]["results_digest"], "faces.npz": dataset_run[0]["results_digest"]}
+    summary = run(client, tmp_path / "file", [f"file://{dataset_file.parent}/*.npz"], partition=4)
+    assert summary["results_digest"] == dataset_run[0]["results_digest"]
+
+
+def _put_in_memory(files: dict[str, bytes]) -> None:
+    fs = fsspec.filesystem("memory")
+    for path, data in files.items():
+        fs.pipe(path, data)
 
 
 def test_resume_skips_finished_partitions_and_redoes_a_missing_one(client, clip_run, tmp_path):
@@ -123,7 +190,7 @@ def _pid(path: str) -> int:
     return json.loads(pq.read_schema(path).metadata[b"tofd.partition"])["pid"]
 
 
-def test_bad_inputs_are_reported_and_do_not_stop_the_others(client, tmp_path):
+def test_bad_inputs_are_reported_and_do_not_stop_the_others(client, dataset_file, tmp_path):
     damaged = tmp_path / "damaged.mcap"
     data = bytearray(CLIP.read_bytes())
     with open(CLIP, "rb") as f:
@@ -135,7 +202,13 @@ def test_bad_inputs_are_reported_and_do_not_stop_the_others(client, tmp_path):
     truncated.write_bytes(CLIP.read_bytes()[:index.chunk_offsets[4] + 100])  # killed writer: no index, 4 frames
     foreign = tmp_path / "notes.mcap"
     foreign.write_text("not a recording")
-    summary = run(client, tmp_path / "out", [str(damaged), str(truncated), str(foreign), str(tmp_path / "nope*.mcap")])
+    not_zip = tmp_path / "garbage.npz"
+    not_zip.write_bytes(b"PK not really")
+    unlabelled = tmp_path / "unlabelled.npz"
+    with np.load(dataset_file) as npz:
+        np.savez(unlabelled, **{k: npz[k] for k in npz.files if k != "nose_px"})
+    summary = run(client, tmp_path / "out", [str(damaged), str(truncated), str(foreign), str(tmp_path / "nope*.mcap"),
+                                             str(not_zip), str(unlabelled)])
     by_name = {Path(e["input"]).name: e for e in summary["inputs"]}
     assert by_name["damaged.mcap"]["frames_out"] == 100 and by_name["damaged.mcap"]["status"] == "partial"
     assert "chunk 3" in by_name["damaged.mcap"]["errors"][0]
@@ -143,7 +216,10 @@ def test_bad_inputs_are_reported_and_do_not_stop_the_others(client, tmp_path):
     assert by_name["truncated.mcap"]["indexed"] is False and by_name["truncated.mcap"]["frames_out"] == 4
     assert "truncated" in by_name["truncated.mcap"]["errors"][0]
     assert by_name["notes.mcap"]["status"] == "failed"
-    assert by_name["nope*.mcap"]["errors"] == ["matches no recording"]
+    assert by_name["nope*.mcap"]["errors"] == ["matches no recording or dataset"]
+    assert by_name["garbage.npz"]["status"] == "failed"
+    assert "not a readable dataset" in by_name["garbage.npz"]["errors"][0]
+    assert by_name["unlabelled.npz"]["errors"] == ["missing key(s) 'nose_px'"]
 
 
 def test_cli_reports_a_missing_input_in_one_line(tmp_path):

@@ -1,5 +1,6 @@
-"""What a batch run does: its inputs (recordings found from paths, directories, globs or fsspec URLs), each cut
-into partitions (frame ranges read through the recording's index), each named by its digests.
+"""What a batch run does: its inputs (recordings and dataset .npz files found from paths, directories, globs or
+fsspec URLs), each cut into partitions (frame ranges: read through a recording's index, or a dataset's arrays),
+each named by its digests.
 
 A partition's output name is part-<first>-<stop>-<key>.parquet under <out>/recording=<name>/, where key =
 sha256(input digest, first, stop, config digest, model digest, tofd version): the same work always gets the same
@@ -18,14 +19,17 @@ from mcap.writer import MCAP0_MAGIC
 
 import tofd
 from drivers.recording.index import frame_index
+from tofd.lab.dataset import DATASET_SUFFIX, DatasetError, DatasetFile
 
 RECORDING_SUFFIX = ".mcap"
+INPUT_SUFFIXES = (RECORDING_SUFFIX, DATASET_SUFFIX)
 
 
 @dataclass(frozen=True, slots=True)
 class Partition:
     """Chunks first <= k < stop of one recording (one frame per chunk), read at the given byte offsets; offsets is
-    empty for a recording without an index (read sequentially, whole, as one partition)."""
+    empty for a recording without an index (read sequentially, whole, as one partition). For a dataset .npz
+    (dataset true): its frames first <= k < stop."""
 
     url: str
     recording: str  # output directory name: recording=<recording>
@@ -34,6 +38,7 @@ class Partition:
     offsets: tuple[int, ...]
     frame_channels: tuple[tuple[int, str], ...]  # (channel id, role): drivers.recording.index.FrameIndex
     output: str  # URL of the partition's Parquet file
+    dataset: bool = False
 
     def to_json(self) -> str:
         return json.dumps(asdict(self))
@@ -66,8 +71,8 @@ def digest(obj: object) -> str:
 
 
 def expand_inputs(items: list[str]) -> list[InputPlan]:
-    """Recordings named by paths, directories (searched recursively for *.mcap), glob patterns or fsspec URLs, in
-    a stable order; an item that names nothing usable becomes an InputPlan with its error."""
+    """Recordings and datasets named by paths, directories (searched recursively for INPUT_SUFFIXES), glob patterns
+    or fsspec URLs, in a stable order; an item that names nothing usable becomes an InputPlan with its error."""
     found: list[InputPlan] = []
     for item in items:
         try:
@@ -75,7 +80,7 @@ def expand_inputs(items: list[str]) -> list[InputPlan]:
             if any(c in item for c in "*?["):
                 paths = sorted(p for p in fs.glob(path) if not fs.isdir(p))
             elif fs.isdir(path):
-                paths = sorted(p for p in fs.find(path) if p.endswith(RECORDING_SUFFIX))
+                paths = sorted(p for p in fs.find(path) if p.endswith(INPUT_SUFFIXES))
             elif fs.exists(path):
                 paths = [path]
             else:
@@ -85,7 +90,7 @@ def expand_inputs(items: list[str]) -> list[InputPlan]:
             found.append(InputPlan(item, error=f"{type(exc).__name__}: {exc}"))
             continue
         if not paths:
-            found.append(InputPlan(item, error="matches no recording"))
+            found.append(InputPlan(item, error="matches no recording or dataset"))
         found.extend(InputPlan(fs.unstrip_protocol(p) if fs.protocol not in ("file", ("file", "local")) else p)
                      for p in paths)
     seen: set[str] = set()
@@ -103,43 +108,74 @@ def _name(url: str, taken: set[str]) -> str:
 
 def plan_inputs(inputs: list[InputPlan], out: str, run_digest: str, partition_frames: int) -> None:
     """Fill in each input's partitions (in place); run_digest = digest of config, model and tofd version."""
+    if partition_frames < 1:
+        raise ValueError(f"partition size: expected >= 1 frames, got {partition_frames}")
     taken: set[str] = set()
     for inp in inputs:
         if inp.error:
             continue
-        if not inp.url.endswith(RECORDING_SUFFIX):
-            inp.error = f"not a recording (expected {RECORDING_SUFFIX}; dataset .npz inputs are not supported yet)"
-            continue
-        try:
-            with fsspec.open(inp.url, "rb") as f:
-                if f.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
-                    inp.error = "not a tofd recording (no MCAP magic at its start)"
-                    continue
-                index = frame_index(f)
-                if index is None:
-                    f.seek(0)
-                    input_digest = hashlib.file_digest(f, "sha256").hexdigest()  # type: ignore[arg-type]
-        except Exception as exc:  # noqa: BLE001 (unreadable input: report it, go on with the others)
-            inp.error = f"cannot read: {type(exc).__name__}: {exc}"
-            continue
-        inp.recording = _name(inp.url, taken)
-        if index is None:
-            if "://" in inp.url:
-                inp.error = "recording has no index (its writer did not finish); copy it locally to read it whole"
-                continue
-            inp.indexed, bounds, offsets, channels = False, [(0, 0)], (), ()
+        if inp.url.endswith(DATASET_SUFFIX):
+            _plan_dataset(inp, out, run_digest, partition_frames, taken)
+        elif inp.url.endswith(RECORDING_SUFFIX):
+            _plan_recording(inp, out, run_digest, partition_frames, taken)
         else:
-            input_digest = index.digest
-            n = index.chunk_count
-            inp.frames = n
-            parts = -(-n // partition_frames)  # equal sizes (within one frame), none above partition_frames
-            bounds = [(k * n // parts, (k + 1) * n // parts) for k in range(parts)]
-            offsets, channels = index.chunk_offsets, tuple(sorted(index.frame_channels))
-        for first, stop in bounds:
-            key = digest([input_digest, first, stop, run_digest])[:16]
-            output = f"{out.rstrip('/')}/recording={inp.recording}/part-{first:07d}-{stop:07d}-{key}.parquet"
-            inp.partitions.append(Partition(inp.url, inp.recording, first, stop, tuple(offsets[first:stop]),
-                                            channels, output))
+            inp.error = f"not a recording or dataset (expected {' or '.join(INPUT_SUFFIXES)})"
+
+
+def _ranges(n: int, partition_frames: int) -> list[tuple[int, int]]:
+    """[first, stop) ranges covering n frames, of equal sizes within one frame, none above partition_frames."""
+    parts = -(-n // partition_frames)
+    return [(k * n // parts, (k + 1) * n // parts) for k in range(parts)]
+
+
+def _output(out: str, recording: str, first: int, stop: int, input_digest: str, run_digest: str) -> str:
+    key = digest([input_digest, first, stop, run_digest])[:16]
+    return f"{out.rstrip('/')}/recording={recording}/part-{first:07d}-{stop:07d}-{key}.parquet"
+
+
+def _plan_dataset(inp: InputPlan, out: str, run_digest: str, partition_frames: int, taken: set[str]) -> None:
+    try:
+        with DatasetFile(inp.url) as ds:
+            frames, input_digest = ds.frames, ds.digest
+    except DatasetError as exc:
+        inp.error = str(exc).removeprefix(f"{inp.url}: ")
+        return
+    except Exception as exc:  # noqa: BLE001 (unreadable input: report it, go on with the others)
+        inp.error = f"cannot read: {type(exc).__name__}: {exc}"
+        return
+    inp.recording, inp.frames = _name(inp.url, taken), frames
+    inp.partitions = [Partition(inp.url, inp.recording, first, stop, (), (),
+                                _output(out, inp.recording, first, stop, input_digest, run_digest), dataset=True)
+                      for first, stop in _ranges(frames, partition_frames)]
+
+
+def _plan_recording(inp: InputPlan, out: str, run_digest: str, partition_frames: int, taken: set[str]) -> None:
+    try:
+        with fsspec.open(inp.url, "rb") as f:
+            if f.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+                inp.error = "not a tofd recording (no MCAP magic at its start)"
+                return
+            index = frame_index(f)
+            if index is None:
+                f.seek(0)
+                input_digest = hashlib.file_digest(f, "sha256").hexdigest()  # type: ignore[arg-type]
+    except Exception as exc:  # noqa: BLE001 (unreadable input: report it, go on with the others)
+        inp.error = f"cannot read: {type(exc).__name__}: {exc}"
+        return
+    inp.recording = _name(inp.url, taken)
+    if index is None:
+        if "://" in inp.url:
+            inp.error = "recording has no index (its writer did not finish); copy it locally to read it whole"
+            return
+        inp.indexed, bounds, offsets, channels = False, [(0, 0)], (), ()
+    else:
+        input_digest = index.digest
+        inp.frames = index.chunk_count
+        bounds = _ranges(index.chunk_count, partition_frames)
+        offsets, channels = index.chunk_offsets, tuple(sorted(index.frame_channels))
+    inp.partitions = [Partition(inp.url, inp.recording, first, stop, tuple(offsets[first:stop]), channels,
+                                _output(out, inp.recording, first, stop, input_digest, run_digest))
+                      for first, stop in bounds]
 
 
 RESULT_SECTIONS = ("segmentation", "features", "detector")

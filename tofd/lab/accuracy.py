@@ -1,8 +1,9 @@
-"""Nose accuracy of a replay against the recording's ground truth, from its per-frame results (JSON Lines).
+"""Nose accuracy of a replay or batch run against the inputs' ground truth, from per-frame results records.
 
 Error = Euclidean pixel distance between the detected and the ground-truth nose pixel; a frame counts as found
-when a nose was detected within `radius_px` of the truth. Frames without ground truth are ignored; frames whose
-ground-truth 3-D nose tip is known are also grouped by distance, in the bins of `tofd evaluate`.
+when a nose was detected within `radius_px` of the truth. Frames without ground truth, or whose nose the truth
+marks not visible (outside the image, occluded), are ignored; frames whose ground-truth 3-D nose tip is known are
+also grouped by distance, in the bins of `tofd evaluate`.
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ def accuracy_from_records(records: Iterable[dict], radius_px: float = RADIUS_PX)
     counters, errors, scores, distances = [], [], [], []
     for rec in records:
         truth = rec.get("ground_truth_px")
-        if truth is None:
+        if truth is None or rec.get("ground_truth_visible") is False:
             continue
         nose = rec.get("nose_px")
         xyz = rec.get("ground_truth_xyz_m")

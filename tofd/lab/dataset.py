@@ -20,19 +20,23 @@ Without `nose_xyz_m` the nose tip is back-projected from `range` at `nose_px` (m
 Intrinsics: optional sidecar `<stem>.json` next to `<stem>.npz` holding {"intrinsics": {width, height, fx, fy,
 cx, cy}} (drivers.intrinsics.Intrinsics.to_dict); the SR3000 default when there is none.
 Recordings with ground truth (drivers.recording.replay) are read with `load_labelled` / `dataset_from_frames`.
+`DatasetFile` reads frame ranges of a dataset at any fsspec URL as Frames with ground truth (for `tofd batch`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import posixpath
 import zipfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import fsspec
 import numpy as np
 
-from drivers.frame import Frame
+from drivers.frame import Frame, GroundTruth
 from drivers.intrinsics import Intrinsics
 from tofd.errors import UsageError
 from tofd.outputs import AtomicFile, write_text
@@ -131,12 +135,16 @@ def _check_arrays(d: dict[str, np.ndarray], intrinsics: Intrinsics, where: str) 
             raise DatasetError(f"{where}: key {key!r} must be numeric, got dtype {d[key].dtype}")
 
 
+def _valid_range(range_m: np.ndarray) -> np.ndarray:
+    """float32 range with 0, negative and NaN pixels (all invalid) as NaN."""
+    rng = np.asarray(range_m, dtype=np.float32)
+    return np.where(rng > 0, rng, np.nan).astype(np.float32)
+
+
 def _from_dict(d: dict[str, np.ndarray], intrinsics: Intrinsics, where: str) -> Dataset:
     _check_arrays(d, intrinsics, where)
-    rng = np.asarray(d["range"], dtype=np.float32)
-    rng = np.where(rng > 0, rng, np.nan).astype(np.float32)  # 0, negative and NaN are invalid
     return Dataset(
-        range_m=rng,
+        range_m=_valid_range(d["range"]),
         amplitude=np.asarray(d["amplitude"], dtype=np.float32),
         nose_px=np.asarray(d["nose_px"], dtype=np.float32),
         nose_visible=np.asarray(d["nose_visible"], dtype=bool),
@@ -151,15 +159,22 @@ def _from_dict(d: dict[str, np.ndarray], intrinsics: Intrinsics, where: str) -> 
 
 def sidecar_path(path: str | Path) -> Path:
     """The JSON sidecar of a dataset file: same stem, .json."""
-    return Path(path).with_suffix(".json")
+    return Path(sidecar_url(str(path)))
 
 
-def _load_intrinsics(path: Path) -> Intrinsics:
-    side = sidecar_path(path)
-    if not side.exists():
-        return Intrinsics()
+def sidecar_url(url: str) -> str:
+    """The JSON sidecar of a dataset file at a path or fsspec URL: same stem, .json."""
+    return posixpath.splitext(url)[0] + ".json"
+
+
+def _load_intrinsics(path: str | Path) -> Intrinsics:
+    side = sidecar_url(str(path))
     try:
-        meta = json.loads(side.read_text())
+        fs, side_path = fsspec.core.url_to_fs(side)
+        if not fs.exists(side_path):
+            return Intrinsics()
+        with fs.open(side_path, "r") as fh:
+            meta = json.load(fh)
         return Intrinsics.from_dict(meta["intrinsics"])
     except (OSError, json.JSONDecodeError) as exc:
         raise DatasetError(f"{side}: cannot read intrinsics sidecar: {exc}") from None
@@ -241,7 +256,7 @@ def dataset_from_frames(frames: Iterable[Frame], subject: str = "recording") -> 
         xyz[missing] = _nose_from_range(rng[missing], nose_px[missing], intrinsics)
     n = len(kept)
     return Dataset(
-        range_m=np.where(rng > 0, rng, np.nan).astype(np.float32),
+        range_m=_valid_range(rng),
         amplitude=np.stack([f.amplitude for f in kept]).astype(np.float32),
         nose_px=nose_px,
         nose_visible=np.array([f.ground_truth.visible for f in kept], dtype=bool),
@@ -252,3 +267,107 @@ def dataset_from_frames(frames: Iterable[Frame], subject: str = "recording") -> 
         intrinsics=intrinsics,
         nose_xyz_m=xyz,
     )
+
+
+DATASET_SUFFIX = ".npz"
+_STACKS = ("range", "amplitude")
+
+
+class DatasetFile:
+    """A dataset .npz at a local path or fsspec URL, read a frame range at a time: the labels whole (a few numbers
+    per frame), the range and amplitude stacks only as far as a range needs (compressed zip members: reading
+    frames [first, stop) decompresses frames [0, stop) of each, never the rest). DatasetError names a bad file."""
+
+    def __init__(self, url: str):
+        self.url = url
+        self.intrinsics = _load_intrinsics(url)
+        try:
+            self._file = fsspec.open(url, "rb").open()
+        except FileNotFoundError:
+            raise DatasetError(f"{url}: no such dataset file") from None
+        try:
+            self._npz = np.load(self._file, allow_pickle=False)
+            if not hasattr(self._npz, "zip"):
+                raise ValueError("a single array, not an archive")
+            missing = [k for k in (*_STACKS, *_PER_FRAME_KEYS) if k not in self._npz.files]
+            if missing:
+                raise DatasetError(f"{url}: missing key(s) {', '.join(map(repr, missing))}")
+            keys = [*_PER_FRAME_KEYS] + (["nose_xyz_m"] if "nose_xyz_m" in self._npz.files else [])
+            self._labels = {k: self._npz[k] for k in keys}
+            self._stacks = {k: self._header(k) for k in _STACKS}
+            members = sorted((i.filename, i.CRC, i.file_size) for i in self._npz.zip.infolist())
+            shapes = {k: np.broadcast_to(np.zeros((), dtype), shape) for k, (shape, dtype) in self._stacks.items()}
+            _check_arrays({**shapes, **self._labels}, self.intrinsics, url)
+        except DatasetError:
+            self.close()
+            raise
+        except (OSError, zipfile.BadZipFile, EOFError, ValueError) as exc:
+            self.close()
+            raise DatasetError(f"{url}: not a readable dataset .npz: {exc}") from None
+        self.frames = int(self._stacks["range"][0][0])
+        self.digest = hashlib.sha256(json.dumps([members, self.intrinsics.to_dict()]).encode()).hexdigest()
+        """sha256 of the archive's member names, CRCs and sizes and of the intrinsics: its content, without
+        reading it."""
+
+    def _header(self, key: str) -> tuple[tuple[int, ...], np.dtype]:
+        with self._npz.zip.open(f"{key}.npy") as member:
+            shape, fortran, dtype = _read_npy_header(member)
+        if fortran and len(shape) > 1:
+            raise DatasetError(f"{self.url}: key {key!r} is stored in Fortran order: its frames are not contiguous")
+        return shape, dtype
+
+    def read(self, first: int, stop: int) -> Iterator[Frame]:
+        """Frames first <= i < stop as tofd Frames: frame_counter i, no clock (timestamps 0), the intrinsics,
+        ground truth from the labels (the 3-D tip back-projected as in Dataset.nose_points when not stored)."""
+        members = [self._npz.zip.open(f"{key}.npy") for key in _STACKS]
+        try:
+            for member, key in zip(members, _STACKS, strict=True):
+                shape, dtype = self._stacks[key]
+                _read_npy_header(member)
+                member.seek(first * _frame_bytes(shape, dtype), 1)
+            for i in range(first, min(stop, self.frames)):
+                rng, amp = (np.frombuffer(_read_exactly(m, _frame_bytes(*self._stacks[k])), self._stacks[k][1])
+                            .reshape(self._stacks[k][0][1:]) for m, k in zip(members, _STACKS, strict=True))
+                yield self._frame(i, _valid_range(rng), np.asarray(amp, dtype=np.float32))
+        finally:
+            for member in members:
+                member.close()
+
+    def _frame(self, i: int, range_m: np.ndarray, amplitude: np.ndarray) -> Frame:
+        nose_px = self._labels["nose_px"][i].astype(np.float64)
+        if "nose_xyz_m" in self._labels:
+            xyz = np.asarray(self._labels["nose_xyz_m"][i], dtype=np.float64)
+        else:
+            xyz = _nose_from_range(range_m[None], nose_px[None], self.intrinsics)[0]
+        truth = GroundTruth((float(nose_px[0]), float(nose_px[1])), bool(self._labels["nose_visible"][i]),
+                            (float(xyz[0]), float(xyz[1]), float(xyz[2])) if np.all(np.isfinite(xyz)) else None)
+        return Frame(range_m, amplitude, frame_counter=i, timestamp_us=0, host_monotonic_s=0.0, host_wall_s=0.0,
+                     intrinsics=self.intrinsics, ground_truth=truth)
+
+    def close(self) -> None:
+        if getattr(self, "_npz", None) is not None:
+            self._npz.close()
+        self._file.close()
+
+    def __enter__(self) -> DatasetFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _read_npy_header(member: zipfile.ZipExtFile) -> tuple[tuple[int, ...], bool, np.dtype]:
+    version = np.lib.format.read_magic(member)
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    return read(member)
+
+
+def _frame_bytes(shape: tuple[int, ...], dtype: np.dtype) -> int:
+    return int(np.prod(shape[1:])) * np.dtype(dtype).itemsize
+
+
+def _read_exactly(member: zipfile.ZipExtFile, n: int) -> bytes:
+    data = member.read(n)
+    if len(data) != n:
+        raise EOFError(f"{len(data)} of {n} bytes: the archive member ends early")
+    return data

@@ -50,6 +50,7 @@ def result_record(r: FrameResult) -> dict:
         "accepted": bool(det.accepted) if det is not None else None,
         "ground_truth_px": list(truth.nose_px) if truth else None,
         "ground_truth_xyz_m": list(truth.nose_xyz_m) if truth and truth.nose_xyz_m else None,
+        "ground_truth_visible": truth.visible if truth else None,
         "nfft_iterations": r.nfft_iterations,
         "timings_ms": {k: round(v, 3) for k, v in r.timings_ms.items()},
     }
