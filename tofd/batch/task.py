@@ -131,9 +131,10 @@ def _dataset_frames(part: Partition, stats: dict, errors: list[str]) -> Iterator
 
 def run_partition(part_json: str, job_json: str) -> dict:
     """Process one partition (JSON of plan.Partition; job: {"config": table, "model": dict or None}); returns
-    its statistics (frames in/out, drops by reason, errors, time spent setting up, reading, computing, writing)."""
+    its statistics (frames in/out, drops by reason, errors, time spent setting up, reading, computing, writing,
+    in all, and the task's CPU time)."""
     prepare_process()
-    t_start = time.perf_counter()
+    t_start, cpu_start = time.perf_counter(), time.thread_time()
     part = Partition.from_json(part_json)
     job = json.loads(job_json)
     cfg = config_from_dict(job["config"])
@@ -175,6 +176,7 @@ def run_partition(part_json: str, job_json: str) -> dict:
     fs.mv(tmp, path)
     stats["write_ms"] = (time.perf_counter() - t0) * 1e3
     stats["task_ms"] = (time.perf_counter() - t_start) * 1e3
+    stats["cpu_ms"] = (time.thread_time() - cpu_start) * 1e3
     return stats
 
 
