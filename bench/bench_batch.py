@@ -13,7 +13,8 @@ workers' CPU (/proc) plus this process's (client, scheduler, nannies) during run
 the workers' own CPU time per frame allows (workers / worker CPU per frame); its ratio to the measured rate shows
 how much of the time went to waiting (other jobs on the machine, scheduling, an uneven last round of partitions).
 Goal: rate(N workers) >= 0.9 x N x rate(1 worker). Runs are interleaved --repeats times and the fastest of each
-kept. Prints a table and writes JSON.
+kept. "projection": the wall time of 100 hours of 30 fps recordings on 1, 10 and 100 workers from the 1-worker
+run's costs (docs/BATCH.md, "Beyond one machine"). Prints tables and writes JSON.
 """
 
 from __future__ import annotations
@@ -87,11 +88,34 @@ def batch_run(recordings: list[Path], tmp: Path, workers: int, partition_frames:
         workers_cpu, own_cpu = sum(map(cpu_s, pids)) - workers_cpu, time.process_time() - own_cpu
         rss = client.run(_peak_rss_mb)
     frames = summary["frames_out"]
+    summary["output_bytes_per_frame"] = sum(p.stat().st_size for p in out.rglob("*.parquet")) / frames
     summary["worker_setup_s"] = round(setup_s, 3)
     summary["cpu_ms_per_frame"] = 1e3 * (workers_cpu + own_cpu) / frames
     summary["worker_cpu_ms_per_frame"] = 1e3 * workers_cpu / frames
     summary["worker_peak_rss_mb"] = round(max(rss.values()), 1)
     return summary
+
+
+ARCHIVE_HOURS, ARCHIVE_FPS, CLI_PARTITION_FRAMES = 100, 30, 150
+"""The projection: an archive of 100 hours of 30 fps recordings, cut into tofd batch's default partitions."""
+
+
+def projection(one_worker: dict, input_bytes_per_frame: float) -> list[dict]:
+    """Wall time of the archive on 1, 10 and 100 workers of one core each, from the 1-worker run's CPU per frame
+    (reading, features, rows, the Dask worker's own threads) and fixed costs per partition (setup, writing,
+    scheduling), assuming storage keeps up; with the read rate, task rate and output size it needs."""
+    frames = ARCHIVE_HOURS * 3600 * ARCHIVE_FPS
+    per_part = one_worker["per_partition_ms"]
+    fixed_ms = per_part["setup"] + per_part["write"] + per_part["scheduling"]
+    ms_per_frame = one_worker["worker_cpu_ms_per_frame"] + fixed_ms / CLI_PARTITION_FRAMES
+    rows = []
+    for workers in (1, 10, 100):
+        wall_s = frames * ms_per_frame / 1e3 / workers
+        rows.append({"workers": workers, "wall_h": round(wall_s / 3600, 2),
+                     "read_mb_per_s": round(frames * input_bytes_per_frame / wall_s / 1e6, 1),
+                     "tasks_per_s": round(frames / CLI_PARTITION_FRAMES / wall_s, 2),
+                     "worker_memory_mb": one_worker["worker_peak_rss_mb"]})
+    return rows
 
 
 def _peak_rss_mb() -> float:
@@ -123,6 +147,7 @@ def main() -> None:
                     runs[w] = s
         replay = max(replays, key=lambda r: r["frames_per_s"])
     digests = {s["results_digest"] for s in runs.values()}
+    input_bytes = CLIP.stat().st_size / runs[1]["frames_out"] * args.copies
     base_fps, base_cpu = replay["frames_per_s"], replay["cpu_ms_per_frame"]
     rows = [{"run": "tofd replay --rerun none (1 worker)", "frames_per_s": round(base_fps, 2), "x_replay": 1.0,
              "cpu_ms_per_frame": round(base_cpu, 2), "cpu_x_replay": 1.0}]
@@ -156,7 +181,15 @@ def main() -> None:
         "partitions": runs[1]["partitions"]["total"],
         "identical_results_1_and_2_workers": len(digests) == 1,
         "rows": rows,
+        "archive": f"{ARCHIVE_HOURS} h at {ARCHIVE_FPS} fps: {ARCHIVE_HOURS * 3600 * ARCHIVE_FPS} frames, "
+                   f"{CLI_PARTITION_FRAMES}-frame partitions, {input_bytes / 1e3:.1f} kB of recording and "
+                   f"{runs[1]['output_bytes_per_frame'] / 1e3:.2f} kB of Parquet per frame",
+        "projection": projection(runs[1], input_bytes),
     }
+    print(f"\nprojection, {result['archive']}:")
+    for r in result["projection"]:
+        print(f"  {r['workers']:>3} workers: {r['wall_h']:8.2f} h, read {r['read_mb_per_s']} MB/s, "
+              f"{r['tasks_per_s']} tasks/s, {r['worker_memory_mb']} MB per worker")
     write_json(args.json, result)
 
 

@@ -1,9 +1,11 @@
-"""Re-process recordings on Dask: per-frame results as Parquet, partitioned by recording, and a summary.
+"""Re-process recordings and datasets on Dask: per-frame results as Parquet, partitioned by input, and a summary.
 
-INPUTS are recordings (.mcap), directories (searched for *.mcap) or glob patterns, local or fsspec URLs. Each
-recording is cut into partitions of --partition-frames frames, read by the tasks through the recording's index.
-Output in --out: recording=<name>/part-<first>-<stop>-<key>.parquet (key: digests of input, partition, config,
-model, tofd version) and summary.json (frames in/out/dropped with reasons, stage times, throughput, digests).
+INPUTS are recordings (.mcap), dataset files (.npz, as `tofd dataset generate` writes them), directories (searched
+for both) or glob patterns, local or fsspec URLs. Each input is cut into partitions of --partition-frames frames,
+read by the tasks (a recording through its index, a dataset by frame range). Output in --out:
+recording=<name>/part-<first>-<stop>-<key>.parquet (key: digests of input, partition, config, model, tofd version)
+and summary.json (frames in/out/dropped with reasons, stage times, throughput, digests, and where the inputs carry
+ground truth the nose accuracy overall and per distance).
 Default: a LocalCluster of --workers processes; --scheduler tcp://host:8786 uses an existing Dask cluster.
 """
 
@@ -14,7 +16,8 @@ import os
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("inputs", nargs="+", metavar="INPUT", help="recording, directory, glob or fsspec URL")
+    parser.add_argument("inputs", nargs="+", metavar="INPUT",
+                        help="recording, dataset .npz, directory, glob or fsspec URL")
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory (local path or fsspec URL)")
     parser.add_argument("--config", default=None, help="config file (default: config/tofd.toml)")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
