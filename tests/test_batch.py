@@ -21,6 +21,7 @@ import pytest
 
 from drivers.frame import Frame, GroundTruth
 from drivers.recording.index import frame_index
+from tofd.algorithm.threads import THREAD_ENV
 from tofd.batch.golden import load_golden
 from tofd.batch.rows import frame_row, without_timings
 from tofd.batch.runner import RunOptions, batch_client, prepare, read_rows, run_plan
@@ -72,6 +73,21 @@ def test_partitions_equal_the_replay(clip_run):
     assert summary["frames_in"] == summary["frames_out"] == 101 and summary["frames_dropped"] == 0
     assert {s for s in summary["stage_ms"] if summary["stage_ms"][s]} == {"read", "segmentation", "fft", "nfft",
                                                                          "detection"}
+
+
+def test_workers_compute_on_one_thread_without_the_profiler(client, clip_run):
+    """After a run every worker follows the thread rule (OpenCV's pool, the BLAS/OpenMP environment) and has no
+    statistical profiler sampling its tasks."""
+
+    def settings() -> tuple:
+        import cv2
+        import dask
+
+        return (cv2.getNumThreads(), {k: os.environ.get(k) for k in THREAD_ENV},
+                dask.config.get("distributed.worker.profile.enabled"))
+
+    found = list(client.run(settings).values())
+    assert len(found) == 2 and found == [(1, THREAD_ENV, False)] * 2
 
 
 def test_summary_evaluates_against_the_ground_truth(clip_run):

@@ -108,8 +108,6 @@ def _name(url: str, taken: set[str]) -> str:
 
 def plan_inputs(inputs: list[InputPlan], out: str, run_digest: str, partition_frames: int) -> None:
     """Fill in each input's partitions (in place); run_digest = digest of config, model and tofd version."""
-    if partition_frames < 1:
-        raise ValueError(f"partition size: expected >= 1 frames, got {partition_frames}")
     taken: set[str] = set()
     for inp in inputs:
         if inp.error:
