@@ -12,6 +12,8 @@ CPU per frame, all processes of a run: replay: the replay processes' CPU (RUSAGE
 workers' CPU (/proc) plus this process's (client, scheduler, nannies) during run_plan. "cpu bound" is the rate
 the workers' own CPU time per frame allows (workers / worker CPU per frame); its ratio to the measured rate shows
 how much of the time went to waiting (other jobs on the machine, scheduling, an uneven last round of partitions).
+"overhead cores": CPU seconds per second of the run spent outside the tasks (Dask's worker threads, scheduler,
+nannies, client): a cost per second, not per frame, so it weighs more the slower a loaded machine runs.
 Goal: rate(N workers) >= 0.9 x N x rate(1 worker). Runs are interleaved --repeats times and the fastest of each
 kept. "projection": the wall time of 100 hours of 30 fps recordings on 1, 10 and 100 workers from the 1-worker
 run's costs (docs/BATCH.md, "Beyond one machine"). Prints tables and writes JSON.
@@ -34,10 +36,6 @@ from pathlib import Path
 
 from proc_stats import cpu_s
 from report import write_json
-
-from tofd.batch.runner import RunOptions, batch_client, prepare, run_plan
-from tofd.batch.task import PrepareWorker
-from tofd.config import load_config
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -73,7 +71,12 @@ def replay_run(recordings: list[Path], tmp: Path) -> dict:
 
 def batch_run(recordings: list[Path], tmp: Path, workers: int, partition_frames: int) -> dict:
     """The summary of `tofd batch` on a fresh local cluster, with the CPU ms per frame of all its processes and
-    of its workers alone, and the workers' peak RSS."""
+    of its workers alone, the time to prepare the workers and their peak RSS. tofd is imported here, not at the
+    top: the workers import this module as they start, and must start as bare as those of `tofd batch`."""
+    from tofd.batch.runner import RunOptions, batch_client, prepare, run_plan
+    from tofd.batch.task import PrepareWorker
+    from tofd.config import load_config
+
     out = tmp / f"batch_{workers}"
     shutil.rmtree(out, ignore_errors=True)
     inputs, job, digests = prepare([str(r) for r in recordings], str(out), load_config(), partition_frames)
@@ -92,6 +95,8 @@ def batch_run(recordings: list[Path], tmp: Path, workers: int, partition_frames:
     summary["worker_setup_s"] = round(setup_s, 3)
     summary["cpu_ms_per_frame"] = 1e3 * (workers_cpu + own_cpu) / frames
     summary["worker_cpu_ms_per_frame"] = 1e3 * workers_cpu / frames
+    tasks_cpu_s = summary["per_partition_ms"]["cpu"] * summary["partitions"]["computed"] / 1e3
+    summary["overhead_cores"] = (workers_cpu + own_cpu - tasks_cpu_s) / (frames / summary["throughput_fps"])
     summary["worker_peak_rss_mb"] = round(max(rss.values()), 1)
     return summary
 
@@ -161,6 +166,7 @@ def main() -> None:
                      "cpu_x_replay": round(s["cpu_ms_per_frame"] / base_cpu, 3),
                      "worker_cpu_ms_per_frame": round(s["worker_cpu_ms_per_frame"], 2),
                      "cpu_bound_fps": round(cpu_bound, 2), "x_cpu_bound": round(s["throughput_fps"] / cpu_bound, 3),
+                     "overhead_cores": round(s["overhead_cores"], 3),
                      "worker_setup_s": s["worker_setup_s"], "worker_peak_rss_mb": s["worker_peak_rss_mb"],
                      **{f"{k}_ms_per_partition": v for k, v in s["per_partition_ms"].items()}})
     print(f"{'run':38}{'frames/s':>9}{'x replay':>9}{'x 1 w':>7}{'goal':>6}{'CPU ms/fr':>10}{'x replay':>9}"
