@@ -24,7 +24,7 @@ from drivers.recording.index import frame_index
 from tofd.algorithm.threads import THREAD_ENV
 from tofd.batch.golden import load_golden
 from tofd.batch.rows import frame_row, without_timings
-from tofd.batch.runner import RunOptions, batch_client, prepare, read_rows, run_plan
+from tofd.batch.runner import CLUSTER_CONFIG, RunOptions, batch_client, prepare, read_rows, run_plan
 from tofd.config import load_config
 from tofd.lab.dataset import load_dataset, save_dataset, sidecar_path
 from tofd.lab.evaluation import distance_bins
@@ -75,19 +75,19 @@ def test_partitions_equal_the_replay(clip_run):
                                                                          "detection"}
 
 
-def test_workers_compute_on_one_thread_without_the_profiler(client, clip_run):
-    """After a run every worker follows the thread rule (OpenCV's pool, the BLAS/OpenMP environment) and has no
-    statistical profiler sampling its tasks."""
+def test_workers_compute_on_one_thread_with_the_cluster_settings(client, clip_run):
+    """After a run every worker follows the thread rule (OpenCV's pool, the BLAS/OpenMP environment) and has the
+    batch cluster's Dask settings (no profiler, slow monitors)."""
 
     def settings() -> tuple:
         import cv2
         import dask
 
         return (cv2.getNumThreads(), {k: os.environ.get(k) for k in THREAD_ENV},
-                dask.config.get("distributed.worker.profile.enabled"))
+                {k: dask.config.get(k) for k in CLUSTER_CONFIG})
 
     found = list(client.run(settings).values())
-    assert len(found) == 2 and found == [(1, THREAD_ENV, False)] * 2
+    assert len(found) == 2 and found == [(1, THREAD_ENV, CLUSTER_CONFIG)] * 2
 
 
 def test_summary_evaluates_against_the_ground_truth(clip_run):

@@ -35,10 +35,12 @@ from tofd.service.model import load_service_model
 log = logging.getLogger(__name__)
 
 SUMMARY_NAME = "summary.json"
-WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
-"""Dask settings of the local cluster's workers: no statistical profiler (it samples the task thread's stack
-every 10 ms, which costs the per-frame work ~10 % CPU). Workers of an existing cluster take it from their
-environment: DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False."""
+CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "1s",
+                  "distributed.worker.memory.monitor-interval": "1s", "distributed.admin.system-monitor.interval": "2s"}
+"""Dask settings of the local cluster: no statistical profiler (it samples the running task's stack every 10 ms),
+and the event-loop watchdog and resource monitors every 1-2 s instead of every 20-500 ms, so that the scheduler,
+nannies and workers use next to no CPU beside the tasks; an existing cluster's workers take them from their
+environment (docs/BATCH.md)."""
 
 
 @contextlib.contextmanager
@@ -50,7 +52,7 @@ def batch_client(scheduler: str | None, workers: int) -> Iterator[Client]:
             yield client
         return
     dashboard = "127.0.0.1:0" if importlib.util.find_spec("bokeh") else None
-    with dask.config.set(WORKER_CONFIG), LocalCluster(
+    with dask.config.set(CLUSTER_CONFIG), LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=dashboard,
             env=THREAD_ENV) as cluster, Client(cluster) as client:
         yield client
