@@ -8,9 +8,11 @@ import math
 import os
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 import threading
+import zipfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -223,8 +225,10 @@ def test_bad_inputs_are_reported_and_do_not_stop_the_others(client, dataset_file
     unlabelled = tmp_path / "unlabelled.npz"
     with np.load(dataset_file) as npz:
         np.savez(unlabelled, **{k: npz[k] for k in npz.files if k != "nose_px"})
+    damaged_dataset = tmp_path / "damaged_faces.npz"
+    damaged_dataset.write_bytes(_zeroed_in_member(dataset_file, "range.npy"))
     summary = run(client, tmp_path / "out", [str(damaged), str(truncated), str(foreign), str(tmp_path / "nope*.mcap"),
-                                             str(not_zip), str(unlabelled)])
+                                             str(not_zip), str(unlabelled), str(damaged_dataset)])
     by_name = {Path(e["input"]).name: e for e in summary["inputs"]}
     assert by_name["damaged.mcap"]["frames_out"] == 100 and by_name["damaged.mcap"]["status"] == "partial"
     assert "chunk 3" in by_name["damaged.mcap"]["errors"][0]
@@ -236,6 +240,19 @@ def test_bad_inputs_are_reported_and_do_not_stop_the_others(client, dataset_file
     assert by_name["garbage.npz"]["status"] == "failed"
     assert "not a readable dataset" in by_name["garbage.npz"]["errors"][0]
     assert by_name["unlabelled.npz"]["errors"] == ["missing key(s) 'nose_px'"]
+    assert by_name["damaged_faces.npz"]["errors"] == ["damaged archive: member 'range.npy' fails its CRC"]
+
+
+def _zeroed_in_member(path: Path, member: str) -> bytes:
+    """The bytes of a zip file with 64 bytes zeroed in the middle of one member's compressed data (the
+    decompressor takes them; only the member's CRC shows the damage)."""
+    data = bytearray(path.read_bytes())
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo(member)
+    name_len, extra_len = struct.unpack("<HH", data[info.header_offset + 26:info.header_offset + 30])
+    at = info.header_offset + 30 + name_len + extra_len + info.compress_size // 2
+    data[at:at + 64] = bytes(64)
+    return bytes(data)
 
 
 def test_cli_reports_a_missing_input_in_one_line(tmp_path):

@@ -134,6 +134,7 @@ def _output(out: str, recording: str, first: int, stop: int, input_digest: str, 
 def _plan_dataset(inp: InputPlan, out: str, run_digest: str, partition_frames: int, taken: set[str]) -> None:
     try:
         with DatasetFile(inp.url) as ds:
+            ds.check()
             frames, input_digest = ds.frames, ds.digest
     except DatasetError as exc:
         inp.error = str(exc).removeprefix(f"{inp.url}: ")

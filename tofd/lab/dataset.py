@@ -29,6 +29,7 @@ import hashlib
 import json
 import posixpath
 import zipfile
+import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -315,6 +316,16 @@ class DatasetFile:
         if fortran and len(shape) > 1:
             raise DatasetError(f"{self.url}: key {key!r} is stored in Fortran order: its frames are not contiguous")
         return shape, dtype
+
+    def check(self) -> None:
+        """DatasetError when a member of the archive fails its CRC: reading a frame range never reaches a member's
+        end, where zip checks it, so damage inside a member would otherwise pass unseen. Reads the whole file."""
+        try:
+            bad = self._npz.zip.testzip()
+        except (OSError, zipfile.BadZipFile, EOFError, zlib.error) as exc:
+            raise DatasetError(f"{self.url}: damaged archive: {exc}") from None
+        if bad is not None:
+            raise DatasetError(f"{self.url}: damaged archive: member {bad!r} fails its CRC")
 
     def read(self, first: int, stop: int) -> Iterator[Frame]:
         """Frames first <= i < stop as tofd Frames: frame_counter i, no clock (timestamps 0), the intrinsics,
