@@ -18,6 +18,7 @@ from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import Detection
 from tofd.algorithm.names import MAP_NAMES
 from tofd.algorithm.tracking import NoseTracker, TrackerConfig
+from tofd.batch.rows import frame_row
 from tofd.config import Config, load_config
 from tofd.service.health import HealthServer, ServiceMetrics
 from tofd.service.model import load_service_model
@@ -84,6 +85,14 @@ def test_results_record_reports_the_track_beside_the_detection():
     assert u == pytest.approx(INTRINSICS.cx + INTRINSICS.fx * 0.01 / 0.5, abs=0.05)
     json.dumps(rows)  # JSON-ready
     assert result_record(result(0, hit(0.0), None))["track"] is None  # no detector model: no track
+
+
+def test_batch_rows_leave_the_track_out():
+    """A batch partition does not see the frames before it, so its rows carry the detection but not the track."""
+    r = tracked_results([hit(0.01)] * 4)[-1]
+    row = frame_row(r)
+    assert "track" not in row and row["nose_xyz_m"] == result_record(r)["nose_xyz_m"]
+    assert set(row) - {"track"} >= set(result_record(r)) - {"track", "timings_ms"}
 
 
 def test_wire_format_carries_the_track():
