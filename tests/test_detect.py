@@ -25,7 +25,6 @@ from tofd.algorithm.detector import (
     save_model,
     stack_features,
 )
-from tofd.algorithm.detector.candidates import masked_median
 from tofd.config import FeatureConfig, SegmentationConfig
 
 
@@ -227,33 +226,3 @@ def test_front_test_allowance_grows_with_the_local_noise():
     gap, border = np.array([0.003, 0.003]), np.array([1.0, 1.0])
     assert list(Candidates(front_depth_m=0.001).keep(border, gap, np.array([0.004, 0.001]))) == [False, False]
     assert list(cand.keep(border, gap, np.array([0.004, 0.001]))) == [True, False]
-
-
-def test_masked_median_is_the_median_of_the_valid_pixels():
-    rng = np.random.default_rng(5)
-    values = rng.standard_normal((30, 40)).astype(np.float32)
-    valid = rng.random((30, 40)) > 0.4
-    valid[:, :3] = False  # a column band without valid pixels
-    out = masked_median(values, valid, 5)
-    for r, c in [(10, 20), (0, 5), (29, 39), (15, 3), (7, 4)]:
-        window = (slice(max(r - 2, 0), r + 3), slice(max(c - 2, 0), c + 3))
-        assert out[r, c] == pytest.approx(np.median(values[window][valid[window]]), abs=1e-6)
-    assert np.isnan(out[10, 0])  # no valid pixel within 2 px
-    assert np.isnan(masked_median(values, np.zeros_like(valid), 5)).all()
-
-
-def test_holes_beside_the_tip_do_not_put_it_behind_its_neighbours():
-    """A cap 0.7 m away with most of the 5x5 window around its apex off the mask (pixels the segmentation dropped):
-    the apex is still the front-most point (gap ~0), where a far value for the holes would put it metres behind."""
-    intrinsics = Intrinsics()
-    rays_z = intrinsics.unit_rays()[..., 2]
-    v, u = np.mgrid[0:intrinsics.height, 0:intrinsics.width]
-    r2 = ((u - 88) ** 2 + (v - 72) ** 2) * (0.7 / intrinsics.fx) ** 2
-    range_m = (0.7 + 4.0 * r2) / rays_z
-    mask = r2 < 0.05**2
-    window = (np.abs(u - 88) <= 2) & (np.abs(v - 72) <= 2)
-    mask &= ~(window & (((u - 88) % 2 != 0) | ((v - 72) % 2 != 0)))  # only the 9 even offsets are left
-    assert (~mask[70:75, 86:91]).sum() == 16  # more than half of the apex's median window is off the mask
-    gap = front_gap_m(mask, range_m, intrinsics)
-    assert gap[72, 88] < 0.0005
-    assert Candidates(front_depth_m=0.001).mask(mask, range_m, intrinsics)[72, 88]

@@ -85,7 +85,7 @@ class DetectorConfig:
     border_margin_m: float = 0.006  # metres: pixels nearer than this to the mask border are never the nose
     front_depth_m: float = 0.001  # metres: pixels this far behind the front-most one within 12 mm are never the
     # nose (0 = no front test; tofd/algorithm/detector.py)
-    front_noise_factor: float = 0.25  # the front test allows front_depth_m + this x the pixel's local range noise
+    front_noise_factor: float = 0.0  # the front test allows front_depth_m + this x the pixel's local range noise
     # sigma (estimated from the frame; tofd/algorithm/detector/candidates.py); 0 = fixed allowance
 
     def validate(self) -> None:

@@ -7,8 +7,6 @@ pixel within FRONT_RADIUS_M (depth along the face's viewing direction) is never 
 scales with the expected noise at the pixel: front_depth_m + front_noise_factor * sigma, sigma the local range
 noise estimated from the frame itself (depth_noise_m), because range noise grows with distance and falls with
 amplitude and a fixed allowance rejects the true tip wherever the noise is larger than on the training data.
-Both the front test and the noise estimate work on the masked median of the depth (masked_median), which leaves
-pixels off the mask out: the holes a noisy far face has next to its nose must not count as far surface.
 """
 
 from __future__ import annotations
@@ -20,7 +18,7 @@ import numpy as np
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.params import DetectorConfig, SegmentationConfig
-from tofd.algorithm.segmentation import FAR_M
+from tofd.algorithm.segmentation import filtered
 
 
 def border_distance_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
@@ -43,15 +41,11 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
                 radius_m: float = FRONT_RADIUS_M, median_px: int = 5) -> np.ndarray:
     """(H, W) float32 metres each mask pixel lies behind the front-most mask pixel within radius_m (0 off the mask).
 
-    Depth along `direction` (unit, camera frame; default the camera's z axis), the masked median over median_px
-    pixels (masked_median: a minimum of unfiltered noisy depths lies in front of the surface);
+    Depth along `direction` (unit, camera frame; default the camera's z axis), median-filtered over median_px
+    pixels (the segmentation's filter: a minimum of unfiltered noisy depths lies in front of the surface);
     the disc's radius in pixels is radius_m at the mask's median depth.
     """
-    return _front_gap(_face_depth(mask, range_m, intrinsics, direction, median_px), intrinsics, radius_m)
-
-
-def _front_gap(face: FaceDepth, intrinsics: Intrinsics, radius_m: float) -> np.ndarray:
-    depth, valid, smooth = face
+    depth, valid, smooth = _face_depth(mask, range_m, intrinsics, direction, median_px)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
     median_m = float(np.median(depth[valid]))
@@ -60,43 +54,14 @@ def _front_gap(face: FaceDepth, intrinsics: Intrinsics, radius_m: float) -> np.n
     return np.where(valid, smooth - cv2.erode(smooth, disc), 0.0).astype(np.float32)
 
 
-def masked_median(values: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
-    """(H, W) float32 median of the valid pixels in each size x size window (size odd; NaN where none is valid).
-
-    Pixels off the mask are left out rather than counted as far (segmentation.filtered): a noisy far face has
-    holes next to its nose tip, and a far value in the tip's window would put the tip behind its neighbours.
-    Vectorised over the valid pixels' bounding box: the windows are sorted with NaN last, and the median is taken
-    between the middle valid entries.
-    """
-    out = np.full(np.shape(values), np.nan, np.float32)
-    rows, cols = np.nonzero(valid)
-    if rows.size == 0:
-        return out
-    r = size // 2
-    top, bottom, left, right = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
-    crop = np.where(valid[top:bottom, left:right], values[top:bottom, left:right], np.nan).astype(np.float32)
-    windows = np.lib.stride_tricks.sliding_window_view(np.pad(crop, r, constant_values=np.nan), (size, size))
-    ranked = np.sort(windows.reshape(*crop.shape, size * size), axis=-1)
-    n = np.count_nonzero(np.isfinite(ranked), axis=-1)
-    low = np.take_along_axis(ranked, np.maximum(n - 1, 0)[..., None] // 2, -1)[..., 0]
-    high = np.take_along_axis(ranked, (n // 2)[..., None], -1)[..., 0]
-    out[top:bottom, left:right] = np.where(n > 0, (low + high) / 2, np.nan)
-    return out
-
-
-FaceDepth = tuple[np.ndarray, np.ndarray, np.ndarray]  # depth along the face direction, valid pixels, masked median
-
-
 def _face_depth(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None,
-                median_px: int) -> FaceDepth:
-    """Depth along direction (H, W), the valid mask pixels, and the median_px masked median of the depth (FAR_M off
-    the valid pixels, so that they are never the front-most)."""
+                median_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Depth along direction (H, W), the valid mask pixels, and the median_px median-filtered depth."""
     rays = intrinsics.unit_rays()
     with np.errstate(invalid="ignore"):
         depth = np.asarray(range_m) * (rays[..., 2] if direction is None else rays @ direction)
     valid = np.asarray(mask, dtype=bool) & np.isfinite(depth)
-    smooth = masked_median(depth, valid, median_px) if median_px > 1 else depth.astype(np.float32)
-    return depth, valid, np.where(valid, smooth, FAR_M).astype(np.float32)
+    return depth, valid, filtered(depth, valid, median_px)
 
 
 NOISE_WINDOW_PX = 7  # window of the local noise estimate, pixels
@@ -110,11 +75,7 @@ def depth_noise_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
     window (the mean absolute deviation of Gaussian noise is sigma sqrt(2 / pi)); the face's own curvature within
     the median window adds well under a millimetre.
     """
-    return _depth_noise(_face_depth(mask, range_m, intrinsics, direction, median_px))
-
-
-def _depth_noise(face: FaceDepth) -> np.ndarray:
-    depth, valid, smooth = face
+    depth, valid, smooth = _face_depth(mask, range_m, intrinsics, direction, median_px)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
     residual = np.where(valid, np.abs(np.nan_to_num(depth - smooth)), 0.0).astype(np.float32)
@@ -154,11 +115,10 @@ class Candidates:
         """
         off = np.zeros(np.shape(foreground), np.float32)
         border = border_distance_m(foreground, range_m, intrinsics) if self.border_margin_m > 0 else off + np.inf
-        gap = noise = off
-        if self.front_depth_m > 0:
-            face = _face_depth(foreground, range_m, intrinsics, direction, self.median_px)
-            gap = _front_gap(face, intrinsics, FRONT_RADIUS_M)
-            noise = _depth_noise(face) if self.front_noise_factor > 0 else off
+        front = self.front_depth_m > 0
+        gap = front_gap_m(foreground, range_m, intrinsics, direction, median_px=self.median_px) if front else off
+        noise = (depth_noise_m(foreground, range_m, intrinsics, direction, self.median_px)
+                 if front and self.front_noise_factor > 0 else off)
         return np.asarray(foreground, dtype=bool) & self.keep(border, gap, noise)
 
 
