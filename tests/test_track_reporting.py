@@ -73,6 +73,19 @@ def test_track_counts_acquisition_replacement_and_loss():
     assert snap["tracked_frames"] == (6 - 2) + cfg.confirm_hits + coasting + (4 - 2)
 
 
+def test_a_loss_is_counted_when_a_new_track_starts_in_the_same_frame():
+    cfg = TrackerConfig()
+    tracker, stats = NoseTracker(cfg), TrackStats()
+    misses = int(cfg.lost_after_s / DT)  # the track is still held after these
+    script = [hit(0.0)] * 6 + [MISS] * misses + [hit(0.3)]  # the far hit arrives as the old track is dropped
+    states = []
+    for k, d in enumerate(script):
+        states.append(tracker.update(d, k * DT))
+        stats.record(d, states[-1])
+    assert states[-2].reported and states[-1].status == "tentative" and states[-1].reacquired
+    assert stats.snapshot()["lost"] == 1 and stats.snapshot()["acquired"] == 1
+
+
 def test_results_record_reports_the_track_beside_the_detection():
     rows = [result_record(r) for r in tracked_results([hit(0.01)] * 4 + [MISS])]
     assert [r["track"]["status"] for r in rows] == ["tentative", "tentative", "tracking", "tracking", "tracking"]

@@ -57,7 +57,8 @@ class PipelineStats:
 class TrackStats:
     """The nose track as /metrics and the run summary report it: its latest state, frames with an accepted
     detection and with a confirmed track, and how often a confirmed track began (acquired: a new track confirmed, or
-    a challenger replacing the track) or was lost (dropped without a successor)."""
+    a challenger replacing the track) or was lost (dropped without a confirmed successor, a new tentative track
+    started in the same frame included)."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -71,7 +72,7 @@ class TrackStats:
             self._counts["detected_frames"] += detection is not None and detection.accepted
             self._counts["tracked_frames"] += state.reported
             self._counts["acquired"] += state.reported and (not before or state.reacquired)
-            self._counts["lost"] += before and state.status == "none"
+            self._counts["lost"] += before and not state.reported  # hits never fall: only a loss unconfirms
             self._last = state
 
     def snapshot(self) -> dict:
