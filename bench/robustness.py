@@ -5,6 +5,7 @@ trained or tuned on). Prints, per variant, a condition x distance table of the w
 worst cell overall; writes everything as JSON.
 
     .venv/bin/python bench/robustness.py [--model config/nose_model.json] [--frames 60] [--conditions all]
+                                         [--distances 0.6,0.65,0.7] [--seed 1000]
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ def main() -> int:
     add_model_arguments(parser)
     parser.add_argument("--frames", type=int, default=60, help="frames per subject, condition and distance")
     parser.add_argument("--conditions", default="all", help="comma-separated names or 'all' (tofd.lab.conditions)")
+    parser.add_argument("--distances", default=None, metavar="M,M,...",
+                        help="nose distances in metres (default: the test distances, tofd.lab.faces)")
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "robustness.json"))
@@ -39,6 +42,11 @@ def main() -> int:
         spec = MatrixSpec(conditions=parse_conditions(args.conditions), frames=args.frames, seed=args.seed)
     except ValueError as exc:
         raise SystemExit(f"robustness: --conditions: {exc}") from None
+    if args.distances:
+        try:
+            spec = dataclasses.replace(spec, distances_m=tuple(float(d) for d in args.distances.split(",")))
+        except ValueError:
+            raise SystemExit(f"robustness: --distances: {args.distances!r} is not a list of metres") from None
 
     start = time.monotonic()
     cfg = load_config(args.config)

@@ -2,8 +2,8 @@
 
 Sequences (tofd.lab.sequences): each held-out identity under a few sensor conditions (tofd.lab.conditions), the
 shipped model with the configured detector; found / wrong per frame with and without the track. With
---replay-results DIR/x.results.jsonl (from `tofd replay`), the track is also run over that file's detections
-and scored against its ground-truth pixels (within --replay-px).
+--replay-results DIR/x.results.jsonl (from `tofd replay`), that file's detections and the pipeline's track reported
+beside them are scored against its ground-truth pixels (within --replay-px).
 
     .venv/bin/python bench/tracking.py [--frames 240] [--conditions train_sensor,noise_x2,dark_face]
 """
@@ -12,38 +12,30 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 from report import add_model_arguments, write_json
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import NoseDetector, load_model
-from tofd.algorithm.tracking import NoseTracker
 from tofd.config import load_config
+from tofd.lab.accuracy import accuracy_from_results
 from tofd.lab.conditions import CONDITIONS, parse_conditions
 from tofd.lab.faces import HOLDOUT_SUBJECTS
 from tofd.lab.sequences import evaluate_sequence
 
 
-def replay_track(path: Path, intrinsics: Intrinsics, max_px: float) -> dict:
-    """Per-frame vs tracked answers on a results.jsonl: found iff within max_px of the ground-truth pixel."""
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    tracker = NoseTracker()
-    out = {"frames": len(rows), "detection_found": 0, "detection_wrong": 0, "track_found": 0, "track_wrong": 0}
-    for row in rows:
-        det = SimpleNamespace(accepted=bool(row["accepted"]), nose_xyz_m=row["nose_xyz_m"])
-        state = tracker.update(det, row["timestamp_us"] / 1e6)
-        truth = np.asarray(row["ground_truth_px"], dtype=float)
-        for key, xyz in (("detection", row["nose_xyz_m"] if row["accepted"] else None),
-                         ("track", state.nose_xyz_m if state.reported else None)):
-            if xyz is None:
-                continue
-            uv = intrinsics.project(np.asarray(xyz, dtype=float))
-            out[f"{key}_{'found' if np.linalg.norm(uv - truth) <= max_px else 'wrong'}"] += 1
+def replay_track(path: Path, max_px: float) -> dict:
+    """Per-frame vs tracked answers of a replay's results.jsonl (the pipeline's own track, as reported there): found
+    iff within max_px of the ground-truth pixel, wrong iff reported and not found."""
+    acc = accuracy_from_results(path, max_px)
+    if acc is None or acc.track_error_px is None:
+        raise SystemExit(f"tracking: {path}: no ground truth or no track in the results (replay with a model)")
+    out = {"frames": len(acc.error_px)}
+    for key, error in (("detection", acc.error_px), ("track", acc.track_error_px)):
+        out[f"{key}_found"] = int(np.count_nonzero(error <= max_px))
+        out[f"{key}_wrong"] = int(np.count_nonzero(error > max_px))
     return out
 
 
@@ -80,7 +72,7 @@ def main() -> int:
     result: dict = {"title": "Nose track vs per-frame detection (bench/tracking.py)", "about": ABOUT,
                     "model": args.model, "variant": cfg.detector.variant, "frames": args.frames, "sequences": rows}
     if args.replay_results:
-        result["replay"] = replay_track(Path(args.replay_results), cfg.intrinsics, args.replay_px)
+        result["replay"] = replay_track(Path(args.replay_results), args.replay_px)
         print(f"replay {args.replay_results}: {result['replay']}")
     result["seconds"] = round(time.monotonic() - start, 1)
     write_json(args.out, result)

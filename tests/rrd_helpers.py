@@ -18,7 +18,9 @@ def read_entities(path):
     for entity in {c.entity_path for c in chunks}:
         batches = [c.to_record_batch() for c in chunks if c.entity_path == entity and not c.is_static]
         static = [c for c in chunks if c.entity_path == entity and c.is_static]
-        table = pa.Table.from_batches(batches).sort_by("frame") if batches else None
+        # rows of other archetypes (a Clear between points) have other columns: missing ones are null
+        table = (pa.concat_tables([pa.Table.from_batches([b]) for b in batches], promote_options="default")
+                 .sort_by("frame") if batches else None)
         tables[entity] = (static, table)
     return tables
 

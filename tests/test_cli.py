@@ -162,7 +162,7 @@ def test_replay_uses_the_configured_model_not_one_in_the_cwd_and_reports_accurac
     assert summary["model"] == {"path": str(shipped), "sha256": hashlib.sha256(shipped.read_bytes()).hexdigest()}
     assert len(summary["config_sha256"]) == 64
     assert f"INFO model: {shipped}" in proc.stderr  # printed at start, with its level
-    assert "nose found 12 of 12 within 5 px; median error" in proc.stderr
+    assert "nose found 12 of 12 within 5 px; median error" in proc.stderr and "; track found " in proc.stderr
     assert (out / "emulated_face_035_070.accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not list(out.glob(".*.tmp"))
 

@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Literal, Protocol, get_args
 
 import numpy as np
 
 Status = Literal["none", "tentative", "tracking"]
+STATUSES: tuple[Status, ...] = get_args(Status)
 
 
 class DetectionLike(Protocol):

@@ -41,10 +41,14 @@ def array_digest(a: np.ndarray) -> str:
 
 
 def frame_row(r: FrameResult) -> dict:
-    """The row of one processed frame: result_record without its timings, plus host time, NFFT residual, the
-    digests of the mask and each computed map, each map's mean over its finite values, and t_<stage>_ms."""
+    """The row of one processed frame: result_record without its timings and track, plus host time, NFFT residual,
+    the digests of the mask and each computed map, each map's mean over its finite values, and t_<stage>_ms.
+
+    The track is left out because it depends on every earlier frame of the recording, while a batch partition
+    sees only its own frames; it follows from the rows' detections and timestamps (tofd.algorithm.tracking)."""
     row = result_record(r)
     timings = row.pop("timings_ms")
+    del row["track"]
     row["host_wall_s"] = r.frame.host_wall_s
     row["nfft_residual"] = finite_or_none(r.nfft_residual)
     row["mask_digest"] = array_digest(r.mask)

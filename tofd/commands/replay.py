@@ -3,9 +3,10 @@
 Lossless by default (every frame is processed, as fast as the pipeline goes, with a progress bar on
 stderr); --realtime replays at the recorded pace (times --speed), skipping frames it cannot keep up with.
 Output in --out: <stem>.rrd (open it with `rerun <stem>.rrd`), <stem>.results.jsonl (frame counter, nose pixel
-and 3-D point, score, stage timings in ms; with --loop also the loop index), <stem>.summary.json (drop ledger,
-fps, p50/p99 timings, model path and SHA-256). A recording with ground truth also gets an accuracy line and
-<stem>.accuracy.png (nose error and score over frames). --rerun adds or replaces the viewer sink.
+and 3-D point, score, the nose track beside it, stage timings in ms; with --loop also the loop index),
+<stem>.summary.json (drop ledger, fps, p50/p99 timings, track counts, model path and SHA-256). A recording with
+ground truth also gets an accuracy line (detection and track) and <stem>.accuracy.png (nose error and score over
+frames). --rerun adds or replaces the viewer sink.
 --check GOLDEN compares the per-frame results with a golden file (docs/BATCH.md) and exits 1 on a regression.
 A ROS 1 or ROS 2 bag is imported to a temporary recording first (as `tofd import` does, with the same options).
 """

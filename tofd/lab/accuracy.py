@@ -1,9 +1,10 @@
 """Nose accuracy of a replay or batch run against the inputs' ground truth, from per-frame results records.
 
 Error = Euclidean pixel distance between the detected and the ground-truth nose pixel; a frame counts as found
-when a nose was detected within `radius_px` of the truth. Frames without ground truth, or whose nose the truth
-marks not visible (outside the image, occluded), are ignored; frames whose ground-truth 3-D nose tip is known are
-also grouped by distance, in the bins of `tofd evaluate`.
+when a nose was detected within `radius_px` of the truth; the nose track's pixel (while confirmed) is
+scored the same way beside it. Frames without ground truth, or whose nose the truth marks not visible
+(outside the image, occluded), are ignored; frames whose ground-truth 3-D nose tip is known are also
+grouped by distance, in the bins of `tofd evaluate`.
 """
 
 from __future__ import annotations
@@ -23,12 +24,14 @@ RADIUS_PX = 5.0
 
 @dataclass(frozen=True, slots=True)
 class Accuracy:
-    """Per frame with ground truth: counter, error in pixels (NaN: no detection), detector score (NaN: none) and
-    the ground-truth nose distance in metres (NaN: unknown)."""
+    """Per frame with ground truth: counter, error in pixels (NaN: no detection), detector score (NaN: none), the
+    track's error in pixels (NaN: no confirmed track; None: the results carry no track, i.e. no detector) and the
+    ground-truth nose distance in metres (NaN: unknown; None: no frame knows its distance)."""
 
     frame_counter: np.ndarray  # (M,) int
     error_px: np.ndarray  # (M,) float
     score: np.ndarray  # (M,) float
+    track_error_px: np.ndarray | None = None  # (M,) float
     radius_px: float = RADIUS_PX
     distance_m: np.ndarray | None = None  # (M,) float; None: no frame knows its distance
 
@@ -36,12 +39,18 @@ class Accuracy:
     def found(self) -> int:
         return int(np.count_nonzero(self.error_px <= self.radius_px))
 
+    @property
+    def track_found(self) -> int | None:
+        return None if self.track_error_px is None else int(np.count_nonzero(self.track_error_px <= self.radius_px))
+
     def line(self) -> str:
-        """`nose found N of M within R px, median error E px, max E px` (errors over frames with a detection)."""
+        """`nose found N of M within R px; median error E px, max E px` (errors over frames with a detection), then
+        `; track found K of M` when the results carry the track."""
         detected = self.error_px[np.isfinite(self.error_px)]
         errors = (f"median error {np.median(detected):.1f} px, max {detected.max():.1f} px" if detected.size
                   else "no detection")
-        return f"nose found {self.found} of {len(self.error_px)} within {self.radius_px:g} px; {errors}"
+        track = "" if self.track_found is None else f"; track found {self.track_found} of {len(self.error_px)}"
+        return f"nose found {self.found} of {len(self.error_px)} within {self.radius_px:g} px; {errors}{track}"
 
     def counts(self) -> dict:
         """JSON-ready: frames, found, radius, frames with a detection, median and max error (px, over frames with a
@@ -66,7 +75,8 @@ class Accuracy:
         return {float(b): self._subset(np.flatnonzero(known)[bins == b]) for b in np.unique(bins)}
 
     def _subset(self, index: np.ndarray) -> Accuracy:
-        return Accuracy(self.frame_counter[index], self.error_px[index], self.score[index], self.radius_px,
+        return Accuracy(self.frame_counter[index], self.error_px[index], self.score[index],
+                        None if self.track_error_px is None else self.track_error_px[index], self.radius_px,
                         None if self.distance_m is None else self.distance_m[index])
 
 
@@ -83,22 +93,31 @@ def accuracy_table(report: dict) -> str:
 def accuracy_from_records(records: Iterable[dict], radius_px: float = RADIUS_PX) -> Accuracy | None:
     """The accuracy over per-frame results records (tofd.service.pipeline.results.result_record, or batch rows)
     that carry ground truth; None when none does."""
-    counters, errors, scores, distances = [], [], [], []
+    counters, errors, scores, track_errors, distances = [], [], [], [], []
+    tracked = True
     for rec in records:
         truth = rec.get("ground_truth_px")
         if truth is None or rec.get("ground_truth_visible") is False:
             continue
-        nose = rec.get("nose_px")
         xyz = rec.get("ground_truth_xyz_m")
+        track = rec.get("track")
+        tracked = tracked and track is not None
         counters.append(rec["frame_counter"])
-        errors.append(float(np.hypot(nose[0] - truth[0], nose[1] - truth[1])) if nose is not None else np.nan)
+        errors.append(_error_px(rec.get("nose_px"), truth))
         scores.append(rec["score"] if rec.get("score") is not None else np.nan)
+        track_errors.append(_error_px(track["nose_px"], truth) if track is not None else np.nan)
         distances.append(float(np.linalg.norm(xyz)) if xyz is not None else np.nan)
     if not counters:
         return None
     distance = np.array(distances, float)
-    return Accuracy(np.array(counters), np.array(errors, float), np.array(scores, float), radius_px,
+    return Accuracy(np.array(counters), np.array(errors, float), np.array(scores, float),
+                    np.array(track_errors, float) if tracked else None, radius_px,
                     distance if np.isfinite(distance).any() else None)
+
+
+def _error_px(nose: list[float] | None, truth: list[float]) -> float:
+    """Pixel distance of a reported nose from the truth (NaN: none reported)."""
+    return float(np.hypot(nose[0] - truth[0], nose[1] - truth[1])) if nose is not None else np.nan
 
 
 def accuracy_from_results(path: str | Path, radius_px: float = RADIUS_PX) -> Accuracy | None:
@@ -108,14 +127,18 @@ def accuracy_from_results(path: str | Path, radius_px: float = RADIUS_PX) -> Acc
 
 
 def plot_accuracy(acc: Accuracy, path: str | Path) -> Path:
-    """PNG: nose error (pixels, log scale; the radius dashed) and detector score over the frame counter."""
+    """PNG: nose error of the detection and the track (pixels, log scale; the radius dashed) and detector score over
+    the frame counter."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 4.5), sharex=True)
-    ax.plot(acc.frame_counter, np.maximum(acc.error_px, 0.1), ".", ms=4)
+    ax.plot(acc.frame_counter, np.maximum(acc.error_px, 0.1), ".", ms=4, label="detection")
+    if acc.track_error_px is not None:
+        ax.plot(acc.frame_counter, np.maximum(acc.track_error_px, 0.1), "x", ms=3, color="tab:cyan", label="track")
+        ax.legend(fontsize=7, loc="upper right")
     ax.axhline(acc.radius_px, ls="--", color="grey", lw=1)
     ax.set_yscale("log")
     ax.set_ylabel("nose error [px]")

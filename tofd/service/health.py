@@ -21,6 +21,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.exposition import generate_latest
 
 import tofd
+from tofd.algorithm.tracking import STATUSES
 
 if TYPE_CHECKING:
     from tofd.service.pipeline.results import FrameResult
@@ -51,6 +52,13 @@ def watchdog_interval_s() -> float | None:
 STAGE_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.035, 0.05, 0.075, 0.1, 0.15, 0.25, 0.5, 1.0, 2.5)
 
 
+def _unlabelled(family: type, name: str, help_text: str, value: float) -> Metric:
+    """One counter or gauge family without labels, holding `value`."""
+    m = family(name, help_text)
+    m.add_metric([], float(value))
+    return m
+
+
 class _SnapshotCollector:
     """Counters and gauges read from Pipeline.snapshot() at scrape time."""
 
@@ -59,12 +67,7 @@ class _SnapshotCollector:
 
     def collect(self) -> Iterator[Metric]:
         snap = self._snapshot()
-
-        def one(family: type, name: str, help_text: str, value: float) -> Metric:
-            m = family(name, help_text)
-            m.add_metric([], float(value))
-            return m
-
+        one = _unlabelled
         yield one(CounterMetricFamily, "tofd_frames_in", "Frames that entered the pipeline.", snap["frames_in"])
         yield one(CounterMetricFamily, "tofd_frames_out", "Frames delivered to every sink.", snap["frames_out"])
         dropped = CounterMetricFamily("tofd_frames_dropped", "Frames dropped, by stage and reason.",
@@ -103,6 +106,29 @@ class _SnapshotCollector:
         yield one(CounterMetricFamily, "tofd_worker_restarts", "Feature worker processes restarted.",
                   snap["worker_restarts"])
         yield one(GaugeMetricFamily, "tofd_workers_alive", "Feature worker processes alive.", snap["workers_alive"])
+        track = snap.get("track")
+        if track is not None:
+            yield from _track_metrics(track)
+
+
+def _track_metrics(track: dict) -> Iterator[Metric]:
+    """The nose track beside the per-frame detection (tofd.service.pipeline.stats.TrackStats.snapshot)."""
+    one = _unlabelled
+    yield one(CounterMetricFamily, "tofd_nose_detected_frames", "Frames with an accepted nose detection.",
+              track["detected_frames"])
+    yield one(CounterMetricFamily, "tofd_nose_tracked_frames", "Frames with a confirmed nose track.",
+              track["tracked_frames"])
+    yield one(CounterMetricFamily, "tofd_track_acquired", "Confirmed nose tracks begun (new or replacing one).",
+              track["acquired"])
+    yield one(CounterMetricFamily, "tofd_track_lost", "Confirmed nose tracks lost without a successor.",
+              track["lost"])
+    yield one(GaugeMetricFamily, "tofd_track_confidence", "Confidence of the nose track after the last frame (0-1).",
+              track["confidence"])
+    status = GaugeMetricFamily("tofd_track_status", "The nose track's status after the last frame (1: current).",
+                               labels=["status"])
+    for name in STATUSES:
+        status.add_metric([name], float(track["status"] == name))
+    yield status
 
 
 class ServiceMetrics:

@@ -10,13 +10,15 @@ from pathlib import Path
 
 def run_summary(ledger_summary: dict, snap: dict, run_s: float, viewer: dict | None) -> dict:
     """`ledger_summary` (DropLedger.summary) with fps over the whole run, timing quantiles (ms), worker
-    restarts, device events, the error if any and the viewer's end report (None: no viewer)."""
+    restarts, device events, the error if any, the nose track's counts (None: no detector) and the viewer's end
+    report (None: no viewer)."""
     return {**ledger_summary,
             "error": snap["error"],
             "fps": round(ledger_summary["frames_out"] / run_s, 2) if run_s > 0 else 0.0,
             "timings_ms": {k: [round(x, 3) for x in v] for k, v in snap["timings_ms"].items()},
             "worker_restarts": snap["worker_restarts"],
             "device_events": dict(snap["device_events"]),
+            "track": snap["track"],
             "viewer": viewer}
 
 

@@ -40,7 +40,7 @@ from tofd.service.pipeline.queues import Policy, StageQueue
 from tofd.service.pipeline.reorder import Reorderer
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.stages import frame_result
-from tofd.service.pipeline.stats import PipelineStats
+from tofd.service.pipeline.stats import PipelineStats, TrackStats
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +93,7 @@ class Pipeline:
         self.workers = self.pool.workers
         self.order: Reorderer[FrameResult] = Reorderer(policy)
         self.tracker = None if model is None else NoseTracker()  # updated in frame order (_to_sink)
+        self.track_stats = None if model is None else TrackStats()
         self.inq: StageQueue[_Queued] = StageQueue(policy, 1 if policy == "latest" else pc.input_queue)
         self.outq: StageQueue[FrameResult] = StageQueue(policy, pc.sink_queue)
         self.source: FrameSource | None = None
@@ -319,8 +320,9 @@ class Pipeline:
         with self._items_lock:
             if self._items.pop(result.seq, None) is None:
                 return
-        if self.tracker is not None:
+        if self.tracker is not None and self.track_stats is not None:
             result.track = self.tracker.update(result.detection, result.frame.timestamp_us / 1e6)
+            self.track_stats.record(result.detection, result.track)
         self.ledger.advance(result.seq, "viewer")
         for old in self.outq.put(result, self._abort):
             self.ledger.drop(old.seq, "viewer", "queue_full" if old is not result else "shutdown")
@@ -356,9 +358,10 @@ class Pipeline:
     def snapshot(self) -> dict:
         """Counters, rates, timings and queue depths for /metrics and the run summary (see monitor.py)."""
         counters = dict(self.source.counters) if self.source is not None else {}
+        track = None if self.track_stats is None else self.track_stats.snapshot()
         return monitor.snapshot(self.ledger, self.stats, self.pool,
                                 {"dispatch": len(self.inq), "reorder": self.order.pending, "sink": len(self.outq)},
-                                counters, self.error)
+                                counters, self.error, track)
 
 
 def _safe_counter(frame: Frame) -> int:

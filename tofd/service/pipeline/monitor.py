@@ -10,8 +10,9 @@ from tofd.service.pipeline.stats import PipelineStats
 
 
 def snapshot(ledger: DropLedger, stats: PipelineStats, pool: WorkerPool, queue_depth: Mapping[str, int],
-             device_events: Mapping[str, int], error: str | None) -> dict:
-    """Counters, rates, timings (ms quantiles) and queue depths; see tofd.service.health for the metrics."""
+             device_events: Mapping[str, int], error: str | None, track: dict | None) -> dict:
+    """Counters, rates, timings (ms quantiles), queue depths and the nose track (stats.TrackStats.snapshot, None
+    without a detector); see tofd.service.health for the metrics."""
     return {
         "frames_in": ledger.frames_in,
         "frames_out": ledger.frames_out,
@@ -27,4 +28,5 @@ def snapshot(ledger: DropLedger, stats: PipelineStats, pool: WorkerPool, queue_d
         "device_events": dict(device_events),
         "last_delivery_age_s": stats.last_delivery_age_s(),
         "error": error,
+        "track": track,
     }

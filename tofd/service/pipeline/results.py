@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from drivers.frame import Frame
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.tracking import TrackState
 from tofd.outputs import AtomicFile
 
 
@@ -27,7 +29,7 @@ class FrameResult:
     arrival_s: float  # time.monotonic() when the capture thread received the frame
     timings_ms: dict[str, float] = field(default_factory=dict)  # keys from stats.TIMED_STAGES
     detection: Any = None  # tofd.algorithm.detector.Detection, or None without a detector model
-    track: Any = None  # tofd.algorithm.tracking.TrackState after this frame, or None without a detector model
+    track: TrackState | None = None  # the nose track after this frame, or None without a detector model
     gap_before: str = ""  # "counter_gap" or "reconnect" if the device skipped frames just before this one
 
 
@@ -36,8 +38,44 @@ def finite_or_none(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def track_dict(state: TrackState | None) -> dict | None:
+    """A TrackState as a JSON-ready dict (the viewer's wire format), or None."""
+    return None if state is None else asdict(state)
+
+
+def track_from(d: dict | None) -> TrackState | None:
+    """The TrackState of track_dict (vectors back to tuples), or None."""
+    if d is None:
+        return None
+    return TrackState(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def track_px(state: TrackState | None, intrinsics: Intrinsics) -> tuple[float, float] | None:
+    """The image pixel (u, v) of a confirmed track's nose, or None (no track, tentative, or behind the camera)."""
+    if state is None or not state.reported or state.nose_xyz_m is None or not state.nose_xyz_m[2] > 0:
+        return None
+    u, v = intrinsics.project(np.asarray(state.nose_xyz_m))
+    return float(u), float(v)
+
+
+def track_record(state: TrackState | None, intrinsics: Intrinsics) -> dict | None:
+    """The results file's track: status, confidence, association flags, and, while confirmed, the reported nose
+    (pixel, rounded to 0.01 px, and 3-D point and velocity, rounded to 0.01 mm)."""
+    if state is None:
+        return None
+    px = track_px(state, intrinsics)
+    reported = px is not None
+    return {"status": state.status, "confidence": state.confidence, "associated": state.associated,
+            "reacquired": state.reacquired,
+            "nose_px": [round(c, 2) for c in px] if reported else None,
+            "nose_xyz_m": [round(c, 5) for c in state.nose_xyz_m] if reported and state.nose_xyz_m else None,
+            "velocity_m_per_s": ([round(c, 5) for c in state.velocity_m_per_s]
+                                 if reported and state.velocity_m_per_s else None)}
+
+
 def result_record(r: FrameResult) -> dict:
-    """The JSON-ready per-frame record written to the results file."""
+    """The JSON-ready per-frame record written to the results file: the frame's detection, and beside it the nose
+    track after this frame (track_record; None without a detector model)."""
     det = r.detection
     truth = r.frame.ground_truth
     return {
@@ -48,6 +86,7 @@ def result_record(r: FrameResult) -> dict:
         "nose_xyz_m": [round(c, 5) for c in det.nose_xyz_m] if det is not None and det.nose_xyz_m else None,
         "score": finite_or_none(det.score) if det is not None else None,
         "accepted": bool(det.accepted) if det is not None else None,
+        "track": track_record(r.track, r.frame.intrinsics),
         "ground_truth_px": list(truth.nose_px) if truth else None,
         "ground_truth_xyz_m": list(truth.nose_xyz_m) if truth and truth.nose_xyz_m else None,
         "ground_truth_visible": truth.visible if truth else None,

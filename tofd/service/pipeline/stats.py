@@ -8,6 +8,9 @@ from collections import deque
 
 import numpy as np
 
+from tofd.algorithm.detector import Detection
+from tofd.algorithm.tracking import TrackState
+
 TIMED_STAGES = ("capture", "queue", "segmentation", "fft", "nfft", "detection", "logging", "latency")
 """Per-frame timings in milliseconds; "queue" is the wait for a worker, "latency" is capture -> sink done."""
 
@@ -49,3 +52,32 @@ class PipelineStats:
         with self._lock:
             last = self._done[-1] if self._done else None
         return None if last is None else time.monotonic() - last
+
+
+class TrackStats:
+    """The nose track as /metrics and the run summary report it: its latest state, frames with an accepted
+    detection and with a confirmed track, and how often a confirmed track began (acquired: a new track confirmed, or
+    a challenger replacing the track) or was lost (dropped without a confirmed successor, a new tentative track
+    started in the same frame included)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._last: TrackState | None = None
+        self._counts = {"detected_frames": 0, "tracked_frames": 0, "acquired": 0, "lost": 0}
+
+    def record(self, detection: Detection | None, state: TrackState) -> None:
+        """Count one frame's detection and the track after it (frames in pipeline order)."""
+        with self._lock:
+            before = self._last is not None and self._last.reported
+            self._counts["detected_frames"] += detection is not None and detection.accepted
+            self._counts["tracked_frames"] += state.reported
+            self._counts["acquired"] += state.reported and (not before or state.reacquired)
+            self._counts["lost"] += before and not state.reported  # hits never fall: only a loss unconfirms
+            self._last = state
+
+    def snapshot(self) -> dict:
+        """{"status", "confidence", and the counts of the class docstring} (status "none" before the first frame)."""
+        with self._lock:
+            last = self._last
+            return {"status": "none" if last is None else last.status,
+                    "confidence": 0.0 if last is None else last.confidence, **self._counts}

@@ -13,6 +13,9 @@ MASK = f"{IMAGE}/mask"  # SegmentationImage: 0 background, 1 foreground
 NOSE_2D = f"{IMAGE}/nose"  # Points2D: detected nose tip, pixels
 FOREGROUND = "/world/foreground"  # Points3D: foreground points, metres, coloured by NFFT eps0
 NOSE_3D = "/world/nose"  # Points3D: detected nose tip, metres
+TRACK_2D = f"{IMAGE}/nose_track"  # Boxes2D: the confirmed nose track, pixels, labelled with its confidence
+TRACK_3D = "/world/nose_track"  # Points3D: the confirmed nose track, metres
+TRACK_CONFIDENCE = "/track/confidence"  # Scalars: the nose track's confidence (0-1), every frame
 FEATURES = {  # feature map name (tofd.algorithm.detector naming) -> entity; colour-mapped scalar images
     "range_fft_eps0": "/features/fft/eps0",
     "range_fft_eps2": "/features/fft/eps2",
@@ -24,10 +27,11 @@ EVENTS = "/events"  # TextLog: device gaps and reconnects
 
 
 def build_blueprint() -> rrb.Blueprint:
-    """Camera images (left), feature maps (middle), 3-D scene, stage timings and device events (right)."""
+    """Camera images (left), feature maps (middle), 3-D scene, stage timings, track confidence and device events
+    (right)."""
 
     def image_view(name: str, entity: str) -> rrb.Spatial2DView:
-        return rrb.Spatial2DView(name=name, origin=IMAGE, contents=[entity, NOSE_2D])
+        return rrb.Spatial2DView(name=name, origin=IMAGE, contents=[entity, NOSE_2D, TRACK_2D])
 
     return rrb.Blueprint(
         rrb.Horizontal(
@@ -40,7 +44,8 @@ def build_blueprint() -> rrb.Blueprint:
                 rrb.Spatial3DView(name="3-D (camera frame)", origin="/world",
                                   contents=["+ /world/**", f"- {IMAGE}/**"]),
                 rrb.TimeSeriesView(name="stage timings [ms]", origin=TIMINGS),
+                rrb.TimeSeriesView(name="nose track confidence", origin=TRACK_CONFIDENCE),
                 rrb.TextLogView(name="events", origin=EVENTS),
-                row_shares=[3, 2, 1]),
+                row_shares=[3, 2, 1, 1]),
             column_shares=[1, 2, 2]),
         collapse_panels=True)

@@ -2,8 +2,10 @@
 
 Per frame (~0.6 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right),
 the radial range outside it, amplitude (uint16), mask, four feature maps, the foreground cloud (~3000 points),
-the nose in 2-D and 3-D, one scalar per stage timing. Timelines: `frame` (device frame counter) and
-`device_time` (device clock). set_time is thread-local in Rerun, so it is called here, on the logging thread.
+the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of TRACK_BOX_M about its pixel,
+labelled with its confidence, and its 3-D point) and the track's confidence, one scalar per stage timing.
+Timelines: `frame` (device frame counter) and `device_time` (device clock). set_time is thread-local in Rerun, so it
+is called here, on the logging thread.
 """
 
 from __future__ import annotations
@@ -15,11 +17,14 @@ import numpy as np
 import rerun as rr
 
 from drivers.intrinsics import Intrinsics
-from tofd.service.pipeline.results import FrameResult
+from tofd.algorithm.tracking import TrackState
+from tofd.service.pipeline.results import FrameResult, track_px
 from tofd.service.pipeline.stats import TIMED_STAGES
 from tofd.service.viewer import blueprint as bp
 
 NOSE_COLOR = (255, 0, 255)
+TRACK_COLOR = (0, 200, 255)
+TRACK_BOX_M = 0.03  # metres: side of the track's box in the image, at the track's depth (a nose's size)
 
 
 @cache
@@ -96,7 +101,22 @@ class RerunLogger:
         elif det is not None:
             rec.log(bp.NOSE_2D, rr.Clear(recursive=False))
             rec.log(bp.NOSE_3D, rr.Clear(recursive=False))
+        if r.track is not None:
+            self._log_track(r.track, frame.intrinsics)
         for stage, ms in r.timings_ms.items():
             rec.log(f"{bp.TIMINGS}/{stage}", rr.Scalars(ms))
         rec.log(f"{bp.TIMINGS}/logging", rr.Scalars((time.perf_counter() - t0) * 1e3))
         rec.log(f"{bp.TIMINGS}/latency", rr.Scalars((time.monotonic() - r.arrival_s) * 1e3))
+
+    def _log_track(self, track: TrackState, intrinsics: Intrinsics) -> None:
+        """The confirmed track's box and point (cleared while there is none) and its confidence."""
+        rec, px = self.rec, track_px(track, intrinsics)
+        if px is not None and track.nose_xyz_m is not None:
+            side = TRACK_BOX_M * intrinsics.fx / track.nose_xyz_m[2]
+            rec.log(bp.TRACK_2D, rr.Boxes2D(centers=[px], sizes=[[side, side]], colors=[TRACK_COLOR],
+                                            labels=f"track {track.confidence:.2f}"))
+            rec.log(bp.TRACK_3D, rr.Points3D([track.nose_xyz_m], radii=0.006, colors=[TRACK_COLOR]))
+        else:
+            rec.log(bp.TRACK_2D, rr.Clear(recursive=False))
+            rec.log(bp.TRACK_3D, rr.Clear(recursive=False))
+        rec.log(bp.TRACK_CONFIDENCE, rr.Scalars(track.confidence))

@@ -1,6 +1,6 @@
 """A FrameResult as one bytes message for the viewer process: what the Rerun logger reads, no pickle.
 
-Layout: 4-byte little-endian header length, a JSON header (scalars, detection, timings), then the
+Layout: 4-byte little-endian header length, a JSON header (scalars, detection, track, timings), then the
 planes as raw float32/bool in the order of PLANES, each (H, W) C-contiguous.
 """
 
@@ -14,7 +14,7 @@ import numpy as np
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.names import MAP_NAMES
-from tofd.service.pipeline.results import FrameResult
+from tofd.service.pipeline.results import FrameResult, track_dict, track_from
 from tofd.service.pipeline.slots import SLOT_FIELDS
 from tofd.service.pipeline.stages import detection_dict, detection_from
 
@@ -30,7 +30,7 @@ def encode(r: FrameResult) -> bytes:
               "nfft_iterations": r.nfft_iterations, "nfft_residual": r.nfft_residual,
               "timings_ms": {k: v for k, v in r.timings_ms.items() if k not in OWN_TIMINGS},
               "shape": list(f.range_m.shape),
-              "detection": None if det is None else detection_dict(det)}
+              "detection": None if det is None else detection_dict(det), "track": track_dict(r.track)}
     planes = {"range_m": f.range_m, "amplitude": f.amplitude, "mask": r.mask, **r.features}
     head = json.dumps(header).encode()
     return b"".join([struct.pack("<I", len(head)), head,
@@ -50,4 +50,4 @@ def decode(blob: bytes, intrinsics: Intrinsics) -> FrameResult:
     return FrameResult(seq=h["seq"], frame=frame, mask=planes["mask"],
                        features={name: planes[name] for name in MAP_NAMES}, nfft_iterations=h["nfft_iterations"],
                        nfft_residual=h["nfft_residual"], arrival_s=h["arrival_s"], timings_ms=h["timings_ms"],
-                       detection=detection_from(h), gap_before=h["gap_before"])
+                       detection=detection_from(h), track=track_from(h["track"]), gap_before=h["gap_before"])
