@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from collections.abc import Callable
 from multiprocessing.connection import wait as wait_ready
 
@@ -54,9 +55,13 @@ class WorkerPool:
         with self.lock:
             return self.lock.wait_for(lambda: all(w.ready for w in self.workers) or failed(), timeout_s)
 
-    def stop(self, timeout_s: float = 2.0) -> None:
+    def stop(self, timeout_s: float = 2.0) -> list[int]:
+        """Ask every worker to exit, wait for them together up to `timeout_s`, kill the rest; the indices of
+        the workers that had to be killed."""
+        deadline = time.monotonic() + timeout_s
         for w in self.workers:
-            w.stop(timeout_s)
+            w.request_stop()
+        return [w.index for w in self.workers if not w.stop(max(0.0, deadline - time.monotonic()))]
 
     def close(self) -> None:
         self.ring.close()

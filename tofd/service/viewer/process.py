@@ -166,4 +166,4 @@ class ViewerProcess:
     def _kill(self) -> None:
         if self.process.is_alive():
             self.process.kill()
-        self.process.join(5.0)
+        self.process.join(1.0)
