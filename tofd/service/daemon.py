@@ -83,7 +83,7 @@ def _close(shutdown: Shutdown, pipeline: Pipeline | None, health: HealthServer |
     if viewer is not None:
         with shutdown.phase("viewer"):
             report = viewer.close(shutdown.left_s())
-        if report["exit"] != "clean":
+        if report["exit"] == "killed":
             shutdown.abandoned.append(f"viewer ({report['exit']}, {report['unsent']} frame(s) unsent)")
     return summary
 
@@ -92,20 +92,21 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
           writers: tuple[Sink, ...] = (), max_frames: int | None = None, progress: Progress | None = None,
           summary_path: Path | None = None) -> ServiceResult:
     """Run `source` through the pipeline until it ends, `max_frames` were taken, or SIGTERM/SIGINT."""
-    from tofd.service.viewer.process import ViewerProcess  # imports the Rerun SDK: only when serving
-
     pc = cfg.pipeline
     health = pipeline = viewer = None
     run_s, started_s = 0.0, time.monotonic()
-    identity = run_identity(cfg)
-    with StopSignals() as stop:
+    with StopSignals() as stop:  # from here a signal is a stop request, also while the children start
         try:
-            viewer = None if cfg.rerun.sink == "none" else ViewerProcess(cfg, cfg.rerun.sink)
+            from tofd.service.viewer.process import ViewerProcess  # imports the Rerun SDK: only when serving
+
+            identity = run_identity(cfg)
+            if cfg.rerun.sink != "none":
+                viewer = ViewerProcess(cfg, cfg.rerun.sink, cancelled=lambda: bool(stop))
             metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe),
                                 model=load_service_model(cfg), live_source=live_source)
             health = _health(cfg, pipeline, metrics)
-            pipeline.start(source, max_frames)
+            pipeline.start(source, max_frames, cancelled=lambda: bool(stop))
             started_s = time.monotonic()
             sd_notify("READY=1")
             if viewer is not None and viewer.web_url:

@@ -114,13 +114,19 @@ class Pipeline:
         return self.pool.restarts
 
     # ---------------------------------------------------------------- lifecycle
-    def start(self, source: FrameSource, max_frames: int | None = None) -> None:
+    def start(self, source: FrameSource, max_frames: int | None = None,
+              cancelled: Callable[[], bool] = lambda: False) -> None:
         """Start the workers (waiting until they are ready), then the threads; capture stops after
-        `max_frames` frames (None = until the source ends or stop())."""
+        `max_frames` frames (None = until the source ends or stop()). When `cancelled()` turns true while
+        the workers start (a stop signal), starting is given up: the pipeline ends with no frame taken."""
         self.source, self._max_frames = source, max_frames
         self.pool.start()
         self._spawn("collect", self._collect_loop)
-        ok = self.pool.wait_ready(self.cfg.pipeline.worker_start_timeout_s, lambda: self.error is not None)
+        ok = self.pool.wait_ready(self.cfg.pipeline.worker_start_timeout_s,
+                                  lambda: self.error is not None or cancelled())
+        if self.error is None and cancelled():
+            self._abort.set()
+            return
         if not ok or self.error is not None:
             self._abort.set()
             self.close()
