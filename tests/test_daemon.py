@@ -53,7 +53,9 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     assert summary["frames_out"] >= 10 and summary["error"] is None
     assert "frames in" in err
     logged = check_rrd(rrd, None)[bp.RANGE][1].column("frame").to_pylist()
-    assert len(logged) == summary["frames_out"] and logged == sorted(set(logged))
+    # the viewer is best effort: a delivered frame it could not take (a full hand-off, under load) is counted
+    assert len(logged) + summary["viewer_dropped"] == summary["frames_out"] and logged == sorted(set(logged))
+    assert summary["viewer"]["exit"] == "clean" and summary["shutdown"]["abandoned"] == []
     assert set(logged).isdisjoint(d["frame_counter"] for d in summary["drops"])
 
 
