@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import pkgutil
 import sys
 import typing
@@ -44,13 +45,32 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=summary, description=module.__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(p)
-        p.set_defaults(func=module.main)
+        p.set_defaults(func=module.main, exit_at_once=getattr(module, "EXIT_AT_ONCE", False))
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
+    """Run one `tofd` command; its exit status. With `exit_at_once`, a command whose module sets EXIT_AT_ONCE
+    (the service commands: their outputs are written and their children gone when they return) ends the
+    process right away, without the interpreter's teardown of its modules (the Rerun SDK, numpy, ... take up
+    to a second), so that SIGTERM ends the service within pipeline.shutdown_timeout_s."""
     args = build_parser().parse_args(argv)
     setup_logging("debug" if args.verbose else args.log_level)
+    code = _run(args)
+    if exit_at_once and args.exit_at_once:
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def entry() -> typing.NoReturn:
+    """The `tofd` console script and `python -m tofd`."""
+    sys.exit(main(exit_at_once=True))
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except UsageError as exc:
@@ -68,4 +88,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()
