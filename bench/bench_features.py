@@ -7,6 +7,8 @@ own threading was catastrophic on this 2-core machine, see design/nfft_notes.md)
 per-frame time = wall time / frames of both. eps0 error: largest relative deviation of the NFFT eps0 from the
 converged solution (CG to a 1e-9 band residual in double precision) over the pixels where the converged
 eps0 is at least a tenth of its peak (the pixels a detector box can accept). Goal: NFFT / FFT <= 4 on CPU time.
+CG cpu: the part of the NFFT CPU time spent in the conjugate-gradient solve (the rest: points, type-1 and type-2
+NUFFTs), and per CG iteration (one Toeplitz product, a real FFT pair of size 2N, plus the CG updates).
 Prints a table and writes JSON (bench/results/bench_features.json or --out).
 
     .venv/bin/python bench/bench_features.py [--repeats 50] [--out PATH]
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import multiprocessing as mp
 import platform
 import time
@@ -27,6 +30,7 @@ from report import write_json
 from drivers.emulator.render import Pose, load_face, render_face
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import FFTFeatures, NFFTFeatures
+from tofd.algorithm.features import nfft as nfft_module
 from tofd.algorithm.segmentation import segment
 from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.lab import shapes as synthetic
@@ -57,9 +61,27 @@ def eps0_error(eps0: np.ndarray, converged: np.ndarray) -> float:
     return float(np.max(np.abs(eps0[strong] / converged[strong] - 1.0)))
 
 
+def count_solve_cpu(totals: list[float]) -> None:
+    """Make the NFFT module's CG solve add its CPU time (s) to totals[0] (this process only; replaces an
+    earlier call's counter)."""
+    solve = getattr(nfft_module.solve, "__wrapped__", nfft_module.solve)
+
+    @functools.wraps(solve)
+    def timed(*args, **kwargs):
+        start = time.thread_time()
+        try:
+            return solve(*args, **kwargs)
+        finally:
+            totals[0] += time.thread_time() - start
+
+    nfft_module.solve = timed
+
+
 def time_frames(cfg_dict: dict, repeats: int) -> list[dict]:
-    """Per scene: FFT and NFFT range-feature times (ms, wall and CPU) over `repeats` frames, NFFT CG
-    iterations and the eps0 error against the converged solution."""
+    """Per scene: FFT and NFFT range-feature times (ms, wall and CPU) over `repeats` frames, the NFFT's CG CPU
+    time, CG iterations and the eps0 error against the converged solution."""
+    cg_total = [0.0]
+    count_solve_cpu(cg_total)
     intrinsics = Intrinsics()
     cfg = FeatureConfig(**cfg_dict)
     fft, nfft = FFTFeatures(intrinsics, cfg), NFFTFeatures(intrinsics, cfg)
@@ -68,20 +90,22 @@ def time_frames(cfg_dict: dict, repeats: int) -> list[dict]:
     for name, d, range_m, mask in scenes(intrinsics):
         fft.range_features(range_m, mask)
         error = eps0_error(nfft.range_features(range_m, mask).eps0, converged.range_features(range_m, mask).eps0)
-        t_fft, t_nfft, cpu_fft, cpu_nfft, its = [], [], [], [], []
+        t_fft, t_nfft, cpu_fft, cpu_nfft, cpu_cg, its = [], [], [], [], [], []
         for _ in range(repeats):
             t0, c0 = time.perf_counter(), time.thread_time()
             fft.range_features(range_m, mask)
-            t1, c1 = time.perf_counter(), time.thread_time()
+            t1, c1, cg0 = time.perf_counter(), time.thread_time(), cg_total[0]
             maps = nfft.range_features(range_m, mask)
             t2, c2 = time.perf_counter(), time.thread_time()
+            cpu_cg.append((cg_total[0] - cg0) * 1e3)
             t_fft.append((t1 - t0) * 1e3)
             t_nfft.append((t2 - t1) * 1e3)
             cpu_fft.append((c1 - c0) * 1e3)
             cpu_nfft.append((c2 - c1) * 1e3)
             its.append(maps.iterations)
         rows.append({"scene": name, "distance_m": d, "points": int(mask.sum()), "fft_ms": t_fft, "nfft_ms": t_nfft,
-                     "fft_cpu_ms": cpu_fft, "nfft_cpu_ms": cpu_nfft, "iterations": int(np.median(its)),
+                     "fft_cpu_ms": cpu_fft, "nfft_cpu_ms": cpu_nfft, "cg_cpu_ms": cpu_cg,
+                     "iterations": int(np.median(its)),
                      "eps0_error": error})
     return rows
 
@@ -95,6 +119,8 @@ def stats(rows: list[dict], threads: int, wall_s: float | None = None) -> list[d
                     "nfft_median_ms": float(np.median(nfft)), "nfft_p95_ms": float(np.percentile(nfft, 95)),
                     "fft_cpu_median_ms": float(np.median(r["fft_cpu_ms"])),
                     "nfft_cpu_median_ms": float(np.median(r["nfft_cpu_ms"])),
+                    "cg_cpu_median_ms": float(np.median(r["cg_cpu_ms"])),
+                    "cg_cpu_per_iteration_ms": float(np.median(r["cg_cpu_ms"]) / max(r["iterations"], 1)),
                     "cg_iterations": r["iterations"], "eps0_error_pct": 100 * r["eps0_error"],
                     "nfft_over_fft": float(np.median(nfft) / np.median(fft)),
                     "nfft_over_fft_cpu": float(np.median(r["nfft_cpu_ms"]) / np.median(r["fft_cpu_ms"]))})
@@ -116,20 +142,22 @@ def main() -> int:
         both = pool.starmap(time_frames, [(cfg, args.repeats)] * 2)
         wall = time.perf_counter() - t0
     dual = stats([dict(a, fft_ms=a["fft_ms"] + b["fft_ms"], nfft_ms=a["nfft_ms"] + b["nfft_ms"],
-                       fft_cpu_ms=a["fft_cpu_ms"] + b["fft_cpu_ms"], nfft_cpu_ms=a["nfft_cpu_ms"] + b["nfft_cpu_ms"])
+                       fft_cpu_ms=a["fft_cpu_ms"] + b["fft_cpu_ms"], nfft_cpu_ms=a["nfft_cpu_ms"] + b["nfft_cpu_ms"],
+                       cg_cpu_ms=a["cg_cpu_ms"] + b["cg_cpu_ms"])
                   for a, b in zip(*both, strict=True)], 2)
     frames = 2 * args.repeats * len(both[0])
     throughput_ms = wall * 1e3 / frames  # per frame (FFT + NFFT) with two processes working
 
     header = (f"{'thr':>3} {'scene':>6} {'dist':>5} {'points':>6} {'FFT med':>8} {'FFT p95':>8} {'FFT cpu':>8} "
-              f"{'NFFT med':>9} {'NFFT p95':>9} {'NFFT cpu':>9} {'CG it':>6} {'eps0 err%':>9} {'NFFT/FFT':>9} "
-              f"{'cpu ratio':>9}")
+              f"{'NFFT med':>9} {'NFFT p95':>9} {'NFFT cpu':>9} {'CG cpu':>7} {'CG it':>6} {'ms/it':>6} "
+              f"{'eps0 err%':>9} {'NFFT/FFT':>9} {'cpu ratio':>9}")
     print(header)
     for r in single + dual:
         print(f"{r['threads']:>3} {r['scene']:>6} {r['distance_m']:5.2f} {r['points']:6d} {r['fft_median_ms']:8.2f} "
               f"{r['fft_p95_ms']:8.2f} {r['fft_cpu_median_ms']:8.2f} {r['nfft_median_ms']:9.2f} "
-              f"{r['nfft_p95_ms']:9.2f} {r['nfft_cpu_median_ms']:9.2f} {r['cg_iterations']:6d} "
-              f"{r['eps0_error_pct']:9.2f} {r['nfft_over_fft']:9.1f} {r['nfft_over_fft_cpu']:9.1f}")
+              f"{r['nfft_p95_ms']:9.2f} {r['nfft_cpu_median_ms']:9.2f} {r['cg_cpu_median_ms']:7.2f} "
+              f"{r['cg_iterations']:6d} {r['cg_cpu_per_iteration_ms']:6.3f} {r['eps0_error_pct']:9.2f} "
+              f"{r['nfft_over_fft']:9.1f} {r['nfft_over_fft_cpu']:9.1f}")
     worst = max(r["nfft_over_fft_cpu"] for r in single)
     print(f"worst NFFT/FFT CPU ratio (1 thread) {worst:.1f} (goal <= {GOAL_RATIO:.0f}: "
           f"{'met' if worst <= GOAL_RATIO else 'not met'}); "

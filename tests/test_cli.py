@@ -142,8 +142,9 @@ def test_replay_out_that_cannot_be_a_directory_is_one_line_exit_2(tmp_path, kind
 
 def test_replay_argument_mistakes(tmp_path):
     one_line_error(tofd("replay", str(CLIP), "--speed", "2", "--out", str(tmp_path)), 2, "--speed needs --realtime")
-    one_line_error(tofd("replay", str(CLIP), "--seek", "100000", "--out", str(tmp_path)), 2, "--seek 100000",
-                   "past the end")
+    err = one_line_error(tofd("replay", str(CLIP), "--seek", "100000", "--out", str(tmp_path)), 2, "--seek 100000",
+                         "past the end")
+    assert err.count(CLIP.name) == 1, err
     one_line_error(tofd("replay", str(tmp_path / "absent.mcap"), "--out", str(tmp_path)), 2, "absent.mcap")
     assert list(tmp_path.iterdir()) == []
 
@@ -196,3 +197,14 @@ def test_log_lines_carry_their_level_and_a_journal_priority_under_systemd(tmp_pa
             assert lines == ["<6>INFO tofd.x: hello", "<4>WARNING tofd.x: careful"], lines
         else:
             assert lines == ["tofd: INFO hello", "tofd: WARNING careful"], lines
+
+
+def test_help_and_version_import_no_command_module():
+    """`tofd --help` lists every command from its docstring without importing the commands (their imports are slow)."""
+    code = ("import sys, contextlib, io; from tofd.cli import main\n"
+            "with contextlib.suppress(SystemExit), contextlib.redirect_stdout(io.StringIO()) as out: main(['--help'])\n"
+            "assert 'replay' in out.getvalue() and 'import' in out.getvalue()\n"
+            "heavy = ('tofd.commands.', 'tofd.service', 'rerun', 'scipy')\n"
+            "print(sorted(m for m in sys.modules if m.startswith(heavy)))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "[]", proc.stdout

@@ -45,8 +45,9 @@ def test_operator_equals_dense_damped_normal_matrix(n):
     want = (normal @ _half_to_full(v[0], n).ravel()).reshape(n - 1, n - 1)
     np.testing.assert_allclose(got, want, atol=1e-9 * np.abs(want).max())
     full = _half_to_full(v[0], n)
-    inner = HermitianInner(np.ones(v.shape[1:]))
-    assert inner.dots(v, v)[0] == pytest.approx(np.vdot(full, full).real)
+    inner = HermitianInner(np.full(v.shape[1:], 0.5), v.dtype)
+    assert inner.dot(v[0], v[0]) == pytest.approx(np.vdot(full, full).real)
+    assert inner.band_norm2(v[0]) == pytest.approx(0.25 * np.vdot(full, full).real)
 
     # two right-hand sides solved together: each equals its dense solution, each stops on its own residual
     rhs = np.stack((v[0], 1e3 * half_of_real_field()))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import signal
 import subprocess
 import sys
@@ -18,6 +18,7 @@ from drivers.frame import Registers
 from drivers.intrinsics import Intrinsics
 from drivers.recording import format as fmt
 from drivers.recording.replay import ReplaySource, iter_frames, read_recording_info
+from drivers.recording.schemas import RawImage
 from drivers.recording.writer import RecordingWriter
 from tofd import cli
 
@@ -37,15 +38,19 @@ def test_round_trip_keeps_every_field_bit_for_bit(tmp_path, quantized):
     assert any(f.ground_truth is not None and f.ground_truth.nose_xyz_m is not None for f in replayed)
 
 
+def encodings(frame) -> list[str]:
+    """The RawImage encodings of a frame's range and amplitude messages."""
+    messages = fmt.encode_frame(frame)
+    return [RawImage.FromString(messages[i]).encoding for i in (1, 2)]
+
+
 def test_usb_frames_are_stored_as_uint16_and_other_frames_as_float32():
-    for quantized, codecs in ((True, {"u16_shuffled"}), (False, {"f32_shuffled"})):
-        header, _ = fmt.decode_header(fmt.encode_frame(make_frame(3, quantized=quantized)))
-        assert {p["codec"] for p in header["planes"]} == codecs
+    assert encodings(make_frame(3, quantized=True)) == ["16UC1", "16UC1"]
+    assert encodings(make_frame(3, quantized=False)) == ["32FC1", "32FC1"]
     # a USB-like range plane with one pixel nudged by one ulp is no longer a uint16 conversion
     frame = make_frame(3)
     frame.range_m[50, 50] = np.nextafter(frame.range_m[50, 50], np.float32(10))
-    header, _ = fmt.decode_header(fmt.encode_frame(frame))
-    assert [p["codec"] for p in header["planes"]] == ["f32_shuffled", "u16_shuffled"]
+    assert encodings(frame) == ["32FC1", "16UC1"]
 
 
 def test_planes_decode_writable(tmp_path):
@@ -76,17 +81,28 @@ def test_file_is_standard_mcap_readable_by_the_mcap_library(tmp_path):
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
         summary = reader.get_summary()
-        assert summary.statistics.message_count == 5
+        assert summary.statistics.message_count == 5 * len(fmt.CHANNELS)
         assert summary.statistics.chunk_count == 5  # one chunk per frame: the unit of crash safety
-        (schema,) = summary.schemas.values()
-        assert schema.name == fmt.FRAME_SCHEMA_NAME and schema.encoding == "jsonschema"
-        assert json.loads(schema.data)["title"] == fmt.FRAME_SCHEMA_NAME
+        assert sorted(s.name for s in summary.schemas.values()) == sorted(fmt.SCHEMAS)
+        assert all(s.encoding == "protobuf" for s in summary.schemas.values())
+        assert [(c.id, c.topic) for c in summary.channels.values()] == [(c.id, c.topic) for c in fmt.CHANNELS]
         names = {m.name for m in reader.iter_metadata()}
         assert names == {fmt.META_RECORDING, fmt.META_INTRINSICS, fmt.META_DEVICE, fmt.META_REGISTERS}
         messages = list(reader.iter_messages())
-    assert [m.sequence for _, _, m in messages] == [f.frame_counter for f in frames]
-    assert all(c.topic == fmt.FRAME_TOPIC and c.message_encoding == fmt.FRAME_ENCODING for _, c, _ in messages)
-    assert [m.publish_time for _, _, m in messages] == [f.timestamp_us * 1000 for f in frames]
+    assert [c.topic for _, c, _ in messages] == [c.topic for c in fmt.CHANNELS] * 5  # each frame's in one chunk
+    assert [m.sequence for _, _, m in messages] == [f.frame_counter for f in frames for _ in fmt.CHANNELS]
+    assert [m.publish_time for _, _, m in messages] == [f.timestamp_us * 1000 for f in frames for _ in fmt.CHANNELS]
+    assert [m.log_time for _, _, m in messages][::4] == [round(f.host_wall_s * 1e9) for f in frames]
+
+
+def test_writer_rejects_frames_the_format_cannot_hold(tmp_path):
+    with RecordingWriter(tmp_path / "r.mcap") as writer:
+        for change, match in (({"frame_counter": 2**70}, "64-bit"), ({"timestamp_us": -1}, "timestamp_us"),
+                              ({"host_wall_s": float("nan")}, "host_wall_s")):
+            with pytest.raises(ValueError, match=match):
+                writer.write(dataclasses.replace(make_frame(1), **change))
+        writer.write(make_frame(2))  # the rejected frames left no trace
+    assert [f.frame_counter for f in iter_frames(tmp_path / "r.mcap")] == [2]
 
 
 def test_writer_rejects_planes_that_are_not_float32_of_the_image_shape(tmp_path):
@@ -198,7 +214,7 @@ def test_record_command_writes_the_requested_frames_with_ground_truth(tmp_path):
     assert all(f.ground_truth is not None and f.ground_truth.visible for f in frames)
     assert 0.34 < frames[0].ground_truth.nose_xyz_m[2] < 0.40  # the emulated face starts at 0.35 m
     with open(out, "rb") as f:
-        _, _, message = next(make_reader(f).iter_messages())
-    header, _ = fmt.decode_header(message.data)
-    assert [p["codec"] for p in header["planes"]] == ["u16_shuffled", "u16_shuffled"]  # as the camera sent it
+        images = [RawImage.FromString(m.data) for _, c, m in make_reader(f).iter_messages()
+                  if c.topic in ("/camera/range", "/camera/amplitude")]
+    assert {i.encoding for i in images} == {"16UC1"}  # as the camera sent it
     assert read_recording_info(out).config["camera"]["int_time_code"] == 30

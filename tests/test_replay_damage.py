@@ -28,6 +28,8 @@ from drivers.recording.writer import RecordingWriter
 from drivers.source import DriverError
 
 BUNDLED = Path(__file__).resolve().parent.parent / "replay_data" / "emulated_face_035_070.mcap"
+V1_CLIP = Path(__file__).resolve().parent / "data" / "v1_first3.mcap"
+"""The first 3 frames of the bundled clip as it was recorded in format 1 (metadata without CRCs)."""
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +61,7 @@ def test_64_corrupted_bytes_after_frame_38_lose_only_that_frame(clip101, tmp_pat
     path, frames, chunks = clip101
 
     def corrupt(data):
-        start = chunks[38][1] + 40  # just after frame 38's chunk: frame 38's message index and frame 39
+        start = chunks[39][0] - 24  # the end of frame 38's message indexes and the start of frame 39
         data[start:start + 64] = bytes(np.random.default_rng(0).integers(0, 256, 64, dtype=np.uint8))
     source, replayed, rejected = replay(damaged_copy(tmp_path, path, "d.mcap", corrupt))
     assert counters(replayed) == [c for c in range(101) if c != 39]
@@ -123,14 +125,14 @@ def test_invalid_frames_are_rejected_and_the_replay_goes_on(tmp_path):
     frames[2] = dataclasses.replace(frames[2], range_m=np.ones((10, 10), np.float32),
                                     amplitude=np.ones((10, 10), np.float32), intrinsics=SMALL_INTRINSICS)
     frames[3] = dataclasses.replace(frames[3], host_monotonic_s=float("inf"))
-    frames[4] = dataclasses.replace(frames[4], frame_counter=10**30)
+    frames[4] = dataclasses.replace(frames[4], frame_counter=2**40)
     path = tmp_path / "bad.mcap"
     with RecordingWriter(path) as writer:
         for frame in frames:
             writer.write(frame)
     source, replayed, rejected = replay(path)
     assert counters(replayed) == [0, 1, 5]
-    assert [r.frame_counter for r in rejected] == [2, 3, 10**30]
+    assert [r.frame_counter for r in rejected] == [2, 3, 2**40]
     assert all(r.reason.startswith("invalid_frame: ") for r in rejected)
     assert "(10, 10)" in rejected[0].reason and "host_monotonic_s" in rejected[1].reason
     assert "frame counter" in rejected[2].reason
@@ -150,10 +152,10 @@ def test_damaged_intrinsics_metadata_is_refused(tmp_path):
 
 
 def test_unsealed_metadata_of_format_1_files_is_checked_against_the_frames(tmp_path):
-    data = BUNDLED.read_bytes()
-    fx = repr(read_recording_info(BUNDLED).intrinsics.fx).encode()
+    data = V1_CLIP.read_bytes()
+    fx = repr(read_recording_info(V1_CLIP).intrinsics.fx).encode()
     at = data.index(fx)
-    assert b"crc32" not in data[:at + 400]  # the bundled clip predates the metadata CRC
+    assert b"crc32" not in data[:at + 400]  # the format-1 clip predates the metadata CRC
     changed = tmp_path / "fx.mcap"
     changed.write_bytes(other_digit(data, at + 5))
     with pytest.raises(DriverError, match="disagrees with the first frame"):
@@ -211,24 +213,28 @@ def test_fuzzed_bundled_recording_never_escapes_an_exception(tmp_path):
         assert all(r.reason.split(":")[0] in ("damaged", "duplicate", "invalid_frame") for r in rejected)
 
 
-def test_damage_before_the_first_frame_channel_still_replays_later_frames(tmp_path):
+def test_damaged_channel_records_still_replay_every_frame_by_the_fixed_channel_ids(tmp_path):
     path = tmp_path / "c.mcap"
-    write_recording(path, range(5))
-    with open(path, "rb") as f:
-        first = make_reader(f).get_summary().chunk_indexes[0]
+    frames = write_recording(path, range(5))
     data = bytearray(path.read_bytes())
-    data[first.chunk_start_offset + first.chunk_length - 10] ^= 0x01  # the chunk with the channel record
+    at = data.index(b"/camera/range")
+    data[at + 8] ^= 0x01  # the topic of the top-level channel record becomes "/camera/sange"
     damaged = tmp_path / "c2.mcap"
     damaged.write_bytes(bytes(data))
     source = ReplaySource(damaged)
-    assert counters(collect(source)) == [1, 2, 3, 4]
+    replayed = collect(source)
+    assert counters(replayed) == [0, 1, 2, 3, 4]
+    for a, b in zip(frames, replayed, strict=True):
+        assert_frames_equal(a, b)
+    with pytest.raises(DriverError, match="damaged recording header"):  # intrinsics etc. were skipped with it
+        read_recording_info(damaged)
 
 
 def test_replay_command_refuses_a_damaged_header_in_one_line(tmp_path, capsys):
     from tofd import cli
 
-    data = BUNDLED.read_bytes()
-    at = data.index(repr(read_recording_info(BUNDLED).intrinsics.fx).encode())
+    data = V1_CLIP.read_bytes()
+    at = data.index(repr(read_recording_info(V1_CLIP).intrinsics.fx).encode())
     changed = tmp_path / "fx.mcap"
     changed.write_bytes(other_digit(data, at + 5))
     assert cli.main(["replay", str(changed), "--out", str(tmp_path / "out")]) == 2

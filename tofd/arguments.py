@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import TYPE_CHECKING
 
 from tofd.config import check_serial
+
+if TYPE_CHECKING:
+    from drivers.rosbag import RangeOptions
 
 
 def positive_int(text: str) -> int:
@@ -38,3 +42,34 @@ def serial(text: str) -> str:
         return check_serial(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc).removeprefix("serial: ")) from None
+
+
+def add_bag_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options saying how a ROS bag holds frames (drivers.rosbag.RangeOptions; defaults: the SwissRanger driver)."""
+    from drivers.rosbag import AMPLITUDE_ENCODINGS, DEPTH_CONVENTIONS, RANGE_ENCODINGS, RANGE_UNITS, RangeOptions
+
+    d = RangeOptions()
+    group = parser.add_argument_group("ROS bags", "topics and range encoding of a ROS 1 or ROS 2 bag")
+    group.add_argument("--range-topic", default=d.range_topic, metavar="TOPIC",
+                       help=f"sensor_msgs/Image of range: {', '.join(RANGE_ENCODINGS)} (default: %(default)s)")
+    group.add_argument("--amplitude-topic", default=d.amplitude_topic, metavar="TOPIC",
+                       help=f"sensor_msgs/Image of amplitude/intensity: {', '.join(AMPLITUDE_ENCODINGS)} "
+                            "(default: %(default)s)")
+    group.add_argument("--camera-info-topic", default=d.camera_info_topic, metavar="TOPIC",
+                       help="sensor_msgs/CameraInfo with the intrinsics (default: %(default)s)")
+    group.add_argument("--range-unit", choices=RANGE_UNITS, default=d.range_unit,
+                       help="unit of 16-bit range images: SwissRanger device units or millimetres; 32FC1 is always "
+                            "metres (default: %(default)s)")
+    group.add_argument("--depth", choices=DEPTH_CONVENTIONS, default=d.depth,
+                       help="range along each pixel's ray (radial) or along the optical axis (z) "
+                            "(default: %(default)s)")
+    group.add_argument("--mod-freq-mhz", type=positive_float, default=d.mod_freq_mhz, metavar="MHZ",
+                       help="modulation frequency for --range-unit device, MHz (default: %(default)s)")
+
+
+def bag_options(args: argparse.Namespace) -> RangeOptions:
+    """The RangeOptions of add_bag_arguments' options."""
+    from drivers.rosbag import RangeOptions
+
+    return RangeOptions(args.range_topic, args.amplitude_topic, args.camera_info_topic, args.range_unit, args.depth,
+                        args.mod_freq_mhz)

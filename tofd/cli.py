@@ -1,14 +1,19 @@
-"""The `tofd` command: one subcommand per module in tofd/commands/ (each has add_arguments and main)."""
+"""The `tofd` command: one subcommand per module in tofd/commands/ (each has add_arguments and main); a trailing
+underscore of a module name (import_) keeps a Python keyword out of the module name and out of the command name."""
 
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
+import importlib.util
 import logging
 import os
 import pkgutil
 import sys
 import typing
+from collections.abc import Collection
+from pathlib import Path
 
 import tofd
 import tofd.commands
@@ -32,21 +37,42 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_modules() -> dict[str, str]:
+    """Command name -> module name in tofd.commands, in command-name order."""
+    names = sorted(m.name for m in pkgutil.iter_modules(tofd.commands.__path__))
+    return {name.removesuffix("_"): name for name in names}
+
+
+def _docstring(module: str) -> str:
+    """The module's docstring, read from its source without importing it (imports of some commands take seconds)."""
+    spec = importlib.util.find_spec(f"tofd.commands.{module}")
+    assert spec is not None and spec.origin is not None
+    return ast.get_docstring(ast.parse(Path(spec.origin).read_text(encoding="utf-8"))) or ""
+
+
+def build_parser(full: Collection[str] | None = None) -> argparse.ArgumentParser:
+    """The parser; only the commands in `full` (all when None) import their module and get their arguments."""
     parser = _Parser(prog="tofd", description=DESCRIPTION, epilog=EPILOG,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"tofd {tofd.__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages (same as --log-level debug)")
     parser.add_argument("--log-level", choices=LEVELS, default="info", help="lowest level logged (default info)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
-    for name in sorted(m.name for m in pkgutil.iter_modules(tofd.commands.__path__)):
-        module = importlib.import_module(f"tofd.commands.{name}")
-        summary = (module.__doc__ or "").strip().splitlines()[0]
-        p = sub.add_parser(name, help=summary, description=module.__doc__,
+    for command, module_name in _command_modules().items():
+        doc = _docstring(module_name)
+        p = sub.add_parser(command, help=doc.splitlines()[0] if doc else "", description=doc,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
-        module.add_arguments(p)
-        p.set_defaults(func=module.main, exit_at_once=getattr(module, "EXIT_AT_ONCE", False))
+        if full is None or command in full:
+            module = importlib.import_module(f"tofd.commands.{module_name}")
+            module.add_arguments(p)
+            p.set_defaults(func=module.main, exit_at_once=getattr(module, "EXIT_AT_ONCE", False))
     return parser
+
+
+def _named_command(argv: list[str]) -> set[str]:
+    """The command named on the command line (its first word that is a command), or none."""
+    commands = _command_modules()
+    return next(({word} for word in argv if word in commands), set())
 
 
 def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
@@ -54,10 +80,11 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
     (the service commands: their outputs are written and their children gone when they return) ends the
     process right away, without the interpreter's teardown of its modules (the Rerun SDK, numpy, ... take up
     to a second), so that SIGTERM ends the service within pipeline.shutdown_timeout_s."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser(_named_command(argv)).parse_args(argv)
     setup_logging("debug" if args.verbose else args.log_level)
     code = _run(args)
-    if exit_at_once and args.exit_at_once:
+    if exit_at_once and getattr(args, "exit_at_once", False):
         logging.shutdown()
         sys.stdout.flush()
         sys.stderr.flush()

@@ -1,98 +1,85 @@
-"""Layout of a tofd recording (an MCAP file): names of its records and the codec of one frame message.
+"""Layout of a tofd recording (an MCAP file, format 2): its records, channels and the messages of one frame.
+
+The images use Foxglove's protobuf schemas (foxglove.RawImage, foxglove.CameraCalibration) rather than ROS 2's
+sensor_msgs, because Foxglove and Rerun's MCAP importer both decode them natively and protobuf needs no ROS
+message definitions or CDR codec, while it also describes tofd's own per-frame header (drivers/recording/schemas.py).
 
 A recording is an MCAP file (https://mcap.dev) with profile "tofd":
 
-- Metadata records at the start: "tofd.recording" (format version, software version, creation time),
-  then, before the first frame, "tofd.intrinsics", "tofd.device" and "tofd.registers" (all values strings).
-- An attachment "config.json" (application/json): the service configuration the recording was made with.
-- One channel FRAME_TOPIC with message encoding FRAME_ENCODING (schema FRAME_SCHEMA_NAME, a JSON Schema
-  of the frame header). One message per frame, each in its own zstd-compressed, CRC-32-checked chunk.
-  Message log_time = host wall clock (ns), publish_time = device timestamp (ns), sequence = frame counter
-  (mod 2**32); the exact values are in the message itself.
-
-A frame message is: uint32 little-endian n, then n bytes of UTF-8 JSON (the header: counter, timestamps,
-intrinsics, device, registers, ground truth, and the plane list), then the planes' bytes in list order.
-Plane codecs (both lossless for what a Frame holds, checked bit for bit when encoding); the values are
-stored little-endian and byte-shuffled (byte 0 of every value, then byte 1, ...), which compresses better:
-  "u16_shuffled": uint16 raw values; value = float32(float64(raw) * scale), raw == invalid -> NaN.
-         Used when the plane is exactly such a conversion (what the USB backend delivers).
-  "f32_shuffled": float32 values. Used for any other float32 plane.
+- Metadata "tofd.recording" (format version, software version, creation time), an attachment "config.json"
+  (the service configuration), then the SCHEMAS and CHANNELS records (fixed ids), then, before the first
+  frame, metadata "tofd.intrinsics", "tofd.device" and "tofd.registers" (every metadata map sealed with a CRC).
+- One zstd-compressed, CRC-32-checked chunk per frame holding its messages in channel order:
+  /camera/frame (tofd.FrameHeader: counter, device and host times, intrinsics, device, registers, ground truth,
+  plane codecs), /camera/range and /camera/amplitude (foxglove.RawImage, frame_id IMAGE_FRAME_ID) and
+  /camera/calibration (foxglove.CameraCalibration). Every message: log_time = host wall clock (ns),
+  publish_time = device timestamp (ns), sequence = frame counter (mod 2**32).
+- Planes are stored losslessly: "16UC1" with the header's scale and invalid raw value when the plane is exactly
+  float32(float64(raw) * scale) (what the USB backend delivers; range is then in device units, amplitude in
+  sensor units), else "32FC1" (the float32 values themselves).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import struct
+import math
 import typing
 import zlib
+from dataclasses import dataclass
 
 import numpy as np
 
 from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
 from drivers.intrinsics import Intrinsics
+from drivers.recording import schemas
 from drivers.usb import protocol as p
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 PROFILE = "tofd"
-FRAME_TOPIC = "/camera/frame"
-FRAME_ENCODING = "tofd.frame.v1"
-FRAME_SCHEMA_NAME = "tofd.Frame"
 META_RECORDING = "tofd.recording"
 META_INTRINSICS = "tofd.intrinsics"
 META_DEVICE = "tofd.device"
 META_REGISTERS = "tofd.registers"
 CONFIG_ATTACHMENT = "config.json"
 METADATA_CRC_KEY = "crc32"
+MESSAGE_ENCODING = "protobuf"
+IMAGE_FRAME_ID = "camera"
+"""frame_id of the images and the calibration: the camera's optical frame (x right, y down, z forward)."""
 
-_LEN = struct.Struct("<I")
 
-FRAME_SCHEMA = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": FRAME_SCHEMA_NAME,
-    "description": (
-        "Header of one TOF frame. The message is uint32 LE n, n bytes of this JSON, then the planes' "
-        "bytes in 'planes' order. Codec 'u16_shuffled': uint16 LE raw, value = float32(float64(raw) * scale), "
-        "raw == invalid -> NaN. Codec 'f32_shuffled': float32 LE. Both byte-shuffled (byte 0 of every value, "
-        "then byte 1, ...). Planes are row-major, row 0 at the top."
-    ),
-    "type": "object",
-    "required": ["frame_counter", "timestamp_us", "host_monotonic_s", "host_wall_s", "intrinsics", "device",
-                 "registers", "ground_truth", "planes"],
-    "properties": {
-        "frame_counter": {"type": "integer", "description": "device frame counter"},
-        "timestamp_us": {"type": "integer", "description": "device clock at end of exposure, microseconds"},
-        "host_monotonic_s": {"type": "number", "description": "host monotonic clock at receive, seconds"},
-        "host_wall_s": {"type": "number", "description": "host wall clock (Unix time) at receive, seconds"},
-        "intrinsics": {"type": "object", "description": "pinhole intrinsics in pixels (fx, fy, cx, cy, width, height)"},
-        "device": {"type": "object", "description": "serial, firmware, backend, model"},
-        "registers": {"type": "object", "description": "int_time_code, mod_freq_index, acq_mode, data_source, "
-                                                       "amp_threshold"},
-        "ground_truth": {
-            "type": ["object", "null"],
-            "description": "nose_px [u, v] pixels (u = column), visible, nose_xyz_m [x, y, z] metres or null",
-        },
-        "planes": {
-            "type": "array",
-            "items": {
-                "type": "object",
-                "required": ["name", "shape", "codec", "nbytes"],
-                "properties": {
-                    "name": {"enum": ["range_m", "amplitude"]},
-                    "shape": {"type": "array", "items": {"type": "integer"}},
-                    "codec": {"enum": ["u16_shuffled", "f32_shuffled"]},
-                    "scale": {"type": "number"},
-                    "invalid": {"type": ["integer", "null"]},
-                    "nbytes": {"type": "integer"},
-                },
-            },
-        },
-    },
-}
+@dataclass(frozen=True, slots=True)
+class ChannelSpec:
+    """One channel of a recording: its fixed id, topic, schema name and role in a frame."""
+
+    id: int
+    topic: str
+    schema: str
+    role: str
+
+
+SCHEMAS = ("tofd.FrameHeader", "foxglove.RawImage", "foxglove.CameraCalibration")
+"""Schema names in id order (ids 1, 2, 3)."""
+CHANNELS = (
+    ChannelSpec(1, "/camera/frame", "tofd.FrameHeader", "header"),
+    ChannelSpec(2, "/camera/range", "foxglove.RawImage", "range_m"),
+    ChannelSpec(3, "/camera/amplitude", "foxglove.RawImage", "amplitude"),
+    ChannelSpec(4, "/camera/calibration", "foxglove.CameraCalibration", "calibration"),
+)
+"""Channels in id order, which is also the order of a frame's messages in its chunk."""
+ROLE_BY_ID = {c.id: c.role for c in CHANNELS}
+_ENCODINGS = {"16UC1": np.dtype("<u2"), "32FC1": np.dtype("<f4")}
 
 
 class FormatError(ValueError):
     """A frame message or metadata record that does not follow this layout."""
+
+
+def channel_role(topic: str, message_encoding: str) -> str | None:
+    """Role of a format-2 channel in a frame ("header", "range_m", "amplitude", "calibration"), or None."""
+    if message_encoding != MESSAGE_ENCODING:
+        return None
+    return next((c.role for c in CHANNELS if c.topic == topic), None)
 
 
 def range_scales_m(registers: Registers) -> tuple[float, ...]:
@@ -102,27 +89,18 @@ def range_scales_m(registers: Registers) -> tuple[float, ...]:
     return float(np.float32(scale)), scale
 
 
-def _decode_u16(raw: np.ndarray, scale: float, invalid: int | None) -> np.ndarray:
+def raw_to_plane(raw: np.ndarray, scale: float, invalid: int | None) -> np.ndarray:
+    """float32(float64(raw) * scale), NaN where raw == invalid: a new, writable array."""
     out = (raw.astype(np.float64) * scale).astype(np.float32)
     if invalid is not None:
         out[raw == invalid] = np.nan
     return out
 
 
-def _shuffle(values: np.ndarray) -> bytes:
-    return values.view(np.uint8).reshape(-1, values.itemsize).T.tobytes()
-
-
-def _unshuffle(blob: bytes | memoryview, dtype: str, shape: tuple[int, ...]) -> np.ndarray:
-    itemsize = np.dtype(dtype).itemsize
-    count = int(np.prod(shape))
-    planes = np.frombuffer(blob, dtype=np.uint8, count=itemsize * count).reshape(itemsize, count)
-    return planes.T.copy().view(dtype).reshape(shape)
-
-
-def encode_plane(plane: np.ndarray, scales: tuple[float, ...], invalid: int | None) -> tuple[dict, bytes]:
-    """Codec description and bytes of a float32 plane: "u16_shuffled" with the first of `scales` that
-    reproduces it bit for bit, else "f32_shuffled"."""
+def encode_plane(plane: np.ndarray, scales: tuple[float, ...], invalid: int | None
+                 ) -> tuple[str, float, int | None, bytes]:
+    """(image encoding, scale, invalid, pixel bytes) of a float32 plane: "16UC1" with the first of `scales` that
+    reproduces it bit for bit, else "32FC1" (scale 1, no invalid value)."""
     valid = np.isfinite(plane)
     for scale in scales:
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -130,19 +108,9 @@ def encode_plane(plane: np.ndarray, scales: tuple[float, ...], invalid: int | No
         if not np.all((raw >= 0) & (raw <= 0xFFFF)):
             continue
         raw16 = raw.astype("<u2")
-        if np.array_equal(_decode_u16(raw16, scale, invalid).view(np.uint32), plane.view(np.uint32)):
-            return {"codec": "u16_shuffled", "scale": scale, "invalid": invalid}, _shuffle(raw16)
-    return {"codec": "f32_shuffled"}, _shuffle(plane.astype("<f4", copy=False))
-
-
-def decode_plane(desc: dict, blob: bytes | memoryview) -> np.ndarray:
-    """The float32 plane (a new, writable array) a codec description and its bytes stand for."""
-    shape = tuple(desc["shape"])
-    if desc["codec"] == "u16_shuffled":
-        return _decode_u16(_unshuffle(blob, "<u2", shape), float(desc["scale"]), desc["invalid"])
-    if desc["codec"] == "f32_shuffled":
-        return _unshuffle(blob, "<f4", shape).astype(np.float32, copy=False)
-    raise FormatError(f"plane {desc.get('name')!r}: unknown codec {desc['codec']!r}")
+        if np.array_equal(raw_to_plane(raw16, scale, invalid).view(np.uint32), plane.view(np.uint32)):
+            return "16UC1", scale, invalid, raw16.tobytes()
+    return "32FC1", 1.0, None, plane.astype("<f4", copy=False).tobytes()
 
 
 def _check_plane(name: str, plane: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -152,92 +120,109 @@ def _check_plane(name: str, plane: np.ndarray, shape: tuple[int, int]) -> np.nda
     return np.ascontiguousarray(plane)
 
 
-def ground_truth_to_json(gt: GroundTruth | None) -> dict | None:
-    if gt is None:
-        return None
-    xyz = None if gt.nose_xyz_m is None else [float(c) for c in gt.nose_xyz_m]
-    return {"nose_px": [float(c) for c in gt.nose_px], "visible": bool(gt.visible), "nose_xyz_m": xyz}
+def message_times(frame: Frame) -> tuple[int, int, int]:
+    """MCAP (log_time, publish_time, sequence) of a frame's messages: host wall clock (ns), device clock (ns),
+    frame counter mod 2**32; ValueError when a time does not fit MCAP's unsigned 64-bit nanoseconds."""
+    wall, device = frame.host_wall_s, frame.timestamp_us
+    if not (math.isfinite(wall) and 0 <= wall * 1e9 < 2.0**64):
+        raise ValueError(f"frame.host_wall_s: expected Unix time in seconds, got {wall!r}")
+    if not (isinstance(device, int) and 0 <= device * 1000 < 2**64):
+        raise ValueError(f"frame.timestamp_us: expected microseconds in [0, 2**64 / 1000), got {device!r}")
+    return int(round(wall * 1e9)), device * 1000, int(frame.frame_counter) & 0xFFFFFFFF
 
 
-def ground_truth_from_json(d: dict | None) -> GroundTruth | None:
-    if d is None:
-        return None
-    xyz = d["nose_xyz_m"]
-    return GroundTruth(nose_px=(float(d["nose_px"][0]), float(d["nose_px"][1])), visible=bool(d["visible"]),
-                       nose_xyz_m=None if xyz is None else (float(xyz[0]), float(xyz[1]), float(xyz[2])))
+def _header(frame: Frame, codecs: dict[str, tuple[float, int | None]]) -> bytes:
+    msg = schemas.frame_header_class()()
+    try:
+        msg.frame_counter, msg.timestamp_us = frame.frame_counter, frame.timestamp_us
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"frame counter {frame.frame_counter!r} or timestamp {frame.timestamp_us!r} us is not "
+                         f"a 64-bit integer: {exc}") from None
+    msg.host_monotonic_s, msg.host_wall_s = frame.host_monotonic_s, frame.host_wall_s
+    for name in ("intrinsics", "device", "registers"):
+        getattr(msg, name).SetInParent()
+        for key, value in dataclasses.asdict(getattr(frame, name)).items():
+            setattr(getattr(msg, name), key, value)
+    if (gt := frame.ground_truth) is not None:
+        msg.ground_truth.nose_u, msg.ground_truth.nose_v = gt.nose_px
+        msg.ground_truth.visible = gt.visible
+        if gt.nose_xyz_m is not None:
+            xyz = msg.ground_truth.nose_xyz_m
+            xyz.x, xyz.y, xyz.z = gt.nose_xyz_m
+    for name, (scale, invalid) in codecs.items():
+        codec = getattr(msg, "range" if name == "range_m" else name)
+        codec.scale = scale
+        if invalid is not None:
+            codec.invalid = invalid
+    return msg.SerializeToString()
 
 
-def encode_frame(frame: Frame) -> bytes:
-    """The message bytes of one frame (see the module docstring for the layout)."""
+def _timestamp(ns: int) -> dict[str, int]:
+    return {"seconds": ns // 1_000_000_000, "nanos": ns % 1_000_000_000}
+
+
+def _calibration(intr: Intrinsics, ns: int) -> bytes:
+    fx, fy, cx, cy = intr.fx, intr.fy, intr.cx, intr.cy
+    return schemas.CameraCalibration(
+        timestamp=_timestamp(ns), frame_id=IMAGE_FRAME_ID, width=intr.width, height=intr.height,
+        distortion_model="plumb_bob", D=[0.0] * 5, K=[fx, 0, cx, 0, fy, cy, 0, 0, 1], R=[1, 0, 0, 0, 1, 0, 0, 0, 1],
+        P=[fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0]).SerializeToString()
+
+
+def encode_frame(frame: Frame) -> list[bytes]:
+    """The messages of one frame, in CHANNELS order (ValueError for a frame the format cannot hold)."""
     shape = frame.intrinsics.shape
-    planes = [
-        ("range_m", _check_plane("range_m", frame.range_m, shape), range_scales_m(frame.registers), p.RAW_INVALID),
-        ("amplitude", _check_plane("amplitude", frame.amplitude, shape), (1.0,), None),
-    ]
-    descs, blobs = [], []
-    for name, plane, scale, invalid in planes:
-        desc, blob = encode_plane(plane, scale, invalid)
-        descs.append({"name": name, "shape": list(shape), **desc, "nbytes": len(blob)})
-        blobs.append(blob)
-    header = {
-        "frame_counter": int(frame.frame_counter),
-        "timestamp_us": int(frame.timestamp_us),
-        "host_monotonic_s": float(frame.host_monotonic_s),
-        "host_wall_s": float(frame.host_wall_s),
-        "intrinsics": frame.intrinsics.to_dict(),
-        "device": dataclasses.asdict(frame.device),
-        "registers": dataclasses.asdict(frame.registers),
-        "ground_truth": ground_truth_to_json(frame.ground_truth),
-        "planes": descs,
-    }
-    text = json.dumps(header, separators=(",", ":")).encode()
-    return b"".join([_LEN.pack(len(text)), text, *blobs])
+    ns = message_times(frame)[0]
+    planes = {"range_m": (range_scales_m(frame.registers), p.RAW_INVALID), "amplitude": ((1.0,), None)}
+    images, codecs = [], {}
+    for name, (scales, invalid) in planes.items():
+        plane = _check_plane(name, getattr(frame, name), shape)
+        encoding, scale, used_invalid, data = encode_plane(plane, scales, invalid)
+        codecs[name] = (scale, used_invalid)
+        images.append(schemas.RawImage(
+            timestamp=_timestamp(ns), frame_id=IMAGE_FRAME_ID, width=shape[1], height=shape[0], encoding=encoding,
+            step=shape[1] * _ENCODINGS[encoding].itemsize, data=data).SerializeToString())
+    return [_header(frame, codecs), *images, _calibration(frame.intrinsics, ns)]
 
 
-def decode_header(data: bytes | memoryview) -> tuple[dict, int]:
-    """The JSON header of a frame message and the offset of its first plane."""
-    if len(data) < _LEN.size:
-        raise FormatError(f"frame message of {len(data)} bytes is too short")
-    (n,) = _LEN.unpack_from(data)
-    end = _LEN.size + n
-    if end > len(data):
-        raise FormatError(f"frame header length {n} runs past the message ({len(data)} bytes)")
+def _plane(image_data: bytes, codec: typing.Any, shape: tuple[int, int], name: str) -> np.ndarray:
+    image = schemas.RawImage.FromString(image_data)
+    dtype = _ENCODINGS.get(image.encoding)
+    if dtype is None:
+        raise FormatError(f"{name} image has encoding {image.encoding!r}, expected one of {sorted(_ENCODINGS)}")
+    h, w = shape
+    if (image.height, image.width, image.step, len(image.data)) != (h, w, w * dtype.itemsize, h * w * dtype.itemsize):
+        raise FormatError(f"{name} image is {image.width}x{image.height} (step {image.step}, {len(image.data)} "
+                          f"bytes), expected {w}x{h} {image.encoding}")
+    values = np.frombuffer(image.data, dtype=dtype).reshape(shape)
+    if image.encoding == "32FC1":
+        return values.astype(np.float32)  # a copy: writable
+    return raw_to_plane(values, codec.scale, codec.invalid if codec.HasField("invalid") else None)
+
+
+def decode_frame(header_data: bytes, range_data: bytes, amplitude_data: bytes) -> Frame:
+    """The Frame of one header message and its two images (FormatError if they do not follow the layout)."""
     try:
-        header = json.loads(bytes(data[_LEN.size:end]))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(f"frame header is not JSON: {exc}") from None
-    if not isinstance(header, dict) or "planes" not in header:
-        raise FormatError("frame header lacks 'planes'")
-    if sum(int(p["nbytes"]) for p in header["planes"]) != len(data) - end:
-        raise FormatError("frame planes do not add up to the message length")
-    return header, end
-
-
-def decode_frame(data: bytes | memoryview) -> Frame:
-    """The Frame a frame message holds (FormatError if it does not follow the layout)."""
-    header, planes_offset = decode_header(data)
-    try:
-        arrays = {}
-        offset = planes_offset
-        view = memoryview(data)
-        for desc in header["planes"]:
-            nbytes = int(desc["nbytes"])
-            arrays[desc["name"]] = decode_plane(desc, view[offset:offset + nbytes])
-            offset += nbytes
+        h = schemas.frame_header_class().FromString(header_data)
+        gt = None
+        if h.HasField("ground_truth"):
+            g = h.ground_truth
+            xyz = (g.nose_xyz_m.x, g.nose_xyz_m.y, g.nose_xyz_m.z) if g.HasField("nose_xyz_m") else None
+            gt = GroundTruth(nose_px=(g.nose_u, g.nose_v), visible=g.visible, nose_xyz_m=xyz)
+        fields = {name: {f.name: getattr(getattr(h, name), f.name) for f in getattr(h, name).DESCRIPTOR.fields}
+                  for name in ("intrinsics", "device", "registers")}
+        intrinsics = Intrinsics(**fields["intrinsics"])
         return Frame(
-            range_m=arrays["range_m"],
-            amplitude=arrays["amplitude"],
-            frame_counter=int(header["frame_counter"]),
-            timestamp_us=int(header["timestamp_us"]),
-            host_monotonic_s=float(header["host_monotonic_s"]),
-            host_wall_s=float(header["host_wall_s"]),
-            intrinsics=Intrinsics.from_dict(header["intrinsics"]),
-            device=DeviceInfo(**header["device"]),
-            registers=Registers(**header["registers"]),
-            ground_truth=ground_truth_from_json(header["ground_truth"]),
-        )
-    except (KeyError, TypeError, ValueError) as exc:
-        raise FormatError(f"frame message does not decode: {type(exc).__name__}: {exc}") from None
+            range_m=_plane(range_data, h.range, intrinsics.shape, "range"),
+            amplitude=_plane(amplitude_data, h.amplitude, intrinsics.shape, "amplitude"),
+            frame_counter=h.frame_counter, timestamp_us=h.timestamp_us,
+            host_monotonic_s=h.host_monotonic_s, host_wall_s=h.host_wall_s,
+            intrinsics=intrinsics, device=DeviceInfo(**fields["device"]), registers=Registers(**fields["registers"]),
+            ground_truth=gt)
+    except FormatError:
+        raise
+    except Exception as exc:  # noqa: BLE001 (protobuf's DecodeError, bad shapes: all mean a malformed frame)
+        raise FormatError(f"frame messages do not decode: {type(exc).__name__}: {exc}") from None
 
 
 def _metadata_crc(data: dict[str, str]) -> str:
@@ -250,8 +235,8 @@ def seal_metadata(data: dict[str, str]) -> dict[str, str]:
 
 
 def check_metadata(name: str, data: dict[str, str]) -> dict[str, str]:
-    """`data` without its METADATA_CRC_KEY; FormatError if that CRC does not match (files of format
-    version 1 have none: their metadata is checked against the frames instead)."""
+    """`data` without its METADATA_CRC_KEY; FormatError if that CRC does not match (early format-1 files have
+    none: their metadata is checked against the frames instead)."""
     if METADATA_CRC_KEY not in data:
         return data
     body = {k: v for k, v in data.items() if k != METADATA_CRC_KEY}

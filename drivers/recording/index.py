@@ -1,9 +1,10 @@
 """Random access to a finished recording's frames through MCAP's chunk index (its summary section).
 
-A tofd recording holds one frame per chunk, so chunk k (in file order) is frame k: reading frames [first, stop)
-seeks straight to chunk `first` and never scans the chunks before it. Works on any seekable binary file object
-(a local file or an fsspec file). A recording without an intact summary (its writer was killed) has no index:
-read it sequentially with drivers.recording.replay.
+A tofd recording holds one frame per chunk (format 2: its header, images and calibration messages), so chunk k
+(in file order) is frame k: reading frames [first, stop) seeks straight to chunk `first` and never scans the
+chunks before it. Works on any seekable binary file object (a local file or an fsspec file). A recording
+without an intact summary (its writer was killed) has no index: read it sequentially with
+drivers.recording.replay.
 """
 
 from __future__ import annotations
@@ -22,8 +23,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
 from drivers.frame import Frame
-from drivers.recording import format as fmt
-from drivers.recording.replay import MAX_RECORD_BYTES
+from drivers.recording.replay import MAX_RECORD_BYTES, channel_role, frames_of
 
 _FOOTER_TAIL = 8 + 8 + 4 + 8
 """Bytes from the footer record's summary_start field to the end of an MCAP file."""
@@ -31,10 +31,11 @@ _FOOTER_TAIL = 8 + 8 + 4 + 8
 
 @dataclass(frozen=True, slots=True)
 class FrameIndex:
-    """Where each chunk of a recording starts (bytes, file order) and the channel ids of its frame topic."""
+    """Where each chunk of a recording starts (bytes, file order) and the (channel id, role) of each channel whose
+    messages make frames (roles: drivers.recording.replay.channel_role)."""
 
     chunk_offsets: tuple[int, ...]
-    frame_channels: frozenset[int]
+    frame_channels: frozenset[tuple[int, str]]
     digest: str  # sha256 of the file's summary section: changes when the recording does
 
     @property
@@ -62,15 +63,14 @@ def frame_index(f: IO[bytes]) -> FrameIndex | None:
     if summary is None or not summary.chunk_indexes:
         return None
     offsets = tuple(sorted(ci.chunk_start_offset for ci in summary.chunk_indexes))
-    channels = frozenset(c.id for c in summary.channels.values()
-                         if c.topic == fmt.FRAME_TOPIC and c.message_encoding == fmt.FRAME_ENCODING)
+    channels = frozenset((c.id, role) for c in summary.channels.values() if (role := channel_role(c)) is not None)
     f.seek(-_FOOTER_TAIL, 2)  # the footer's summary_start field, then summary_offset_start, summary_crc, magic
     f.seek(struct.unpack("<Q", f.read(8))[0])
     digest = hashlib.sha256(f.read()).hexdigest()
     return FrameIndex(offsets, channels, digest)
 
 
-def _read_chunk(f: IO[bytes], offset: int, channels: frozenset[int]) -> list[Frame]:
+def _read_chunk(f: IO[bytes], offset: int, channels: frozenset[tuple[int, str]]) -> list[Frame]:
     """Frames of the chunk record at byte `offset` (CRC-checked; raises on damage)."""
     f.seek(offset)
     head = f.read(9)
@@ -83,8 +83,9 @@ def _read_chunk(f: IO[bytes], offset: int, channels: frozenset[int]) -> list[Fra
     if len(body) < length:
         raise ValueError(f"file ends inside the chunk at byte {offset}")
     chunk = Chunk.read(ReadDataStream(BytesIO(body)))
-    return [fmt.decode_frame(rec.data) for rec in breakup_chunk(chunk, validate_crc=True)
-            if isinstance(rec, Message) and rec.channel_id in channels]
+    roles = dict(channels)
+    return frames_of([(roles[rec.channel_id], rec.data) for rec in breakup_chunk(chunk, validate_crc=True)
+                      if isinstance(rec, Message) and rec.channel_id in roles])
 
 
 def read_chunks(f: IO[bytes], index: FrameIndex, first: int, stop: int) -> Iterator[ChunkFrames]:

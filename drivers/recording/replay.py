@@ -28,13 +28,14 @@ from typing import Literal
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Chunk, Message, Metadata
+from mcap.records import Attachment, Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import MCAP0_MAGIC
 
 from drivers.frame import DeviceInfo, Frame, Registers, frame_problem
 from drivers.intrinsics import Intrinsics
 from drivers.recording import format as fmt
+from drivers.recording import format_v1
 from drivers.source import DriverError, FrameSource
 
 log = logging.getLogger(__name__)
@@ -50,8 +51,43 @@ CHUNK_COMPRESSION_AT = 9 + CHUNK_HEADER_BYTES - 4
 """Offset of a chunk record's compression field from the record's start (opcode and length come first)."""
 ZSTD_FIELD = struct.pack("<I", 4) + b"zstd"
 """A chunk record's compression field as tofd writes it (what resync searches for)."""
-_DATA_OPCODES = frozenset({Opcode.HEADER, Opcode.METADATA, Opcode.ATTACHMENT, Opcode.CHUNK, Opcode.MESSAGE_INDEX})
+_DATA_OPCODES = frozenset({Opcode.HEADER, Opcode.METADATA, Opcode.ATTACHMENT, Opcode.SCHEMA, Opcode.CHANNEL,
+                           Opcode.CHUNK, Opcode.MESSAGE_INDEX})
 """Top-level records a tofd recording has before its end-of-data record (anything else there is damage)."""
+V1_ROLE = "frame.v1"
+"""Role of a format-1 channel: each of its messages is a whole frame."""
+V1_TOPIC = "/camera/frame"
+
+
+def channel_role(channel: Channel) -> str | None:
+    """What the messages of `channel` are in a frame (V1_ROLE or format.channel_role's roles), or None."""
+    if channel.topic == V1_TOPIC and channel.message_encoding == format_v1.FRAME_ENCODING:
+        return V1_ROLE
+    return fmt.channel_role(channel.topic, channel.message_encoding)
+
+
+def frames_of(messages: list[tuple[str, bytes]]) -> list[Frame]:
+    """The frames that (role, message data) pairs of one chunk, in file order, make: a format-1 frame message
+    each, or a format-2 header followed by its range and amplitude images (FormatError for any other mix)."""
+    frames: list[Frame] = []
+    parts: dict[str, bytes] = {}
+    for role, data in messages:
+        if role == V1_ROLE:
+            frames.append(format_v1.decode_frame(data))
+        elif role == "header":
+            if parts:
+                raise fmt.FormatError("frame header without its images")
+            parts = {role: data}
+        elif role in ("range_m", "amplitude"):
+            if "header" not in parts or role in parts:
+                raise fmt.FormatError(f"{role} image without its frame header")
+            parts[role] = data
+            if len(parts) == 3:
+                frames.append(fmt.decode_frame(parts["header"], parts["range_m"], parts["amplitude"]))
+                parts = {}
+    if parts:
+        raise fmt.FormatError("frame header without its images")
+    return frames
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,9 +150,10 @@ class RecordingReader:
         self.reason: StopReason | None = None
         self.detail = ""
         self.offset = len(MCAP0_MAGIC)  # end of the last good record, bytes
-        self._frame_channels: set[int] = set()
-        self._known_channels: set[int] = set()
+        self._roles: dict[int, str | None] = {}  # channel id -> role in a frame (None: not part of frames)
         self._previous_opcode: int | None = None
+        self._chunk_seen = False
+        self._unindexed: set[int] = set()  # channels of the last chunk whose message index has not been read
 
     def close(self) -> None:
         self._data.close()
@@ -154,18 +191,31 @@ class RecordingReader:
     def _parse(self, opcode: int, body: bytes) -> list[Frame]:
         """Frames of one top-level record (raises on corruption)."""
         stream = ReadDataStream(BytesIO(body))
+        if opcode in (Opcode.SCHEMA, Opcode.CHANNEL) and self._chunk_seen:
+            raise fmt.FormatError("a schema or channel record after the first chunk (tofd writes them before it)")
         if opcode == Opcode.CHUNK:
-            frames = []
+            self._chunk_seen = True
+            messages = []
+            self._unindexed = set()
             for rec in breakup_chunk(self._chunk(body), validate_crc=True):
                 if isinstance(rec, Channel):
-                    self._known_channels.add(rec.id)
-                    if rec.topic == fmt.FRAME_TOPIC and rec.message_encoding == fmt.FRAME_ENCODING:
-                        self._frame_channels.add(rec.id)
-                elif isinstance(rec, Message) and (rec.channel_id in self._frame_channels or (
-                        self.damage and rec.channel_id not in self._known_channels)):  # its channel was lost
-                    frames.append(fmt.decode_frame(rec.data))
-            return frames
-        if opcode == Opcode.METADATA:
+                    self._roles[rec.id] = channel_role(rec)
+                elif isinstance(rec, Message):
+                    self._unindexed.add(rec.channel_id)
+                    if (role := self._role(rec.channel_id)) is not None:
+                        messages.append((role, rec.data))
+            return frames_of(messages)
+        if opcode == Opcode.CHANNEL:
+            channel = Channel.read(stream)
+            expected = next((c for c in fmt.CHANNELS if c.id == channel.id), None)
+            if expected is not None and (channel.topic, channel.message_encoding) != (expected.topic,
+                                                                                     fmt.MESSAGE_ENCODING):
+                raise fmt.FormatError(f"channel record {channel.id} ({channel.topic!r}) is not tofd's channel "
+                                      f"{expected.topic!r}: damaged")
+            self._roles[channel.id] = channel_role(channel)
+        elif opcode == Opcode.SCHEMA:
+            Schema.read(stream)
+        elif opcode == Opcode.METADATA:
             meta = Metadata.read(stream)
             self.metadata[meta.name] = fmt.check_metadata(meta.name, meta.metadata)
         elif opcode == Opcode.ATTACHMENT:
@@ -176,11 +226,30 @@ class RecordingReader:
             self.attachments[att.name] = att.data
         elif opcode not in _DATA_OPCODES:
             raise fmt.FormatError(f"record opcode {opcode:#04x} does not belong in a recording's data section")
-        elif opcode == Opcode.MESSAGE_INDEX and self._previous_opcode != Opcode.CHUNK:
-            raise fmt.FormatError("message index without its chunk before it (a damaged chunk record?)")
+        elif opcode == Opcode.MESSAGE_INDEX:
+            self._check_message_index(body)
         elif opcode == Opcode.HEADER and self.offset != len(MCAP0_MAGIC):
             raise fmt.FormatError("a second header record")
         return []
+
+    def _check_message_index(self, body: bytes) -> None:
+        """A message index record must be well formed and index a channel of the chunk just before it."""
+        if self._previous_opcode not in (Opcode.CHUNK, Opcode.MESSAGE_INDEX):
+            raise fmt.FormatError("message index without its chunk before it (a damaged chunk record?)")
+        channel_id, length = struct.unpack_from("<HI", body) if len(body) >= 6 else (None, None)
+        if length is None or length % 16 or 6 + length != len(body) or channel_id not in self._unindexed:
+            raise fmt.FormatError("malformed message index, or one for a channel its chunk does not hold")
+        self._unindexed.discard(channel_id)
+
+    def _role(self, channel_id: int) -> str | None:
+        """Role of a message's channel; after damage, a channel whose record was lost has the role that tofd's
+        writer gives its id (format 2: fmt.ROLE_BY_ID; format 1: one frame channel)."""
+        if channel_id in self._roles:
+            return self._roles[channel_id]
+        if not self.damage:
+            return None
+        version = self.metadata.get(fmt.META_RECORDING, {}).get("format_version", str(fmt.FORMAT_VERSION))
+        return V1_ROLE if version == "1" else fmt.ROLE_BY_ID.get(channel_id)
 
     def _intact_chunk(self, offset: int) -> bool:
         """Whether an intact chunk record (lengths, CRC and compression) starts at `offset`."""
@@ -264,7 +333,10 @@ def _frame_count(path: Path) -> int | None:
             summary = make_reader(f).get_summary()
     except Exception:  # noqa: BLE001 (a missing or damaged summary only means: count unknown)
         return None
-    return None if summary is None or summary.statistics is None else summary.statistics.message_count
+    if summary is None or summary.statistics is None:
+        return None
+    frames = {c.id for c in summary.channels.values() if channel_role(c) in ("header", V1_ROLE)}
+    return sum(n for channel, n in summary.statistics.channel_message_counts.items() if channel in frames)
 
 
 def read_recording_info(path: str | Path) -> RecordingInfo:

@@ -1,9 +1,10 @@
 """RecordingWriter: writes Frames to a crash-safe, self-describing MCAP recording.
 
-Crash safety: every frame is its own zstd-compressed, CRC-checked MCAP chunk, handed to the operating
-system (flushed) before write() returns, so a process killed at any moment (kill -9) leaves a file whose
-every completed frame replays; only the frame being written is lost. With `fsync_interval_s` the file is
-also forced to disk that often, which bounds the loss on power failure. Layout: drivers/recording/format.py.
+Crash safety: every frame is its own zstd-compressed, CRC-checked MCAP chunk (its header, range and amplitude
+images and calibration), handed to the operating system (flushed) before write() returns, so a process killed
+at any moment (kill -9) leaves a file whose every completed frame replays; only the frame being written is
+lost. With `fsync_interval_s` the file is also forced to disk that often, which bounds the loss on power
+failure. Layout: drivers/recording/format.py.
 """
 
 from __future__ import annotations
@@ -15,10 +16,13 @@ from collections.abc import Mapping
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 
-from mcap.writer import CompressionType, Writer
+from mcap.records import Message
+from mcap.writer import LIBRARY_IDENTIFIER
 
 from drivers.frame import Frame
 from drivers.recording import format as fmt
+from drivers.recording import schemas
+from drivers.recording.mcap_writer import McapChunkWriter
 
 
 def software_version() -> str:
@@ -47,22 +51,23 @@ class RecordingWriter:
         self._fsync_interval_s = fsync_interval_s
         self._last_sync = time.monotonic()
         self._file = open(self.path, "wb")  # noqa: SIM115 (closed in close())
-        self._writer = Writer(self._file, chunk_size=1 << 30, compression=CompressionType.ZSTD)
-        self._writer.start(profile=fmt.PROFILE)
+        self._writer = McapChunkWriter(self._file, profile=fmt.PROFILE,
+                                       library=f"tofd/{software_version()} {LIBRARY_IDENTIFIER}")
         self._writer.add_metadata(fmt.META_RECORDING, fmt.seal_metadata({
             "format_version": str(fmt.FORMAT_VERSION),
             "software_version": software_version(),
             "created_wall_s": repr(time.time()),
-            "layout": "see schema tofd.Frame and tofd's drivers/recording/format.py",
+            "layout": "see tofd's drivers/recording/format.py",
         }))
         if config is not None:
-            now_ns = time.time_ns()
-            self._writer.add_attachment(now_ns, now_ns, fmt.CONFIG_ATTACHMENT, "application/json",
+            self._writer.add_attachment(time.time_ns(), fmt.CONFIG_ATTACHMENT, "application/json",
                                         json.dumps(config, indent=1, default=str).encode())
-        schema_id = self._writer.register_schema(fmt.FRAME_SCHEMA_NAME, "jsonschema",
-                                                 json.dumps(fmt.FRAME_SCHEMA).encode())
-        self._channel = self._writer.register_channel(fmt.FRAME_TOPIC, fmt.FRAME_ENCODING, schema_id)
-        self._writer.flush()
+        for schema_id, name in enumerate(fmt.SCHEMAS, start=1):
+            self._writer.add_schema(schema_id, name, fmt.MESSAGE_ENCODING, schemas.schema_data(name))
+        for channel in fmt.CHANNELS:
+            self._writer.add_channel(channel.id, channel.topic, fmt.MESSAGE_ENCODING,
+                                     fmt.SCHEMAS.index(channel.schema) + 1)
+        self._file.flush()
 
     @property
     def bytes_written(self) -> int:
@@ -73,19 +78,16 @@ class RecordingWriter:
         """Append one frame; when this returns the frame survives the death of this process."""
         if self._file.closed:
             raise ValueError(f"recording {self.path} is closed")
-        data = fmt.encode_frame(frame)  # first: a frame that does not encode leaves the file as it was
+        messages = fmt.encode_frame(frame)  # first: a frame that does not encode leaves the file as it was
+        log_time, publish_time, sequence = fmt.message_times(frame)
         if self.frames_written == 0:
             self._writer.add_metadata(fmt.META_INTRINSICS, fmt.to_metadata(frame.intrinsics))
             self._writer.add_metadata(fmt.META_DEVICE, fmt.to_metadata(frame.device))
             self._writer.add_metadata(fmt.META_REGISTERS, fmt.to_metadata(frame.registers))
-        self._writer.add_message(
-            self._channel,
-            log_time=int(round(frame.host_wall_s * 1e9)),
-            publish_time=int(frame.timestamp_us) * 1000,
-            sequence=int(frame.frame_counter) & 0xFFFFFFFF,
-            data=data,
-        )
-        self._writer.flush()  # closes the chunk (CRC, zstd) and hands it to the OS
+        self._writer.write_chunk([
+            Message(channel_id=channel.id, log_time=log_time, publish_time=publish_time, sequence=sequence, data=data)
+            for channel, data in zip(fmt.CHANNELS, messages, strict=True)])
+        self._file.flush()  # hands the chunk to the OS
         self.frames_written += 1
         now = time.monotonic()
         if self._fsync_interval_s is not None and now - self._last_sync >= self._fsync_interval_s:

@@ -32,7 +32,7 @@ class Partition:
     first: int
     stop: int
     offsets: tuple[int, ...]
-    frame_channels: tuple[int, ...]
+    frame_channels: tuple[tuple[int, str], ...]  # (channel id, role): drivers.recording.index.FrameIndex
     output: str  # URL of the partition's Parquet file
 
     def to_json(self) -> str:
@@ -41,7 +41,7 @@ class Partition:
     @classmethod
     def from_json(cls, text: str) -> Partition:
         d = json.loads(text)
-        return cls(**{**d, "offsets": tuple(d["offsets"]), "frame_channels": tuple(d["frame_channels"])})
+        return cls(**{**d, "offsets": tuple(d["offsets"]), "frame_channels": tuple(map(tuple, d["frame_channels"]))})
 
     @property
     def frames(self) -> int:

@@ -7,6 +7,7 @@ and 3-D point, score, stage timings in ms; with --loop also the loop index), <st
 fps, p50/p99 timings, model path and SHA-256). A recording with ground truth also gets an accuracy line and
 <stem>.accuracy.png (nose error and score over frames). --rerun adds or replaces the viewer sink.
 --check GOLDEN compares the per-frame results with a golden file (docs/BATCH.md) and exits 1 on a regression.
+A ROS 1 or ROS 2 bag is imported to a temporary recording first (as `tofd import` does, with the same options).
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ EXIT_AT_ONCE = True  # tofd.cli.main: no interpreter teardown after the service 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", type=Path, help="recording made by `tofd record` (e.g. replay_data/*.mcap)")
+    parser.add_argument("file", type=Path, help="recording made by `tofd record` (e.g. replay_data/*.mcap), or a "
+                                                "ROS 1 or ROS 2 bag, imported on the fly (see `tofd import`)")
     parser.add_argument("--out", type=Path, default=Path("replay_out"), help="output directory (default: %(default)s)")
     parser.add_argument("--config", type=Path, default=None, help="config file (default: the bundled tofd.toml)")
     parser.add_argument("--realtime", action="store_true", help="replay at the recorded frame rate")
@@ -43,6 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="compare the per-frame results with this golden file; exit 1 on a regression")
     parser.add_argument("--write-golden", type=Path, default=None, metavar="GOLDEN",
                         help="write the per-frame results as a golden file (e.g. replay_data/<stem>.golden.json)")
+    arguments.add_bag_arguments(parser)
 
 
 def _check_seek(path: Path, seek: int) -> None:
@@ -56,7 +59,7 @@ def _check_seek(path: Path, seek: int) -> None:
             if frame.frame_counter >= seek:
                 return
             last = frame.frame_counter
-    raise UsageError(f"--seek {seek}: past the end of {path} (last frame counter {last})")
+    raise UsageError(f"--seek {seek}: past the end (last frame counter {last})")
 
 
 def _report_accuracy(results: Path, plot: Path) -> None:
@@ -70,6 +73,29 @@ def _report_accuracy(results: Path, plot: Path) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from drivers.rosbag import RangeOptions, is_rosbag
+    from tofd.errors import UsageError
+
+    if args.speed is not None and not args.realtime:
+        raise UsageError("--speed needs --realtime (a lossless replay runs as fast as the pipeline goes)")
+    stem = args.file.name.split(".")[0]
+    if not is_rosbag(args.file):
+        if arguments.bag_options(args) != RangeOptions():
+            raise UsageError(f"{args.file} is a tofd recording: the ROS bag options are for ROS bags")
+        return _replay(args, args.file, stem)
+    import tempfile
+
+    from tofd.commands.import_ import convert
+
+    with tempfile.TemporaryDirectory(prefix="tofd-replay-") as tmp:
+        recording = Path(tmp) / f"{stem}.mcap"
+        done = convert(args.file, recording, arguments.bag_options(args), "replay: import")
+        print(f"tofd replay: imported {done} from {args.file}", file=sys.stderr)
+        return _replay(args, recording, stem)
+
+
+def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
+    """Replay the tofd recording `recording` (args.file, or the recording a bag was imported to)."""
     from drivers.recording.replay import ReplaySource, read_recording_info
     from drivers.source import DriverError
     from tofd.batch.golden import GoldenRecorder
@@ -81,18 +107,15 @@ def main(args: argparse.Namespace) -> int:
     from tofd.service.pipeline import PipelineError, ResultsWriter
     from tofd.service.viewer import ViewerError
 
-    if args.speed is not None and not args.realtime:
-        raise UsageError("--speed needs --realtime (a lossless replay runs as fast as the pipeline goes)")
-    stem = args.file.name.split(".")[0]
     cfg = load_config(args.config)
     cfg = parse_rerun_spec(args.rerun or f"save:{args.out / (stem + '.rrd')}", cfg)
     cfg = replace(cfg, health=replace(cfg.health, enabled=False))
     policy = "lossless" if cfg.pipeline.policy == "auto" else cfg.pipeline.policy
     try:
-        info = read_recording_info(args.file)
+        info = read_recording_info(recording)
         if args.seek is not None:
-            _check_seek(args.file, args.seek)
-        source = ReplaySource(args.file, mode="realtime" if args.realtime else "lossless", speed=args.speed or 1.0,
+            _check_seek(recording, args.seek)
+        source = ReplaySource(recording, mode="realtime" if args.realtime else "lossless", speed=args.speed or 1.0,
                               loop=args.loop, seek=args.seek)
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(f"{args.file}: {exc}") from None

@@ -34,6 +34,7 @@ amplitude features for the NFFT detector variant.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import finufft
@@ -66,6 +67,13 @@ class UnitSquarePoints:
     damping: float  # lambda for these points
 
 
+@functools.lru_cache(maxsize=4)
+def _mirror_index(size: int, columns: int) -> np.ndarray:
+    """Flat indices into a (size, size) FFT-ordered grid of the modes -m for the first `columns` columns."""
+    neg = (-np.arange(size)) % size
+    return (neg[:, None] * size + neg[None, :columns]).ravel()
+
+
 def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int) -> np.ndarray:
     """(R, 2N, columns) type-1 spectra (first `columns` kx) of R real strength sets, two per complex transform.
 
@@ -76,21 +84,20 @@ def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int) -> np
     """
     scale = np.mean(np.abs(rows), axis=1)
     scale[scale == 0] = 1.0
-    unit = rows / scale[:, None]
-    if len(unit) % 2:
-        unit = np.concatenate((unit, np.zeros((1, unit.shape[1]))))
-    spectra = type1.execute((unit[0::2] + 1j * unit[1::2]).astype(type1.dtype))
-    size = spectra.shape[-1]
-    neg = (-np.arange(size)) % size
-    mirrored = np.conj(spectra[:, :, neg[:columns]][:, neg])  # G*_-m
+    strengths = np.zeros(((len(rows) + 1) // 2, rows.shape[1]), type1.dtype)
+    strengths.real[:] = rows[0::2] / scale[0::2, None]
+    strengths.imag[: len(rows) // 2] = rows[1::2] / scale[1::2, None]
+    spectra = type1.execute(strengths)
+    pairs, size = len(spectra), spectra.shape[-1]
+    mirrored = spectra.reshape(pairs, -1)[:, _mirror_index(size, columns)].reshape(pairs, size, columns)
+    np.conjugate(mirrored, out=mirrored)  # G*_-m
     spectra = spectra[:, :, :columns]
-    out = np.empty((len(unit), size, columns), spectra.dtype)
+    out = np.empty((2 * pairs, size, columns), spectra.dtype)
     np.add(spectra, mirrored, out=out[0::2])
     np.subtract(spectra, mirrored, out=out[1::2])
-    out[0::2] *= 0.5
-    out[1::2] *= -0.5j
     out = out[: len(rows)]
-    out *= scale[:, None, None].astype(out.real.dtype)
+    factor = 0.5 * scale * np.where(np.arange(len(rows)) % 2, -1j, 1.0)  # the halves, 1/i and the set's scale
+    out *= factor.astype(out.dtype)[:, None, None]
     return out
 
 
@@ -146,10 +153,12 @@ class NFFTFeatures:
         x -= x.mean()
         y -= y.mean()
         keep = (x >= -0.5) & (x < 0.5) & (y >= -0.5) & (y < 0.5)
-        z = pts[keep, 2]
+        if not keep.all():
+            flat, x, y, pts = flat[keep], x[keep], y[keep], pts[keep]
+        z = pts[:, 2]
         # points per unit area of the square: 1 / mean pixel footprint, (z/fx)(z/fy) m^2 over Lx Ly
         footprint = np.mean(z * z) / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
-        return UnitSquarePoints(x[keep], y[keep], z - z.max() if z.size else z, flat[keep],
+        return UnitSquarePoints(x, y, z - z.max() if z.size else z, flat,
                                 self.cfg.damping / footprint if z.size else 0.0)
 
     def range_features(self, range_m: np.ndarray, mask: np.ndarray,

@@ -1,0 +1,83 @@
+"""Protobuf schemas of a tofd recording: Foxglove's RawImage and CameraCalibration, and tofd.FrameHeader.
+
+tofd.FrameHeader (proto2, built here rather than from a .proto so that no protoc step is needed):
+
+    message FrameHeader {
+      optional int64 frame_counter = 1;      // device frame counter
+      optional int64 timestamp_us = 2;       // device clock at end of exposure, microseconds
+      optional double host_monotonic_s = 3;  // host monotonic clock at receive, seconds
+      optional double host_wall_s = 4;       // host wall clock (Unix time) at receive, seconds
+      optional Intrinsics intrinsics = 5;    // width, height (pixels), fx, fy, cx, cy (pixels)
+      optional Device device = 6;            // serial, firmware, backend, model
+      optional Registers registers = 7;      // int_time_code, mod_freq_index, acq_mode, data_source, amp_threshold
+      optional GroundTruth ground_truth = 8; // absent: no ground truth; nose_u, nose_v (pixels), visible,
+                                             // nose_xyz_m (camera frame, metres; absent: unknown)
+      optional PlaneCodec range = 9;         // how /camera/range's pixels give range_m
+      optional PlaneCodec amplitude = 10;    // how /camera/amplitude's pixels give amplitude
+    }
+    message PlaneCodec {  // 16UC1 image: value = float32(float64(raw) * scale), raw == invalid -> NaN;
+      optional double scale = 1;            // 32FC1 image: the float32 values themselves
+      optional uint32 invalid = 2;
+    }
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from mcap_protobuf.schema import build_file_descriptor_set
+
+FieldProto = descriptor_pb2.FieldDescriptorProto
+_TYPES = {"int64": FieldProto.TYPE_INT64, "uint32": FieldProto.TYPE_UINT32, "double": FieldProto.TYPE_DOUBLE,
+          "string": FieldProto.TYPE_STRING, "bool": FieldProto.TYPE_BOOL}
+_MESSAGES: dict[str, list[tuple[str, str]]] = {  # message -> fields (name, type) numbered from 1
+    "Intrinsics": [("width", "int64"), ("height", "int64"), ("fx", "double"), ("fy", "double"), ("cx", "double"),
+                   ("cy", "double")],
+    "Device": [("serial", "string"), ("firmware", "string"), ("backend", "string"), ("model", "string")],
+    "Registers": [("int_time_code", "int64"), ("mod_freq_index", "int64"), ("acq_mode", "int64"),
+                  ("data_source", "int64"), ("amp_threshold", "int64")],
+    "Point3": [("x", "double"), ("y", "double"), ("z", "double")],
+    "GroundTruth": [("nose_u", "double"), ("nose_v", "double"), ("visible", "bool"), ("nose_xyz_m", "Point3")],
+    "PlaneCodec": [("scale", "double"), ("invalid", "uint32")],
+    "FrameHeader": [("frame_counter", "int64"), ("timestamp_us", "int64"), ("host_monotonic_s", "double"),
+                    ("host_wall_s", "double"), ("intrinsics", "Intrinsics"), ("device", "Device"),
+                    ("registers", "Registers"), ("ground_truth", "GroundTruth"), ("range", "PlaneCodec"),
+                    ("amplitude", "PlaneCodec")],
+}
+PACKAGE = "tofd"
+
+
+def _header_file() -> descriptor_pb2.FileDescriptorProto:
+    proto = descriptor_pb2.FileDescriptorProto(name="tofd/FrameHeader.proto", package=PACKAGE, syntax="proto2")
+    for name, fields in _MESSAGES.items():
+        message = proto.message_type.add(name=name)
+        for number, (field, kind) in enumerate(fields, start=1):
+            f = message.field.add(name=field, number=number, label=FieldProto.LABEL_OPTIONAL)
+            if kind in _TYPES:
+                f.type = _TYPES[kind]
+            else:
+                f.type, f.type_name = FieldProto.TYPE_MESSAGE, f".{PACKAGE}.{kind}"
+    return proto
+
+
+@functools.cache
+def frame_header_class() -> Any:
+    """The generated message class of tofd.FrameHeader."""
+    pool = descriptor_pool.DescriptorPool()
+    pool.Add(_header_file())
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(f"{PACKAGE}.FrameHeader"))
+
+
+@functools.cache
+def schema_data(name: str) -> bytes:
+    """MCAP schema data (encoding "protobuf": a FileDescriptorSet with dependencies) of the message type `name`."""
+    message = {"tofd.FrameHeader": frame_header_class(), "foxglove.RawImage": RawImage,
+               "foxglove.CameraCalibration": CameraCalibration}[name]
+    return build_file_descriptor_set(message).SerializeToString()
+
+
+__all__ = ["CameraCalibration", "RawImage", "frame_header_class", "schema_data"]
