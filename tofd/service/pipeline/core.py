@@ -164,7 +164,8 @@ class Pipeline:
         drain = self.cfg.pipeline.drain_timeout_s if drain_timeout_s is None else drain_timeout_s
         if not self.wait(drain):
             log.warning("pipeline did not drain in %.1f s; dropping what is left", drain)
-            self.abandoned.append(f"drain: {self.ledger.pending} frame(s) in flight after {drain:.1f} s")
+            self.abandoned.append(f"drain: after {drain:.1f} s, {self.ledger.pending} frame(s) pending, "
+                                  f"{self.pool.inflight} held by workers")
         self._abort.set()
         deadline = time.monotonic() + stop_timeout_s
         if not self.wait(stop_timeout_s / 2):
