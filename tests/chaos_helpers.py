@@ -97,6 +97,30 @@ def children_of(pid: int) -> list[int]:
     return out
 
 
+def tree(pid: int) -> list[int]:
+    """`pid` and all its descendants."""
+    out, todo = [pid], [pid]
+    while todo:
+        kids = children_of(todo.pop())
+        out.extend(kids)
+        todo.extend(kids)
+    return out
+
+
+def workers_of(pid: int) -> list[int]:
+    """The feature worker processes of a tofd process: its children that map the shared-memory slot ring
+    (the viewer and the resource tracker do not), by pid."""
+    out = []
+    for kid in sorted(children_of(pid)):
+        try:
+            maps = Path(f"/proc/{kid}/maps").read_text()
+        except OSError:
+            continue
+        if f"/dev/shm/tofd_{pid}_" in maps:
+            out.append(kid)
+    return out
+
+
 def alive(pid: int) -> bool:
     """True if `pid` exists and is not a zombie."""
     try:

@@ -94,22 +94,26 @@ def _bad_npz(tmp_path: Path, kind: str) -> Path:
         path.write_text("not numpy\n")
     elif kind == "no_nose":
         np.savez(path, range=np.zeros((2, 144, 176), np.float32), amplitude=np.zeros((2, 144, 176), np.float32))
-    elif kind in ("shape", "pickle"):
+    elif kind in ("shape", "pickle", "sidecar_extra_key"):
         keys = {"nose_px": np.zeros((2, 2)), "nose_visible": np.ones(2, bool), "distance_m": np.ones(2),
                 "yaw_deg": np.zeros(2), "pitch_deg": np.zeros(2), "subject": np.array(["a", "b"])}
-        rng = np.zeros((2, 10, 10), np.float32) if kind == "shape" else np.array([{"a": 1}, None], dtype=object)
+        rng = np.zeros((2, 10, 10), np.float32) if kind != "pickle" else np.array([{"a": 1}, None], dtype=object)
         np.savez(path, range=rng, amplitude=np.zeros((2, 10, 10), np.float32), **keys)
+    if kind == "sidecar_extra_key":  # the intrinsics fit the planes, but with a key Intrinsics does not have
+        intrinsics = {"width": 10, "height": 10, "fx": 20.0, "fy": 20.0, "cx": 4.5, "cy": 4.5, "skew": 0.0}
+        path.with_suffix(".json").write_text(json.dumps({"intrinsics": intrinsics}))
     return path
 
 
 @pytest.mark.parametrize("kind,words", [("missing", ["no such dataset file"]), ("text", ["not a dataset .npz"]),
                                         ("no_nose", ["missing key", "'nose_px'"]), ("shape", ["shape (2, 10, 10)"]),
-                                        ("pickle", ["'range'", "without pickle"])])
+                                        ("pickle", ["'range'", "without pickle"]),
+                                        ("sidecar_extra_key", ["sidecar_extra_key.json", "skew"])])
 def test_evaluate_with_a_bad_test_file_fails_before_any_training(tmp_path, kind, words):
     path = _bad_npz(tmp_path, kind)
     proc = tofd("evaluate", "--test", str(path), "--out", str(tmp_path / "ev"))
-    one_line_error(proc, 2, str(path), *words)
-    assert "rendering train" not in proc.stderr and not (tmp_path / "ev" / "model.json").exists()
+    one_line_error(proc, 2, str(path.with_suffix("")), *words)  # the .npz, or its .json sidecar
+    assert "rendering train" not in proc.stderr and not (tmp_path / "ev").exists()  # nothing left behind
 
 
 def test_train_needs_an_explicit_out_and_names_a_missing_train_file(tmp_path):
@@ -175,6 +179,24 @@ def test_replay_loop_results_carry_the_loop_index(tmp_path):
     assert loops == sorted(loops) and set(loops) == {0, 1} and len(rows) == 110
     first = [r["frame_counter"] for r in rows if r["loop"] == 0]
     assert first == sorted(first) and rows[-1]["frame_counter"] < first[-1]
+
+
+def test_log_lines_carry_their_level_and_a_journal_priority_under_systemd(tmp_path):
+    """On a terminal `tofd: LEVEL message`; when stderr is the journal stream systemd announced ($JOURNAL_STREAM
+    = device:inode of stderr), each line starts with its syslog priority so `journalctl -p warning` filters."""
+    code = ("import logging; from tofd.logs import setup_logging; setup_logging('info'); "
+            "log = logging.getLogger('tofd.x'); log.info('hello'); log.warning('careful'); log.debug('hidden')")
+    err_path = tmp_path / "stderr"
+    for journal in (False, True):
+        with open(err_path, "w") as err:
+            st = os.fstat(err.fileno())
+            env = {**os.environ, "JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}" if journal else ""}
+            subprocess.run([sys.executable, "-c", code], stderr=err, env=env, timeout=HANG_GUARD_S, check=True)
+        lines = err_path.read_text().splitlines()
+        if journal:
+            assert lines == ["<6>INFO tofd.x: hello", "<4>WARNING tofd.x: careful"], lines
+        else:
+            assert lines == ["tofd: INFO hello", "tofd: WARNING careful"], lines
 
 
 def test_help_and_version_import_no_command_module():

@@ -8,7 +8,7 @@ import os
 import pytest
 
 from tofd.config import load_config
-from tofd.outputs import AtomicFile, OutputError, check_output_file, prepare_output_dir, write_text
+from tofd.outputs import AtomicFile, OutputError, check_output_dir, check_output_file, prepare_output_dir, write_text
 
 
 def test_a_planted_symlink_is_replaced_not_followed(tmp_path):
@@ -50,6 +50,9 @@ def test_output_paths_are_checked_before_work(tmp_path):
         check_output_file(tmp_path / "missing" / "m.json")
     with pytest.raises(OutputError, match="is a directory"):
         check_output_file(tmp_path)
+    with pytest.raises(OutputError, match="cannot create"):
+        check_output_dir(tmp_path / "file" / "sub")
+    assert check_output_dir(tmp_path / "c" / "d") == tmp_path / "c" / "d" and not (tmp_path / "c").exists()
     assert prepare_output_dir(tmp_path / "a" / "b").is_dir()
 
 

@@ -4,12 +4,22 @@ chunks refused, protected metadata, and a fuzz of the bundled recording."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from recording_helpers import assert_frames_equal, make_frame, write_recording
+from recording_helpers import (
+    RECORDING_FAULTS,
+    SMALL_INTRINSICS,
+    assert_frames_equal,
+    excerpt,
+    faulty_copy,
+    make_frame,
+    mutate,
+    write_recording,
+)
 from test_replay import collect, counters
 
 from drivers.intrinsics import Intrinsics
@@ -112,9 +122,8 @@ def test_duplicated_frame_record_is_rejected_not_replayed_twice(clip101, tmp_pat
 
 def test_invalid_frames_are_rejected_and_the_replay_goes_on(tmp_path):
     frames = [make_frame(c) for c in range(6)]
-    small = Intrinsics(width=10, height=10, fx=20.0, fy=20.0, cx=4.5, cy=4.5)
     frames[2] = dataclasses.replace(frames[2], range_m=np.ones((10, 10), np.float32),
-                                    amplitude=np.ones((10, 10), np.float32), intrinsics=small)
+                                    amplitude=np.ones((10, 10), np.float32), intrinsics=SMALL_INTRINSICS)
     frames[3] = dataclasses.replace(frames[3], host_monotonic_s=float("inf"))
     frames[4] = dataclasses.replace(frames[4], frame_counter=2**40)
     path = tmp_path / "bad.mcap"
@@ -184,33 +193,13 @@ def other_digit(data: bytes, at: int) -> bytes:
     return data[:at] + str((digit + 1) % 10).encode() + data[at + 1:]
 
 
-def mutate(data: bytes, rng: np.random.Generator) -> bytes:
-    """One random mutation: bit flips, a random run, a cut, a deleted or a repeated stretch."""
-    out = bytearray(data)
-    n, kind = len(out), int(rng.integers(5))
-    at = int(rng.integers(8, n - 1))
-    length = int(rng.integers(1, 5000))
-    if kind == 0:
-        for pos in rng.integers(0, n, int(rng.integers(1, 20))):
-            out[pos] ^= 1 << int(rng.integers(8))
-    elif kind == 1:
-        out[at:at + length] = bytes(rng.integers(0, 256, len(out[at:at + length]), dtype=np.uint8))
-    elif kind == 2:
-        del out[at:]
-    elif kind == 3:
-        del out[at:at + length]
-    else:
-        out[at:at] = out[at - min(at, length):at]
-    return bytes(out)
-
-
 def test_fuzzed_bundled_recording_never_escapes_an_exception(tmp_path):
     data = BUNDLED.read_bytes()
     reference = {f.frame_counter: f for f in collect(ReplaySource(BUNDLED))}
     rng = np.random.default_rng(17)
     for trial in range(30):
         path = tmp_path / "fuzz.mcap"
-        path.write_bytes(mutate(data, rng))
+        path.write_bytes(mutate(data, rng)[1])
         try:
             read_recording_info(path)
             source = ReplaySource(path)
@@ -251,3 +240,26 @@ def test_replay_command_refuses_a_damaged_header_in_one_line(tmp_path, capsys):
     assert cli.main(["replay", str(changed), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "disagrees with the first frame" in err[0] and "Traceback" not in err[0]
+
+
+def test_replay_command_ledgers_each_faulty_frame_and_replays_the_rest(tmp_path):
+    """`tofd replay` (a real subprocess) of a recording with one frame of each fault: damaged, CRC 0,
+    duplicated, 10x10 planes; exit 0, each faulty frame ledgered at capture with its reason, no traceback."""
+    from chaos_helpers import tofd
+    from pipeline_sources import write_config
+
+    path = excerpt(BUNDLED, tmp_path / "clip.mcap", 14)
+    faulty = {"malformed_frames": 3, "duplicated_frames": 6, "zero_crc_frames": 9, "damaged_frames": 12}
+    assert set(faulty) == set(RECORDING_FAULTS)
+    for i, (fault, counter) in enumerate(faulty.items()):
+        path = faulty_copy(path, tmp_path / f"f{i}.mcap", fault, {counter})
+    proc = tofd("replay", path, "--out", tmp_path / "out", "--rerun", "none", "--config", write_config(tmp_path))
+    _, err = proc.communicate(timeout=300)  # a hang guard
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    summary = json.loads((tmp_path / "out" / f"{path.stem}.summary.json").read_text())
+    assert summary["consistent"] and summary["frames_in"] == summary["frames_out"] + summary["frames_dropped"]
+    drops = sorted((d["frame_counter"], d["stage"], d["reason"].split(":")[0]) for d in summary["drops"])
+    assert drops == sorted((c, "capture", RECORDING_FAULTS[f]) for f, c in faulty.items()), drops
+    assert summary["frames_out"] == 14 - 3  # the duplicate's original is replayed once
+    zero_crc = next(d for d in summary["drops"] if d["frame_counter"] == faulty["zero_crc_frames"])
+    assert "no CRC" in zero_crc["reason"]

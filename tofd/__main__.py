@@ -1,5 +1,3 @@
-import sys
+from tofd.cli import entry
 
-from tofd.cli import main
-
-sys.exit(main())
+entry()

@@ -8,6 +8,7 @@ import ast
 import importlib
 import importlib.util
 import logging
+import os
 import pkgutil
 import sys
 import typing
@@ -64,7 +65,7 @@ def build_parser(full: Collection[str] | None = None) -> argparse.ArgumentParser
         if full is None or command in full:
             module = importlib.import_module(f"tofd.commands.{module_name}")
             module.add_arguments(p)
-            p.set_defaults(func=module.main)
+            p.set_defaults(func=module.main, exit_at_once=getattr(module, "EXIT_AT_ONCE", False))
     return parser
 
 
@@ -74,10 +75,29 @@ def _named_command(argv: list[str]) -> set[str]:
     return next(({word} for word in argv if word in commands), set())
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
+    """Run one `tofd` command; its exit status. With `exit_at_once`, a command whose module sets EXIT_AT_ONCE
+    (the service commands: their outputs are written and their children gone when they return) ends the
+    process right away, without the interpreter's teardown of its modules (the Rerun SDK, numpy, ... take up
+    to a second), so that SIGTERM ends the service within pipeline.shutdown_timeout_s."""
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser(_named_command(argv)).parse_args(argv)
     setup_logging("debug" if args.verbose else args.log_level)
+    code = _run(args)
+    if exit_at_once and getattr(args, "exit_at_once", False):
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def entry() -> typing.NoReturn:
+    """The `tofd` console script and `python -m tofd`."""
+    sys.exit(main(exit_at_once=True))
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except UsageError as exc:
@@ -95,4 +115,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

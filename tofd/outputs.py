@@ -19,19 +19,30 @@ class OutputError(UsageError):
     """An output path that cannot be written: the message names it and why."""
 
 
-def prepare_output_dir(path: str | Path, what: str = "--out") -> Path:
-    """Create directory `path` (and its parents) if needed and check it is a writable directory."""
+def check_output_dir(path: str | Path, what: str = "--out") -> Path:
+    """Check, creating nothing, that directory `path` is writable or can be created (no file or dangling
+    symlink in its place, its nearest existing ancestor a writable directory)."""
     path = Path(path)
     if path.is_symlink() and not path.is_dir():
         raise OutputError(f"{what} {path}: a dangling symlink, not a directory")
     if path.exists() and not path.is_dir():
         raise OutputError(f"{what} {path}: exists and is not a directory")
+    existing = next(p for p in (path, *path.absolute().parents) if p.exists())
+    if not existing.is_dir():
+        raise OutputError(f"{what} {path}: cannot create the directory: {existing} is not a directory")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise OutputError(f"{what} {path}: " + ("the directory is not writable" if existing == path else
+                                                f"cannot create the directory: {existing} is not writable"))
+    return path
+
+
+def prepare_output_dir(path: str | Path, what: str = "--out") -> Path:
+    """Create directory `path` (and its parents) if needed, after check_output_dir."""
+    path = check_output_dir(path, what)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{what} {path}: cannot create the directory: {exc.strerror or exc}") from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise OutputError(f"{what} {path}: the directory is not writable")
     return path
 
 

@@ -49,7 +49,8 @@ StopReason = Literal["end", "truncated", "corrupt"]
 CHUNK_HEADER_BYTES = 8 + 8 + 8 + 4 + 4  # start time, end time, uncompressed size, CRC, compression length
 CHUNK_COMPRESSION_AT = 9 + CHUNK_HEADER_BYTES - 4
 """Offset of a chunk record's compression field from the record's start (opcode and length come first)."""
-_ZSTD_FIELD = struct.pack("<I", 4) + b"zstd"
+ZSTD_FIELD = struct.pack("<I", 4) + b"zstd"
+"""A chunk record's compression field as tofd writes it (what resync searches for)."""
 _DATA_OPCODES = frozenset({Opcode.HEADER, Opcode.METADATA, Opcode.ATTACHMENT, Opcode.SCHEMA, Opcode.CHANNEL,
                            Opcode.CHUNK, Opcode.MESSAGE_INDEX})
 """Top-level records a tofd recording has before its end-of-data record (anything else there is damage)."""
@@ -265,7 +266,7 @@ class RecordingReader:
     def _resync(self, after: int) -> int | None:
         """Offset of the first intact chunk record that starts after byte `after`, or None."""
         pos = after + 1 + CHUNK_COMPRESSION_AT
-        while (hit := self._data.find(_ZSTD_FIELD, pos)) >= 0:
+        while (hit := self._data.find(ZSTD_FIELD, pos)) >= 0:
             if self._intact_chunk(hit - CHUNK_COMPRESSION_AT):
                 return hit - CHUNK_COMPRESSION_AT
             pos = hit + 1

@@ -31,12 +31,12 @@ def main(args: argparse.Namespace) -> int:
     from tofd.lab.data_args import check_data_arguments, dataset_for, samples_for
     from tofd.lab.evaluation import evaluate_model, train_model
     from tofd.lab.report import answers_table, eer_table, plot_roc, write_json
-    from tofd.outputs import prepare_output_dir
+    from tofd.outputs import check_output_dir, prepare_output_dir
 
     start = time.monotonic()
     cfg = load_config(args.config)
     check_data_arguments(args, ("train", "test") if args.model is None else ("test",))
-    out = prepare_output_dir(args.out)
+    out = check_output_dir(args.out)  # created only once there is something to write
     timing: dict = {}
     radius_m = args.radius_mm / 1e3
     model = None
@@ -64,6 +64,7 @@ def main(args: argparse.Namespace) -> int:
 
     print(eer_table(results))
     print(answers_table(results))
+    prepare_output_dir(out)
     save_model(model, out / "model.json")
     plot_roc(out / "roc.png", results)
     write_json(out / "evaluation.json", results, radius_mm=args.radius_mm, timing=timing,

@@ -25,6 +25,8 @@ from tofd.service.daemon import RERUN_SPEC_HELP
 
 log = logging.getLogger(__name__)
 
+EXIT_AT_ONCE = True  # tofd.cli.main: no interpreter teardown after the service returns (the SIGTERM bound)
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", type=Path, help="recording made by `tofd record` (e.g. replay_data/*.mcap), or a "

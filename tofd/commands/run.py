@@ -22,6 +22,8 @@ from tofd.service.daemon import RERUN_SPEC_HELP
 
 log = logging.getLogger(__name__)
 
+EXIT_AT_ONCE = True  # tofd.cli.main: no interpreter teardown after the service returns (the SIGTERM bound)
+
 
 class Stopped(BaseException):
     """SIGTERM or SIGINT arrived before the pipeline took over the signals (a BaseException, like

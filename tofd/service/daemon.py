@@ -1,10 +1,11 @@
 """Run the pipeline as a service: wire the viewer process, the pipeline, the health endpoint, signals and
 sd_notify together, and bound the shutdown.
 
-Shared by `tofd run` (live camera) and `tofd replay` (recording). SIGTERM/SIGINT stop the capture, drain the
-queues (at most pipeline.drain_timeout_s, and half of pipeline.shutdown_timeout_s), then give the viewer the
-rest of shutdown_timeout_s to flush before it is killed: the process exits within shutdown_timeout_s of the
-signal, summary written, whatever the Rerun SDK does. The exit code is 0 unless the pipeline failed.
+Shared by `tofd run` (live camera) and `tofd replay` (recording). SIGTERM/SIGINT stop the capture; then each
+part gets its share of pipeline.shutdown_timeout_s (shutdown.py): the drain, the threads and workers, the
+viewer's flush, and whatever does not finish in its share is killed, so the process exits within
+shutdown_timeout_s of the signal, summary written (with the shutdown's phases and what was abandoned),
+whatever the Rerun SDK or a worker does. The exit code is 0 unless the pipeline failed.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from drivers.source import FrameSource
 from tofd.config import Config, ConfigError, config_digest
@@ -21,16 +23,18 @@ from tofd.service.health import HealthServer, ServiceMetrics, sd_notify
 from tofd.service.model import load_service_model, model_identity
 from tofd.service.pipeline.core import Pipeline, Sink
 from tofd.service.pipeline.queues import Policy
+from tofd.service.shutdown import Shutdown
 from tofd.service.signals import StopSignals
 from tofd.service.summary import run_summary, write_json_atomic
 from tofd.service.supervise import show_progress, supervise
 from tofd.service.viewer.spec import RERUN_SPEC_HELP, parse_rerun_spec
 
+if TYPE_CHECKING:
+    from tofd.service.viewer.process import ViewerProcess
+
 __all__ = ["RERUN_SPEC_HELP", "Progress", "ServiceResult", "parse_rerun_spec", "serve"]
 
 log = logging.getLogger(__name__)
-
-EXIT_MARGIN_S = 1.0  # seconds of shutdown_timeout_s kept for what follows the viewer's flush
 
 
 @dataclass(slots=True)
@@ -62,24 +66,47 @@ def _health(cfg: Config, pipeline: Pipeline, metrics: ServiceMetrics) -> HealthS
     return health
 
 
+def _close(shutdown: Shutdown, pipeline: Pipeline | None, health: HealthServer | None,
+           viewer: ViewerProcess | None) -> dict:
+    """Stop what was started, each part within its share of the shutdown budget: drain half of what is left
+    (at most pipeline.drain_timeout_s), give the threads and workers a quarter of the rest before killing
+    them, then the viewer the rest before killing it; the ledger summary."""
+    summary: dict = {}
+    if pipeline is not None:
+        with shutdown.phase("pipeline"):
+            summary = pipeline.close(min(pipeline.cfg.pipeline.drain_timeout_s, shutdown.left_s(0.5)),
+                                     shutdown.left_s(0.25))
+        shutdown.abandoned.extend(pipeline.abandoned)
+    if health is not None:
+        with shutdown.phase("health"):
+            health.close()
+    if viewer is not None:
+        with shutdown.phase("viewer"):
+            report = viewer.close(shutdown.left_s())
+        if report["exit"] == "killed":
+            shutdown.abandoned.append(f"viewer ({report['exit']}, {report['unsent']} frame(s) unsent)")
+    return summary
+
+
 def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool,
           writers: tuple[Sink, ...] = (), max_frames: int | None = None, progress: Progress | None = None,
           summary_path: Path | None = None) -> ServiceResult:
     """Run `source` through the pipeline until it ends, `max_frames` were taken, or SIGTERM/SIGINT."""
-    from tofd.service.viewer.process import ViewerProcess
-
     pc = cfg.pipeline
     health = pipeline = viewer = None
-    run_s, started_s, viewer_report = 0.0, time.monotonic(), None
-    identity = run_identity(cfg)
-    with StopSignals() as stop:
+    run_s, started_s = 0.0, time.monotonic()
+    with StopSignals() as stop:  # from here a signal is a stop request, also while the children start
         try:
-            viewer = None if cfg.rerun.sink == "none" else ViewerProcess(cfg, cfg.rerun.sink)
+            from tofd.service.viewer.process import ViewerProcess  # imports the Rerun SDK: only when serving
+
+            identity = run_identity(cfg)
+            if cfg.rerun.sink != "none":
+                viewer = ViewerProcess(cfg, cfg.rerun.sink, cancelled=lambda: bool(stop))
             metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe),
                                 model=load_service_model(cfg), live_source=live_source)
             health = _health(cfg, pipeline, metrics)
-            pipeline.start(source, max_frames)
+            pipeline.start(source, max_frames, cancelled=lambda: bool(stop))
             started_s = time.monotonic()
             sd_notify("READY=1")
             if viewer is not None and viewer.web_url:
@@ -90,20 +117,15 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             run_s = time.monotonic() - started_s
         finally:
             sd_notify("STOPPING=1")
-            deadline = (stop.first_at_s or time.monotonic()) + pc.shutdown_timeout_s
-            summary = {}
-            if pipeline is not None:
-                drain = min(pc.drain_timeout_s, max(0.0, (deadline - time.monotonic()) / 2))
-                summary = pipeline.close(drain)
-            if health is not None:
-                health.close()
-            if viewer is not None:
-                # EXIT_MARGIN_S of the budget is left for killing the viewer and the interpreter's exit
-                viewer_report = viewer.close(max(0.5, deadline - time.monotonic() - EXIT_MARGIN_S))
+            shutdown = Shutdown.start(stop.name or ("error" if pipeline is None or pipeline.error else "end"),
+                                      pc.shutdown_timeout_s, stop.first_at_s)
+            summary = _close(shutdown, pipeline, health, viewer)
+            viewer_report = None if viewer is None else viewer.report
     snap = pipeline.snapshot()
     summary = run_summary(summary, snap, run_s, viewer_report)
     summary["model"] = {"path": identity["model_path"], "sha256": identity["model_sha256"]}
     summary["config_sha256"] = identity["config_sha256"]
+    summary["shutdown"] = shutdown.report()
     if progress is not None:
         show_progress(progress, snap)
         progress.done()

@@ -50,6 +50,7 @@ def watchdog_interval_s() -> float | None:
 
 
 STAGE_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.035, 0.05, 0.075, 0.1, 0.15, 0.25, 0.5, 1.0, 2.5)
+POLL_S = 0.1  # seconds: how often the HTTP server checks for close() (bounds how long closing takes)
 
 
 def _unlabelled(family: type, name: str, help_text: str, value: float) -> Metric:
@@ -227,7 +228,8 @@ class HealthServer:
         self._httpd = ThreadingHTTPServer((bind, port), Handler)
         self._httpd.daemon_threads = True
         self.bind, self.port = self._httpd.server_address[:2]
-        self._thread = threading.Thread(target=self._httpd.serve_forever, name="tofd-health", daemon=True)
+        self._thread = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": POLL_S},
+                                        name="tofd-health", daemon=True)
 
     def status(self) -> tuple[bool, dict]:
         return health_status(self._snapshot(), self._running(), self.stale_after_s)

@@ -46,6 +46,7 @@ log = logging.getLogger(__name__)
 
 Sink = Callable[[FrameResult], None]
 POLL_S = 0.1  # seconds: how often idle threads re-check the stop/abort flags
+STOP_TIMEOUT_S = 2.0  # seconds close() gives the threads and workers to stop, by default
 
 
 class PipelineError(RuntimeError):
@@ -106,6 +107,7 @@ class Pipeline:
         self._abort = threading.Event()
         self._threads: list[threading.Thread] = []
         self._closed = False
+        self.abandoned: list[str] = []  # set by close(): parts that did not stop in time
         self._max_frames: int | None = None
 
     @property
@@ -113,13 +115,19 @@ class Pipeline:
         return self.pool.restarts
 
     # ---------------------------------------------------------------- lifecycle
-    def start(self, source: FrameSource, max_frames: int | None = None) -> None:
+    def start(self, source: FrameSource, max_frames: int | None = None,
+              cancelled: Callable[[], bool] = lambda: False) -> None:
         """Start the workers (waiting until they are ready), then the threads; capture stops after
-        `max_frames` frames (None = until the source ends or stop())."""
+        `max_frames` frames (None = until the source ends or stop()). When `cancelled()` turns true while
+        the workers start (a stop signal), starting is given up: the pipeline ends with no frame taken."""
         self.source, self._max_frames = source, max_frames
         self.pool.start()
         self._spawn("collect", self._collect_loop)
-        ok = self.pool.wait_ready(self.cfg.pipeline.worker_start_timeout_s, lambda: self.error is not None)
+        ok = self.pool.wait_ready(self.cfg.pipeline.worker_start_timeout_s,
+                                  lambda: self.error is not None or cancelled())
+        if self.error is None and cancelled():
+            self._abort.set()
+            return
         if not ok or self.error is not None:
             self._abort.set()
             self.close()
@@ -145,9 +153,11 @@ class Pipeline:
     def running(self) -> bool:
         return any(t.is_alive() for t in self._threads)
 
-    def close(self, drain_timeout_s: float | None = None) -> dict:
-        """Drain (up to `drain_timeout_s`, default pipeline.drain_timeout_s), then stop the workers and
-        release shared memory; the ledger summary. Frames still in flight then are dropped ("shutdown")."""
+    def close(self, drain_timeout_s: float | None = None, stop_timeout_s: float = STOP_TIMEOUT_S) -> dict:
+        """Drain (up to `drain_timeout_s`, default pipeline.drain_timeout_s), then stop the threads and the
+        workers within `stop_timeout_s` (killing workers that do not exit in time) and release shared memory;
+        the ledger summary. Frames still in flight then are dropped ("shutdown"); what was left behind or
+        killed is listed in `abandoned`."""
         if self._closed:
             return self.ledger.summary()
         self._closed = True
@@ -155,9 +165,14 @@ class Pipeline:
         drain = self.cfg.pipeline.drain_timeout_s if drain_timeout_s is None else drain_timeout_s
         if not self.wait(drain):
             log.warning("pipeline did not drain in %.1f s; dropping what is left", drain)
+            self.abandoned.append(f"drain: after {drain:.1f} s, {self.ledger.pending} frame(s) pending, "
+                                  f"{self.pool.inflight} held by workers")
         self._abort.set()
-        self.wait(2.0)
-        self.pool.stop(1.0)
+        deadline = time.monotonic() + stop_timeout_s
+        if not self.wait(stop_timeout_s / 2):
+            self.abandoned.extend(f"thread {t.name}" for t in self._threads if t.is_alive())
+        killed = self.pool.stop(max(0.0, deadline - time.monotonic()))
+        self.abandoned.extend(f"worker {i} (killed)" for i in killed)
         self.ledger.drop_pending("shutdown")
         self.ledger.close()
         self.pool.close()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from collections.abc import Callable
 from multiprocessing.connection import wait as wait_ready
 
@@ -20,6 +21,7 @@ from tofd.service.pipeline.worker import WorkerHandle
 
 log = logging.getLogger(__name__)
 
+POLL_S = 0.1  # seconds between checks of wait_ready's give_up
 OnResult = Callable[[int, dict], None]
 OnLost = Callable[[list[int], str], None]
 
@@ -49,14 +51,22 @@ class WorkerPool:
         for w in self.workers:
             w.start()
 
-    def wait_ready(self, timeout_s: float, failed: Callable[[], bool]) -> bool:
-        """Wait until every worker reported ready (the caller's collect thread receives the messages)."""
+    def wait_ready(self, timeout_s: float, give_up: Callable[[], bool]) -> bool:
+        """Wait until every worker reported ready (the caller's collect thread receives the messages), or
+        `give_up()` (polled every POLL_S) turns true; whether they all are ready."""
+        deadline = time.monotonic() + timeout_s
         with self.lock:
-            return self.lock.wait_for(lambda: all(w.ready for w in self.workers) or failed(), timeout_s)
+            while not all(w.ready for w in self.workers) and not give_up() and time.monotonic() < deadline:
+                self.lock.wait(min(POLL_S, max(0.0, deadline - time.monotonic())))
+            return all(w.ready for w in self.workers)
 
-    def stop(self, timeout_s: float = 2.0) -> None:
+    def stop(self, timeout_s: float = 2.0) -> list[int]:
+        """Ask every worker to exit, wait for them together up to `timeout_s`, kill the rest; the indices of
+        the workers that had to be killed."""
+        deadline = time.monotonic() + timeout_s
         for w in self.workers:
-            w.stop(timeout_s)
+            w.request_stop()
+        return [w.index for w in self.workers if not w.stop(max(0.0, deadline - time.monotonic()))]
 
     def close(self) -> None:
         self.ring.close()

@@ -20,6 +20,8 @@ from multiprocessing.connection import Connection
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.threads import THREAD_ENV
 
+KILL_JOIN_S = 1.0  # seconds to wait for a SIGKILLed worker to be reaped
+
 
 def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
     """Entry point of a worker process."""
@@ -113,18 +115,26 @@ class WorkerHandle:
         if self.alive():
             os.kill(self.process.pid, signal.SIGKILL)
 
-    def stop(self, timeout_s: float) -> None:
-        """Ask the worker to exit, wait up to `timeout_s`, then kill it; close the pipes."""
+    def request_stop(self) -> None:
+        """Ask the worker to exit after the frame it is on (a dead or stuck pipe is ignored)."""
+        if self.process is not None:
+            try:
+                self.tasks.send_bytes(b'{"stop": true}')
+            except OSError:
+                pass
+
+    def stop(self, timeout_s: float) -> bool:
+        """Ask the worker to exit, wait up to `timeout_s`, then kill it; close the pipes. False if it had to be
+        killed."""
         if self.process is None:
-            return
-        try:
-            self.tasks.send_bytes(b'{"stop": true}')
-        except OSError:
-            pass
+            return True
+        self.request_stop()
         self.process.join(timeout_s)
-        if self.process.is_alive():
+        exited = not self.process.is_alive()
+        if not exited:
             self.kill()
-            self.process.join(5.0)
+            self.process.join(KILL_JOIN_S)
         self.tasks.close()
         self.results.close()
         self.process = None
+        return exited

@@ -21,6 +21,7 @@ import signal
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from multiprocessing.connection import Connection
 
 from tofd.config import Config
@@ -30,6 +31,7 @@ from tofd.service.viewer import wire
 log = logging.getLogger(__name__)
 
 CLOSE = b"close"
+POLL_S = 0.1  # seconds between checks of a start's `cancelled`
 
 
 def viewer_main(cfg_table: dict, sink: str, parent_pid: int, frames: Connection, status: Connection) -> None:
@@ -74,7 +76,8 @@ class ViewerProcess:
     """The parent's handle: start the child (raising ViewerError if its sink cannot start), `offer` frames,
     `close` within a deadline. Use from one thread for offer and one for close."""
 
-    def __init__(self, cfg: Config, sink: str, queue_frames: int = 8, start_timeout_s: float = 30.0):
+    def __init__(self, cfg: Config, sink: str, queue_frames: int = 8, start_timeout_s: float = 30.0,
+                 cancelled: Callable[[], bool] = lambda: False):
         from tofd.service.pipeline.core import config_table
         from tofd.service.viewer.targets import ViewerError
 
@@ -92,7 +95,13 @@ class ViewerProcess:
         self._closing = False
         self.stalled = False  # the queue was full at the last offer
         self.report: dict = {}
-        msg = self._status_message(start_timeout_s)
+        msg = self._status_message(start_timeout_s, cancelled)
+        if msg is None and cancelled():  # a stop signal while it started: nothing to flush, close() says so
+            self._kill()
+            self._frames.close()
+            self._status.close()
+            self.web_url, self.report = None, {"exit": "cancelled", "unsent": 0}
+            return
         if msg is None or "error" in msg:
             self._kill()
             raise ViewerError((msg or {}).get("error") or f"the viewer process did not start in {start_timeout_s:g} s")
@@ -100,10 +109,16 @@ class ViewerProcess:
         self._sender = threading.Thread(target=self._send_loop, name="tofd-viewer-send", daemon=True)
         self._sender.start()
 
-    def _status_message(self, timeout_s: float) -> dict | None:
+    def _status_message(self, timeout_s: float, cancelled: Callable[[], bool] = lambda: False) -> dict | None:
+        """The child's next status message within `timeout_s`; None if none came, the child died or
+        `cancelled()` (polled every POLL_S) turned true."""
+        deadline = time.monotonic() + timeout_s
         try:
-            if self._status.poll(timeout_s):
-                return json.loads(self._status.recv_bytes())
+            while not cancelled():
+                if self._status.poll(min(POLL_S, max(0.0, deadline - time.monotonic()))):
+                    return json.loads(self._status.recv_bytes())
+                if time.monotonic() >= deadline:
+                    break
         except (EOFError, OSError):
             pass
         return None
@@ -142,7 +157,10 @@ class ViewerProcess:
 
     def close(self, timeout_s: float) -> dict:
         """Send what is queued, let the child flush and exit; SIGKILL it after `timeout_s`. A summary:
-        {"exit": "clean" | "killed", "frames": logged, "errors": frames Rerun refused, "unsent": n}."""
+        {"exit": "clean" | "killed" | "cancelled" (stopped while starting), "frames": logged, "errors": frames
+        Rerun refused, "unsent": n}."""
+        if self.report:  # cancelled at start: the child is gone already
+            return self.report
         deadline = time.monotonic() + timeout_s
         with self._cond:
             self._closing = True
@@ -166,4 +184,4 @@ class ViewerProcess:
     def _kill(self) -> None:
         if self.process.is_alive():
             self.process.kill()
-        self.process.join(5.0)
+        self.process.join(1.0)
