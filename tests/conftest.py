@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, EmulatorBackend, FaceScene, Motion
@@ -10,6 +12,13 @@ from drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, EmulatorBac
 FAST_DEVICE = {"readout_s": 0.0005, "fifo_depth": 4}
 FAST_CAMERA = {"int_time_code": 0, "read_timeout_s": 0.02, "stall_report_s": 0.1, "reconnect_initial_s": 0.01,
                "reconnect_max_s": 0.05}
+
+
+@pytest.fixture(scope="session", autouse=True)
+def render_cache_dir(tmp_path_factory):
+    """The emulator's render cache of this session (inherited by the tofd processes tests start), not ~/.cache."""
+    os.environ["TOFD_CACHE_DIR"] = str(tmp_path_factory.mktemp("render-cache"))
+    return os.environ["TOFD_CACHE_DIR"]
 
 
 @pytest.fixture(scope="session")
