@@ -16,6 +16,12 @@ def write_json(path: str | Path, results: dict) -> Path:
     return path
 
 
+def shown_path(path: str | Path) -> str:
+    """A path as results show it: relative to the repository when inside it (no machine's checkout in the docs)."""
+    resolved, root = Path(path).resolve(), Path(__file__).resolve().parents[1]
+    return str(resolved.relative_to(root)) if resolved.is_relative_to(root) else str(path)
+
+
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """--model (default: the shipped config/nose_model.json) and --config (default config/tofd.toml)."""
     parser.add_argument("--model", default=str(Path(__file__).parents[1] / "config" / "nose_model.json"))

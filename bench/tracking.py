@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from report import add_model_arguments, write_json
+from report import add_model_arguments, shown_path, write_json
 
 from tofd.algorithm.detector import NoseDetector, load_model
 from tofd.config import load_config
@@ -70,7 +70,7 @@ def main() -> int:
             print(f"{name:<16}{subject:<16}{100 * r.detection_found:>19.1f} / {100 * r.detection_wrong:<6.1f}"
                   f"{100 * r.track_found:>9.1f} / {100 * r.track_wrong:<6.1f}{r.reacquisitions:>6}", flush=True)
     result: dict = {"title": "Nose track vs per-frame detection (bench/tracking.py)", "about": ABOUT,
-                    "model": args.model, "variant": cfg.detector.variant, "frames": args.frames, "sequences": rows}
+                    "model": shown_path(args.model), "variant": cfg.detector.variant, "frames": args.frames, "sequences": rows}
     if args.replay_results:
         result["replay"] = replay_track(Path(args.replay_results), args.replay_px)
         print(f"replay {args.replay_results}: {result['replay']}")
