@@ -63,7 +63,8 @@ def main() -> int:
             c = s[key]
             print(f"  {key}: {c['condition']} {c['subject']} {c['distance_m']:.2f} m: EER {100 * c['eer']:.1f} %, "
                   f"found {100 * c['found']:.1f} %, wrong {100 * c['wrong']:.1f} % ({c['frames']} frames)")
-    write_json(args.out, {"title": "Robustness matrix (bench/robustness.py)", "about": ABOUT, "model": shown_path(args.model),
+    write_json(args.out, {"title": "Robustness matrix (bench/robustness.py)", "about": ABOUT,
+                          "model": shown_path(args.model),
                           "model_training": model.training, "spec": dataclasses.asdict(spec),
                           "summary": summary, "cells": [dataclasses.asdict(c) for c in cells],
                           "seconds": round(time.monotonic() - start, 1)})

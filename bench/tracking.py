@@ -70,7 +70,8 @@ def main() -> int:
             print(f"{name:<16}{subject:<16}{100 * r.detection_found:>19.1f} / {100 * r.detection_wrong:<6.1f}"
                   f"{100 * r.track_found:>9.1f} / {100 * r.track_wrong:<6.1f}{r.reacquisitions:>6}", flush=True)
     result: dict = {"title": "Nose track vs per-frame detection (bench/tracking.py)", "about": ABOUT,
-                    "model": shown_path(args.model), "variant": cfg.detector.variant, "frames": args.frames, "sequences": rows}
+                    "model": shown_path(args.model), "variant": cfg.detector.variant, "frames": args.frames,
+                    "sequences": rows}
     if args.replay_results:
         result["replay"] = replay_track(Path(args.replay_results), args.replay_px)
         print(f"replay {args.replay_results}: {result['replay']}")
