@@ -79,7 +79,9 @@ def batch_run(recordings: list[Path], tmp: Path, workers: int, partition_frames:
 
     out = tmp / f"batch_{workers}"
     shutil.rmtree(out, ignore_errors=True)
-    inputs, job, digests = prepare([str(r) for r in recordings], str(out), load_config(), partition_frames)
+    # --no-evaluation: the replay it is compared with does not evaluate the model's variants on the ground truth
+    inputs, job, digests = prepare([str(r) for r in recordings], str(out), load_config(), partition_frames,
+                                   evaluation=False)
     with batch_client(None, workers) as client:
         client.wait_for_workers(workers)
         t0 = time.perf_counter()

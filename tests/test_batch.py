@@ -25,8 +25,9 @@ from drivers.frame import Frame, GroundTruth
 from drivers.recording.index import frame_index
 from tofd.algorithm.threads import THREAD_ENV
 from tofd.batch.golden import load_golden
-from tofd.batch.rows import frame_row, without_timings
+from tofd.batch.rows import frame_row, pipeline_fields
 from tofd.batch.runner import CLUSTER_CONFIG, RunOptions, batch_client, prepare, read_rows, run_plan
+from tofd.cli import main
 from tofd.config import load_config
 from tofd.lab.dataset import load_dataset, save_dataset, sidecar_path
 from tofd.lab.evaluation import distance_bins
@@ -49,8 +50,8 @@ def client():
 
 
 def run(client, out: Path, inputs: list[str], options: RunOptions = QUIET, on_done=None,
-        partition: int = PARTITION) -> dict:
-    plans, job, digests = prepare(inputs, str(out), load_config(), partition)
+        partition: int = PARTITION, evaluation: bool = True) -> dict:
+    plans, job, digests = prepare(inputs, str(out), load_config(), partition, evaluation)
     return run_plan(client, plans, job, str(out), digests, options, on_done)
 
 
@@ -70,11 +71,11 @@ def test_partitions_equal_the_replay(clip_run):
     assert summary["partitions"] == {"total": 5, "computed": 5, "resumed": 0, "failed": 0}
     assert len(list((out / "recording=emulated_face_035_070").glob("part-*.parquet"))) == 5
     rows = read_rows(outputs(summary, out))
-    assert [without_timings(r) for r in rows] == golden["frames"]
+    assert [pipeline_fields(r) for r in rows] == golden["frames"]
     assert summary["results_digest"] == golden["results_digest"]  # bit-identical, maps included
     assert summary["frames_in"] == summary["frames_out"] == 101 and summary["frames_dropped"] == 0
     assert {s for s in summary["stage_ms"] if summary["stage_ms"][s]} == {"read", "segmentation", "fft", "nfft",
-                                                                         "detection"}
+                                                                         "detection", "evaluation"}
 
 
 def test_workers_compute_on_one_thread_with_the_cluster_settings(client, clip_run):
@@ -137,12 +138,45 @@ def test_dataset_partitions_equal_the_whole_dataset_in_one_process(dataset_file,
         truth = GroundTruth((float(ds.nose_px[i, 0]), float(ds.nose_px[i, 1])), bool(ds.nose_visible[i]),
                             tuple(map(float, tips[i])))
         frame = Frame(ds.range_m[i], ds.amplitude[i], i, 0, 0.0, 0.0, ds.intrinsics, ground_truth=truth)
-        expected.append(without_timings(frame_row(process_frame(stage, frame, slot))))
-    assert [without_timings(r) for r in read_rows(outputs(summary, out))] == expected
+        expected.append(pipeline_fields(frame_row(process_frame(stage, frame, slot))))
+    assert [pipeline_fields(r) for r in read_rows(outputs(summary, out))] == expected
     evaluation = summary["evaluation"]
     visible = ds.nose_visible
     assert evaluation["frames"] == int(visible.sum())
     assert list(evaluation["per_distance"]) == [f"{d:.2f}" for d in np.unique(distance_bins(ds.distance_m[visible]))]
+
+
+def test_summary_has_the_evaluate_tables_of_the_model_variants(client, tmp_path, capsys):
+    """The batch summary's per-variant evaluation (from the eval_* columns of its rows, 2 partitions) is
+    `tofd evaluate --model`'s on the same dataset (3 frames per distance; seed 5 has errors at 0.60 and 0.65 m):
+    the same EER and answers tables, the same EERs and answers overall and per distance."""
+    faces = save_dataset(generate("test", 24, 5), tmp_path / "faces.npz")
+    summary = run(client, tmp_path / "batch", [str(faces)], partition=12)
+    rows = read_rows(outputs(summary, tmp_path / "batch"))
+    assert all(r["eval_has_nose"] is not None and math.isfinite(r["eval_false_min_nfft_range"]) for r in rows)
+    model = ROOT / "config" / "nose_model.json"
+    assert main(["evaluate", "--model", str(model), "--test", str(faces), "--workers", "1",
+                 "--out", str(tmp_path / "evaluation")]) == 0
+    printed = capsys.readouterr().out
+    evaluation = summary["variant_evaluation"]
+    assert evaluation["frames"] == 24
+    assert evaluation["table"] in printed
+    variant_rows = [line[:16].strip() for line in evaluation["table"].splitlines()[3:7]]
+    assert variant_rows == ["FFT range", "FFT range+amp", "NFFT range", "NFFT range+amp"]  # the model's four
+    expected = json.loads((tmp_path / "evaluation" / "evaluation.json").read_text())["results"]
+    assert evaluation["results"] == {
+        name: {"overall": _without_points(r["overall"]),
+               "per_distance": {d: _without_points(v) for d, v in r["per_distance"].items()}}
+        for name, r in expected.items()}
+    assert any(r["overall"]["eer"] > 0 for r in expected.values())  # not only perfect separations compared
+    plain = run(client, tmp_path / "plain", [str(faces)], partition=12, evaluation=False)  # tofd batch --no-evaluation
+    assert plain["variant_evaluation"] is None and plain["results_digest"] == summary["results_digest"]
+    assert plain["digests"]["run"] != summary["digests"]["run"]  # its partitions are not resumed as evaluated ones
+    assert all(r["eval_has_nose"] is None for r in read_rows(outputs(plain, tmp_path / "plain")))
+
+
+def _without_points(roc: dict) -> dict:
+    return {k: v for k, v in roc.items() if k not in ("scale", "detection_rate", "false_positive_rate")}
 
 
 def test_fsspec_urls_directories_and_globs(client, clip_run, dataset_file, dataset_run, tmp_path):

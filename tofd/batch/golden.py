@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 
 from tofd.batch.plan import run_digests
-from tofd.batch.rows import frame_row, rows_digest, without_timings
+from tofd.batch.rows import frame_row, pipeline_fields, rows_digest
 from tofd.config import Config, config_table
 from tofd.service.model import load_service_model
 from tofd.service.pipeline.results import FrameResult
@@ -33,7 +33,7 @@ class GoldenRecorder:
         self.rows: list[dict] = []
 
     def __call__(self, result: FrameResult) -> None:
-        self.rows.append(without_timings(frame_row(result)))
+        self.rows.append(pipeline_fields(frame_row(result)))
 
 
 def golden_document(rows: list[dict], recording: str, cfg: Config) -> dict:

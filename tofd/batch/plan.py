@@ -181,9 +181,12 @@ RESULT_SECTIONS = ("segmentation", "features", "detector")
 """Config sections the per-frame results depend on (the others set how the service runs, not what it computes)."""
 
 
-def run_digests(config_table: dict, model_dict: dict | None) -> dict[str, str]:
-    """Digests naming a run's results: config (its RESULT_SECTIONS), model, tofd version, all three ("run")."""
+def run_digests(config_table: dict, model_dict: dict | None, evaluation: bool = True) -> dict[str, str]:
+    """Digests naming a run's results: config (its RESULT_SECTIONS), model, tofd version, all of them ("run"),
+    which also tells a run without the eval_* columns (`evaluation` False) from one with them."""
     d = {"config": digest({k: config_table[k] for k in RESULT_SECTIONS}),
          "model": digest(model_dict) if model_dict else "none", "version": tofd.__version__}
+    if not evaluation:
+        d["evaluation"] = "off"
     d["run"] = digest(d)
     return d

@@ -1,5 +1,6 @@
-"""One per-frame result row (the replay results record, map digests and means, stage timings) and its Parquet
-schema: what `tofd batch` writes and the golden check compares."""
+"""One per-frame result row (the replay results record, map digests and means, stage timings, and the evaluation's
+per-image minima where the frame has ground truth) and its Parquet schema: what `tofd batch` writes; the golden
+check compares its pipeline fields."""
 
 from __future__ import annotations
 
@@ -8,11 +9,13 @@ import hashlib
 import numpy as np
 import pyarrow as pa
 
-from tofd.algorithm.names import MAP_NAMES
+from tofd.algorithm.names import MAP_NAMES, VARIANTS
+from tofd.lab.evaluation import ImageMinima
 from tofd.service.pipeline.results import FrameResult, finite_or_none, result_record
 
-TIMED = ("read", "segmentation", "fft", "nfft", "detection")
-"""Stages timed per frame in batch rows (ms): reading from storage, then the worker's stages."""
+TIMED = ("read", "segmentation", "fft", "nfft", "detection", "evaluation")
+"""Stages timed per frame in batch rows (ms): reading from storage, the worker's stages, then the evaluation of
+a frame with ground truth (tofd.batch.task.FrameEvaluation)."""
 
 _FLOAT_LIST = pa.list_(pa.float64())
 ROW_SCHEMA = pa.schema(
@@ -24,10 +27,14 @@ ROW_SCHEMA = pa.schema(
     + [(f"digest_{name}", pa.string()) for name in MAP_NAMES]
     + [(f"mean_{name}", pa.float64()) for name in MAP_NAMES]
     + [(f"t_{stage}_ms", pa.float64()) for stage in TIMED]
+    + [("eval_has_nose", pa.bool_()), ("eval_distance_m", pa.float64())]
+    + [(f"eval_{kind}_min_{variant}", pa.float64()) for variant in VARIANTS for kind in ("true", "false")]
 )
-"""Columns of a batch results file; digest_* / mean_* are null for maps not computed (all NaN)."""
+"""Columns of a batch results file; digest_* / mean_* are null for maps not computed (all NaN); eval_* are null
+for frames without ground truth (eval_columns)."""
 
 TIMING_COLUMNS = tuple(f"t_{stage}_ms" for stage in TIMED)
+EVAL_COLUMNS = tuple(name for name in ROW_SCHEMA.names if name.startswith("eval_"))
 
 
 def array_digest(a: np.ndarray) -> str:
@@ -63,15 +70,40 @@ def frame_row(r: FrameResult) -> dict:
     return row
 
 
-def without_timings(row: dict) -> dict:
-    """A row without its t_*_ms columns: what must not change between runs."""
-    return {k: v for k, v in row.items() if k not in TIMING_COLUMNS}
+def eval_columns(minima: ImageMinima, distance_m: float) -> dict:
+    """The eval_* columns of one frame from its ImageMinima (one image) and its nose distance (metres): what
+    tofd.lab.evaluation.variant_results needs of it; variants the model lacks are null."""
+    row: dict = {"eval_has_nose": bool(minima.has_nose[0]), "eval_distance_m": distance_m}
+    for variant in VARIANTS:
+        for kind, mins in (("true", minima.true_min), ("false", minima.false_min)):
+            row[f"eval_{kind}_min_{variant}"] = float(mins[variant][0]) if variant in mins else None
+    return row
+
+
+def minima_from_rows(rows: list[dict], variants: list[str]) -> tuple[ImageMinima, np.ndarray]:
+    """The ImageMinima of the `variants` and the (F,) nose distances (metres) of the rows that carry eval_* columns,
+    in order (the inverse of eval_columns)."""
+    kept = [r for r in rows if r.get("eval_has_nose") is not None]
+
+    def column(name: str) -> np.ndarray:
+        return np.array([r[name] for r in kept], dtype=np.float64)
+
+    return (ImageMinima(np.array([r["eval_has_nose"] for r in kept], dtype=bool),
+                        {v: column(f"eval_true_min_{v}") for v in variants},
+                        {v: column(f"eval_false_min_{v}") for v in variants}),
+            column("eval_distance_m"))
+
+
+def pipeline_fields(row: dict) -> dict:
+    """A row without its t_*_ms columns (they vary between runs) and eval_* columns (batch only, from the ground
+    truth): the pipeline's results, which a replay gives too and which must not change between runs."""
+    return {k: v for k, v in row.items() if k not in TIMING_COLUMNS and k not in EVAL_COLUMNS}
 
 
 def rows_digest(rows: list[dict]) -> str:
-    """sha256 of rows (without timings) in order, typed by ROW_SCHEMA (rows read back from Parquet give the same):
+    """sha256 of rows' pipeline_fields in order, typed by ROW_SCHEMA (rows read back from Parquet give the same):
     equal digests mean bit-identical per-frame results."""
     h = hashlib.sha256()
     for row in pa.Table.from_pylist(rows, schema=ROW_SCHEMA).to_pylist():
-        h.update(repr(sorted(without_timings(row).items())).encode())
+        h.update(repr(sorted(pipeline_fields(row).items())).encode())
     return h.hexdigest()

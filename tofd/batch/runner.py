@@ -23,12 +23,15 @@ import numpy as np
 import pyarrow.parquet as pq
 from distributed import Client, LocalCluster, as_completed
 
+from tofd.algorithm.detector import NoseModel
 from tofd.algorithm.threads import THREAD_ENV
 from tofd.batch.plan import InputPlan, Partition, expand_inputs, plan_inputs, run_digests
-from tofd.batch.rows import TIMED, rows_digest
+from tofd.batch.rows import TIMED, minima_from_rows, rows_digest
 from tofd.batch.task import PrepareWorker, partition_stats, run_partition
 from tofd.config import Config, config_table
 from tofd.lab.accuracy import accuracy_from_records
+from tofd.lab.evaluation import variant_results
+from tofd.lab.report import answers_table, eer_table, results_to_dict
 from tofd.progress import Progress
 from tofd.service.model import load_service_model
 
@@ -67,7 +70,7 @@ class RunOptions:
 
 def run_plan(client: Client, inputs: list[InputPlan], job: dict, out: str, digests: dict[str, str],
              options: RunOptions, on_done: Callable[[Client, dict], None] | None = None) -> dict:
-    """Process every partition of `inputs` (job: {"config": table, "model": dict or None}); write and return
+    """Process every partition of `inputs` (job: prepare's); write and return
     the summary. on_done(client, stats) is called after each finished partition (tests use it)."""
     t_start = time.perf_counter()
     parts = [p for inp in inputs for p in inp.partitions]
@@ -112,7 +115,8 @@ def run_plan(client: Client, inputs: list[InputPlan], job: dict, out: str, diges
         progress.done()
     _remove_partial_files(parts)
     summary = _summary(inputs, done, failed, digests, out, wall_s, time.perf_counter() - t_submit,
-                       setup_s, n_workers=len(client.scheduler_info().get("workers", {})), dashboard=dashboard)
+                       setup_s, n_workers=len(client.scheduler_info().get("workers", {})), dashboard=dashboard,
+                       model=None if job["model"] is None else NoseModel.from_dict(job["model"]))
     fs, path = fsspec.core.url_to_fs(out)
     fs.makedirs(path, exist_ok=True)
     with fs.open(f"{path}/{SUMMARY_NAME}", "w") as fh:
@@ -150,7 +154,8 @@ def _percentiles(values: list[float]) -> dict[str, float]:
 
 
 def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, str], digests: dict[str, str],
-             out: str, wall_s: float, run_s: float, setup_s: float, n_workers: int, dashboard: str | None) -> dict:
+             out: str, wall_s: float, run_s: float, setup_s: float, n_workers: int, dashboard: str | None,
+             model: NoseModel | None) -> dict:
     dropped: Counter = Counter()
     per_input = []
     all_rows: list[dict] = []
@@ -208,17 +213,34 @@ def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, s
         "digests": digests,
         "results_digest": rows_digest(all_rows),
         "evaluation": None if accuracy is None else accuracy.to_dict(),
+        "variant_evaluation": variant_evaluation(all_rows, model),
     }
 
 
-def prepare(items: list[str], out: str, cfg: Config, partition_frames: int) -> tuple[list[InputPlan], dict, dict]:
-    """The inputs (with their partitions or errors), the job every task gets (config table and model) and the
-    run's digests, for the service config `cfg` and its detector model."""
+def variant_evaluation(rows: list[dict], model: NoseModel | None) -> dict | None:
+    """`tofd evaluate`'s results of the model's variants over the rows with eval_* columns (frames with ground
+    truth): frames, its EER and answers tables as text, and per variant the EERs and answers overall and per
+    distance bin (without the ROC points); None without a model or such rows."""
+    if model is None:
+        return None
+    minima, distance_m = minima_from_rows(rows, list(model.variants))
+    if not len(distance_m):
+        return None
+    results = variant_results(model, minima, distance_m)
+    return {"frames": len(distance_m), "table": f"{eer_table(results)}\n{answers_table(results)}",
+            "results": results_to_dict(results, points=False)}
+
+
+def prepare(items: list[str], out: str, cfg: Config, partition_frames: int,
+            evaluation: bool = True) -> tuple[list[InputPlan], dict, dict]:
+    """The inputs (with their partitions or errors), the job every task gets (config table, model, whether to
+    evaluate the model on frames with ground truth) and the run's digests, for the service config `cfg` and its
+    detector model."""
     if partition_frames < 1:
         raise ValueError(f"partition size: expected >= 1 frames, got {partition_frames}")
     model = load_service_model(cfg)
-    job = {"config": config_table(cfg), "model": None if model is None else model.to_dict()}
-    digests = run_digests(job["config"], job["model"])
+    job = {"config": config_table(cfg), "model": None if model is None else model.to_dict(), "evaluation": evaluation}
+    digests = run_digests(job["config"], job["model"], evaluation)
     inputs = expand_inputs(items)
     plan_inputs(inputs, out, digests["run"], partition_frames)
     return inputs, job, digests

@@ -1,5 +1,6 @@
 """One batch task, run on a Dask worker: read a partition's frames from storage, process each with the pipeline
-workers' per-frame code (tofd.service.pipeline.stages.process_frame), write the rows as one Parquet file.
+workers' per-frame code (tofd.service.pipeline.stages.process_frame), evaluate the model's variants on each frame
+with ground truth as `tofd evaluate` does (FrameEvaluation), write the rows as one Parquet file.
 
 The file is written under a temporary name and renamed, so it exists only complete; its schema metadata holds
 the partition's statistics (key b"tofd.partition", JSON) for --resume and the summary.
@@ -16,18 +17,22 @@ from collections.abc import Iterator
 from dataclasses import replace
 
 import fsspec
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from drivers.frame import Frame
+from drivers.intrinsics import Intrinsics
 from drivers.recording.index import FrameIndex, read_chunks
-from tofd.algorithm.detector import NoseModel
+from tofd.algorithm.detector import Candidates, NoseModel
+from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.threads import use_one_thread
 from tofd.batch.plan import Partition
-from tofd.batch.rows import ROW_SCHEMA, frame_row
-from tofd.config import config_from_dict
+from tofd.batch.rows import ROW_SCHEMA, eval_columns, frame_row
+from tofd.config import Config, config_from_dict
 from tofd.lab.dataset import DatasetFile
+from tofd.lab.evaluation import NOSE_RADIUS_M, frame_samples, image_minima
 from tofd.service.pipeline.slots import local_slot
 from tofd.service.pipeline.stages import FeatureStage, process_frame
 
@@ -129,8 +134,35 @@ def _dataset_frames(part: Partition, stats: dict, errors: list[str]) -> Iterator
         errors.append(f"frames {part.first + read}-{part.stop - 1}: {type(exc).__name__}: {exc}")
 
 
+class FrameEvaluation:
+    """The eval_* columns of frames with ground truth for one camera: per variant of the model, the frame's
+    tofd.lab.evaluation.ImageMinima (true nose: within NOSE_RADIUS_M of the tip; the config's candidates).
+
+    The samples are computed anew by the lab's frame_samples (all four families), not taken from process_frame's
+    result: the pipeline computes the amplitude families only for an amplitude variant and does not keep the
+    segmentation's face direction the candidates' front test needs, and `tofd evaluate` computes them so.
+    """
+
+    def __init__(self, cfg: Config, intrinsics: Intrinsics, model: NoseModel):
+        self._extractor = FeatureExtractor(intrinsics, cfg.features, cfg.segmentation)
+        self._model = model
+        self._candidates = Candidates.from_config(cfg.detector, cfg.segmentation)
+
+    def __call__(self, frame: Frame) -> dict:
+        """The frame's eval_* columns; {} (null) without ground truth or its 3-D tip. A nose not visible counts
+        as an image without a nose (its tip unknown), as in tofd.lab.evaluation.extract_samples."""
+        truth = frame.ground_truth
+        if truth is None or truth.nose_xyz_m is None:
+            return {}
+        tip = np.asarray(truth.nose_xyz_m, dtype=np.float64)
+        samples = frame_samples(self._extractor, frame.range_m, frame.amplitude,
+                                tip if truth.visible else np.full(3, np.nan))
+        return eval_columns(image_minima(self._model, [samples], NOSE_RADIUS_M, self._candidates),
+                            float(np.linalg.norm(tip)))
+
+
 def run_partition(part_json: str, job_json: str) -> dict:
-    """Process one partition (JSON of plan.Partition; job: {"config": table, "model": dict or None}); returns
+    """Process one partition (JSON of plan.Partition; job: runner.prepare's); returns
     its statistics (frames in/out, drops by reason, errors, time spent setting up, reading, computing, writing,
     in all, and the task's CPU time)."""
     prepare_process()
@@ -141,7 +173,7 @@ def run_partition(part_json: str, job_json: str) -> dict:
     model = None if job["model"] is None else NoseModel.from_dict(job["model"])
     stats: dict = {"output": part.output, "frames_in": 0, "frames_out": 0, "dropped": Counter(), "errors": [],
                    "setup_ms": 0.0, "read_ms": 0.0, "compute_ms": 0.0, "write_ms": 0.0, "pid": os.getpid()}
-    rows, stage, slot, stage_intrinsics = [], None, None, None
+    rows, stage, slot, stage_intrinsics, evaluation = [], None, None, None, None
     for frame, read_ms in _frames(part, stats, stats["errors"]):
         stats["read_ms"] += read_ms
         t0 = time.perf_counter()
@@ -149,16 +181,21 @@ def run_partition(part_json: str, job_json: str) -> dict:
             stage_intrinsics = frame.intrinsics  # each frame carries its camera's intrinsics (as replay uses)
             stage = FeatureStage(replace(cfg, intrinsics=stage_intrinsics), stage_intrinsics, model)
             slot = local_slot(stage_intrinsics.shape)
+            evaluation = FrameEvaluation(cfg, stage_intrinsics, model) if model and job["evaluation"] else None
             stats["setup_ms"] += (time.perf_counter() - t0) * 1e3
             t0 = time.perf_counter()
         try:
             result = process_frame(stage, frame, slot)
+            t_eval = time.perf_counter()
+            evaluated = {} if evaluation is None else evaluation(frame)
         except Exception as exc:  # noqa: BLE001 (a bad frame is dropped with its reason, the others go on)
             stats["dropped"]["features"] += 1
             stats["errors"].append(f"frame {frame.frame_counter}: {type(exc).__name__}: {exc}")
             continue
         result.timings_ms["read"] = read_ms
-        rows.append(frame_row(result))
+        if evaluated:
+            result.timings_ms["evaluation"] = (time.perf_counter() - t_eval) * 1e3
+        rows.append({**frame_row(result), **evaluated})
         stats["compute_ms"] += (time.perf_counter() - t0) * 1e3
     stats["frames_out"] = len(rows)
     stats["dropped"] = dict(stats["dropped"])

@@ -5,7 +5,7 @@ for both) or glob patterns, local or fsspec URLs. Each input is cut into partiti
 read by the tasks (a recording through its index, a dataset by frame range). Output in --out:
 recording=<name>/part-<first>-<stop>-<key>.parquet (key: digests of input, partition, config, model, tofd version)
 and summary.json (frames in/out/dropped with reasons, stage times, throughput, digests, and where the inputs carry
-ground truth the nose accuracy overall and per distance).
+ground truth the nose accuracy overall and per distance and `tofd evaluate`'s tables of the model's variants).
 Default: a LocalCluster of --workers processes; --scheduler tcp://host:8786 uses an existing Dask cluster.
 """
 
@@ -27,6 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--partition-frames", type=int, default=150, metavar="N",
                         help="frames per partition (default: %(default)s, 5 s at 30 fps)")
     parser.add_argument("--resume", action="store_true", help="skip partitions whose results already exist")
+    parser.add_argument("--no-evaluation", dest="evaluation", action="store_false",
+                        help="skip evaluating the model's variants on frames with ground truth (no eval_* columns)")
     parser.add_argument("--retries", type=int, default=2, help="retries of a failing task (default: %(default)s)")
 
 
@@ -42,7 +44,7 @@ def main(args: argparse.Namespace) -> int:
         return 2
     cfg = load_config(args.config)
     try:
-        inputs, job, digests = prepare(args.inputs, args.out, cfg, args.partition_frames)
+        inputs, job, digests = prepare(args.inputs, args.out, cfg, args.partition_frames, args.evaluation)
     except ValueError as exc:
         print(f"tofd batch: {exc}", file=sys.stderr)
         return 2
@@ -64,6 +66,8 @@ def main(args: argparse.Namespace) -> int:
     if summary["evaluation"] is not None:
         print(f"tofd batch: {summary['evaluation']['line']}", file=sys.stderr)
         print(accuracy_table(summary["evaluation"]), file=sys.stderr)
+    if summary["variant_evaluation"] is not None:
+        print(summary["variant_evaluation"]["table"], file=sys.stderr)
     p = summary["partitions"]
     print(f"tofd batch: {summary['frames_out']} frames processed, {summary['frames_dropped']} dropped, "
           f"{p['computed']} partitions computed, {p['resumed']} resumed, {p['failed']} failed; "

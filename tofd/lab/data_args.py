@@ -9,7 +9,7 @@ import time
 from tofd.config import Config
 from tofd.errors import UsageError
 from tofd.lab.dataset import Dataset, load_labelled
-from tofd.lab.evaluation import FrameSamples, extract_samples
+from tofd.lab.evaluation import NOSE_RADIUS_M, FrameSamples, extract_samples
 from tofd.lab.faces import SUBJECTS, check_subjects
 from tofd.progress import Progress
 
@@ -29,9 +29,9 @@ def add_data_arguments(parser: argparse.ArgumentParser, splits: tuple[str, ...])
     parser.add_argument("--seed", type=int, default=0, help="seed of the rendered splits (test uses seed + 1)")
     parser.add_argument("--config", default=None, help="config file (default: the bundled tofd.toml)")
     parser.add_argument("--workers", type=int, default=2, help="feature-extraction processes (default 2)")
-    parser.add_argument("--radius-mm", type=float, default=15.0,
+    parser.add_argument("--radius-mm", type=float, default=NOSE_RADIUS_M * 1e3,
                         help="true nose pixels: 3-D distance (on the 3x3-median range) to the ground-truth tip "
-                             "at most this (default 15)")
+                             f"at most this (default {NOSE_RADIUS_M * 1e3:g})")
 
 
 def _subjects(args: argparse.Namespace, split: str) -> tuple[str, ...] | None:

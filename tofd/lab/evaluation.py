@@ -43,6 +43,7 @@ from tofd.lab.dataset import Dataset
 from tofd.lab.roc import Answers, RocCurve, answers_at, margin_scale, roc_from_min_distances
 
 DISTANCE_BIN_M = 0.05  # per-distance results group frames by nose distance rounded to this
+NOSE_RADIUS_M = 0.015  # true nose pixels: within this 3-D distance of the ground-truth tip (default --radius-mm)
 LABEL_MEDIAN_PX = 3  # median filter (pixels) of the range the true-nose labels are measured on (label_points)
 
 
@@ -201,7 +202,7 @@ def _has_nose(samples: list[FrameSamples], radius_m: float) -> np.ndarray:
 
 
 def train_model(samples: list[FrameSamples], features: FeatureConfig, segmentation: SegmentationConfig,
-                quantile: float = 0.05, positive_radius_m: float = 0.005, radius_m: float = 0.015,
+                quantile: float = 0.05, positive_radius_m: float = 0.005, radius_m: float = NOSE_RADIUS_M,
                 variants: tuple[str, ...] = tuple(VARIANTS), training: dict | None = None,
                 candidates: Candidates = ALL_FOREGROUND) -> NoseModel:
     """Learn each variant's box: the quantile box of the candidate pixels within positive_radius_m of the nose
@@ -245,14 +246,32 @@ def distance_bins(distance_m: np.ndarray) -> np.ndarray:
     return np.round(np.round(np.asarray(distance_m) / DISTANCE_BIN_M) * DISTANCE_BIN_M, 3)
 
 
-def evaluate_model(model: NoseModel, samples: list[FrameSamples], distance_m: np.ndarray,
-                   radius_m: float = 0.015, candidates: Candidates = ALL_FOREGROUND) -> dict[str, VariantResult]:
-    """ROC curves of every variant of the model on test samples, overall and per distance bin."""
-    has_nose = _has_nose(samples, radius_m)
+@dataclass(slots=True)
+class ImageMinima:
+    """Per image, what each variant's per-image ROC needs (tofd.lab.roc.roc_from_min_distances): whether it has
+    a true nose pixel, and the smallest box distance of its true nose pixels and of its other candidate pixels."""
+
+    has_nose: np.ndarray  # (F,) bool
+    true_min: dict[str, np.ndarray]  # variant -> (F,) float64, inf: no such pixel
+    false_min: dict[str, np.ndarray]  # variant -> (F,) float64, inf: no such pixel
+
+
+def image_minima(model: NoseModel, samples: list[FrameSamples], radius_m: float = NOSE_RADIUS_M,
+                 candidates: Candidates = ALL_FOREGROUND) -> ImageMinima:
+    """ImageMinima of the frames' samples for every variant of the model (true nose: within radius_m of the tip)."""
+    pairs = {name: min_distances(samples, name, vm.box, radius_m, candidates) for name, vm in model.variants.items()}
+    return ImageMinima(_has_nose(samples, radius_m), {n: p[0] for n, p in pairs.items()},
+                       {n: p[1] for n, p in pairs.items()})
+
+
+def variant_results(model: NoseModel, minima: ImageMinima, distance_m: np.ndarray) -> dict[str, VariantResult]:
+    """ROC curves and answers of every variant of the model from the images' minima, overall and per distance bin
+    (distance_m: (F,) nose distance of each image, metres)."""
     bins = distance_bins(distance_m)
+    has_nose = minima.has_nose
     results = {}
     for name, vm in model.variants.items():
-        tmin, fmin = min_distances(samples, name, vm.box, radius_m, candidates)
+        tmin, fmin = minima.true_min[name], minima.false_min[name]
         res = VariantResult(name, roc_from_min_distances(tmin, fmin, has_nose),
                             answers_at(tmin, fmin, vm.operating_scale))
         for b in np.unique(bins):
@@ -261,3 +280,10 @@ def evaluate_model(model: NoseModel, samples: list[FrameSamples], distance_m: np
             res.answers_per_distance[float(b)] = answers_at(tmin[sel], fmin[sel], vm.operating_scale)
         results[name] = res
     return results
+
+
+def evaluate_model(model: NoseModel, samples: list[FrameSamples], distance_m: np.ndarray,
+                   radius_m: float = NOSE_RADIUS_M,
+                   candidates: Candidates = ALL_FOREGROUND) -> dict[str, VariantResult]:
+    """ROC curves of every variant of the model on test samples, overall and per distance bin."""
+    return variant_results(model, image_minima(model, samples, radius_m, candidates), distance_m)

@@ -47,11 +47,13 @@ def answers_table(results: dict[str, VariantResult]) -> str:
                            "candidate pixel, at the model's operating scale)", results, cell)
 
 
-def results_to_dict(results: dict[str, VariantResult]) -> dict:
+def results_to_dict(results: dict[str, VariantResult], points: bool = True) -> dict:
+    """Per variant, overall and per distance bin: the ROC (with its points unless `points` is False) and the
+    answers."""
     return {
         name: {
-            "overall": {**r.overall.to_dict(), "answers": r.answers.to_dict()},
-            "per_distance": {f"{d:.2f}": {**roc.to_dict(), "answers": r.answers_per_distance[d].to_dict()}
+            "overall": {**r.overall.to_dict(points), "answers": r.answers.to_dict()},
+            "per_distance": {f"{d:.2f}": {**roc.to_dict(points), "answers": r.answers_per_distance[d].to_dict()}
                              for d, roc in sorted(r.per_distance.items())},
         }
         for name, r in results.items()

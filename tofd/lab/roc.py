@@ -28,16 +28,14 @@ class RocCurve:
     n_images: int
     n_with_nose: int
 
-    def to_dict(self) -> dict:
-        return {
-            "eer": self.eer,
-            "eer_scale": self.eer_scale,
-            "n_images": self.n_images,
-            "n_with_nose": self.n_with_nose,
-            "scale": self.scale.tolist(),
-            "detection_rate": self.detection_rate.tolist(),
-            "false_positive_rate": self.false_positive_rate.tolist(),
-        }
+    def to_dict(self, points: bool = True) -> dict:
+        """JSON-ready: the EER, its scale, the image counts, and the ROC points unless `points` is False."""
+        out: dict = {"eer": self.eer, "eer_scale": self.eer_scale, "n_images": self.n_images,
+                     "n_with_nose": self.n_with_nose}
+        if points:
+            out.update(scale=self.scale.tolist(), detection_rate=self.detection_rate.tolist(),
+                       false_positive_rate=self.false_positive_rate.tolist())
+        return out
 
 
 def roc_from_min_distances(true_min: np.ndarray, false_min: np.ndarray, has_nose: np.ndarray | None = None) -> RocCurve:
