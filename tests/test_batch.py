@@ -296,3 +296,18 @@ def test_cli_reports_a_missing_input_in_one_line(tmp_path):
     assert proc.returncode == 1
     assert "missing.mcap: no such file or directory" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_a_changed_row_layout_never_reuses_old_partitions(monkeypatch):
+    """Partition names depend on the Parquet row schema, so --resume after a change of columns recomputes."""
+    import pyarrow as pa
+
+    from tofd.batch import rows
+    from tofd.batch.plan import RESULT_SECTIONS, run_digests
+
+    table = dict.fromkeys(RESULT_SECTIONS, {})
+    before = run_digests(table, None)
+    monkeypatch.setattr(rows, "ROW_SCHEMA", rows.ROW_SCHEMA.append(pa.field("new_column", pa.int64())))
+    after = run_digests(table, None)
+    assert before["config"] == after["config"] and before["model"] == after["model"]
+    assert before["schema"] != after["schema"] and before["run"] != after["run"]

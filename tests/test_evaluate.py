@@ -3,7 +3,10 @@
 import dataclasses
 import itertools
 import json
+import os
 import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -168,3 +171,17 @@ def test_labels_follow_the_noise_free_surface_closer_than_the_raw_range():
                 labelled = np.linalg.norm(points - clean.nose_xyz_m, axis=-1) <= 0.015
                 flips[key] += int(np.sum(labelled[region] != (truth[region] <= 0.015)))
     assert flips["labels"] < 0.8 * flips["raw"], flips
+
+
+def test_evaluation_workers_follow_the_one_thread_rule():
+    """A spawned extraction worker of `tofd evaluate`/`train` runs OpenCV and BLAS/OpenMP on one thread."""
+    code = ("import os, cv2\n"
+            "from drivers.intrinsics import Intrinsics\n"
+            "from tofd.config import Config\n"
+            "from tofd.lab.evaluation import _init_worker\n"
+            "cfg = Config()\n"
+            "_init_worker(Intrinsics(), cfg.features, cfg.segmentation)\n"
+            "print(cv2.getNumThreads(), os.environ['OMP_NUM_THREADS'], os.environ['OPENBLAS_NUM_THREADS'])")
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
+    assert out.split() == ["1", "1", "1"]

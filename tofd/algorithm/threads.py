@@ -1,5 +1,6 @@
 """One thread per process in the algorithm's numerical libraries, the rule of every process that computes features
-(pipeline workers, batch tasks): results do not depend on thread scheduling, and N processes use N cores.
+(pipeline workers, batch tasks, evaluation workers): results do not depend on thread scheduling, and N processes
+use N cores.
 
 finufft plans and scipy.fft calls take nthreads=1 / workers=1 at each call; OpenMP and BLAS read THREAD_ENV when
 they load (so it must be in a process's environment before it starts, or before they are imported); OpenCV keeps

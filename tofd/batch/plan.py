@@ -3,8 +3,8 @@ fsspec URLs), each cut into partitions (frame ranges: read through a recording's
 each named by its digests.
 
 A partition's output name is part-<first>-<stop>-<key>.parquet under <out>/recording=<name>/, where key =
-sha256(input digest, first, stop, config digest, model digest, tofd version): the same work always gets the same
-name, so --resume can skip it and a changed config or model never reuses a stale file.
+sha256(input digest, first, stop, config digest, model digest, tofd version, row schema): the same work always
+gets the same name, so --resume can skip it and a changed config, model or row layout never reuses a stale file.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from mcap.writer import MCAP0_MAGIC
 
 import tofd
 from drivers.recording.index import frame_index
+from tofd.batch import rows
 from tofd.lab.dataset import DATASET_SUFFIX, DatasetError, DatasetFile
 
 RECORDING_SUFFIX = ".mcap"
@@ -182,10 +183,11 @@ RESULT_SECTIONS = ("segmentation", "features", "detector")
 
 
 def run_digests(config_table: dict, model_dict: dict | None, evaluation: bool = True) -> dict[str, str]:
-    """Digests naming a run's results: config (its RESULT_SECTIONS), model, tofd version, all of them ("run"),
-    which also tells a run without the eval_* columns (`evaluation` False) from one with them."""
+    """Digests naming a run's results: config (its RESULT_SECTIONS), model, tofd version, the Parquet row schema,
+    all of them ("run"), which also tells a run without the eval_* columns (`evaluation` False) from one with them."""
     d = {"config": digest({k: config_table[k] for k in RESULT_SECTIONS}),
-         "model": digest(model_dict) if model_dict else "none", "version": tofd.__version__}
+         "model": digest(model_dict) if model_dict else "none", "version": tofd.__version__,
+         "schema": digest(rows.ROW_SCHEMA.to_string())}
     if not evaluation:
         d["evaluation"] = "off"
     d["run"] = digest(d)

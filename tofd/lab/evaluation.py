@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import multiprocessing
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
@@ -39,6 +40,7 @@ from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import MAP_NAMES
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
 from tofd.algorithm.segmentation import filtered, valid_pixels
+from tofd.algorithm.threads import THREAD_ENV, use_one_thread
 from tofd.lab.dataset import Dataset
 from tofd.lab.roc import Answers, RocCurve, answers_at, margin_scale, roc_from_min_distances
 
@@ -86,6 +88,7 @@ _worker_extractor: FeatureExtractor | None = None
 
 def _init_worker(intrinsics: Intrinsics, features: FeatureConfig, segmentation: SegmentationConfig) -> None:
     global _worker_extractor
+    use_one_thread()
     _worker_extractor = FeatureExtractor(intrinsics, features, segmentation)
 
 
@@ -112,6 +115,7 @@ def extract_samples(dataset: Dataset, features: FeatureConfig, segmentation: Seg
     if workers <= 1 or len(dataset) < 2 * workers:
         _init_worker(dataset.intrinsics, features, segmentation)
         return collect(map(_worker, jobs))
+    os.environ.update(THREAD_ENV)  # inherited by the spawned workers before their BLAS/OpenMP load
     ctx = multiprocessing.get_context("spawn")
     with ctx.Pool(workers, _init_worker, (dataset.intrinsics, features, segmentation)) as pool:
         return collect(pool.imap(_worker, jobs, chunksize=2))

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
+
+from tofd.outputs import write_text
 
 
 def run_summary(ledger_summary: dict, snap: dict, run_s: float, viewer: dict | None) -> dict:
@@ -23,17 +23,6 @@ def run_summary(ledger_summary: dict, snap: dict, run_s: float, viewer: dict | N
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
-    """Write `data` to `path` via a temporary file in the same directory and a rename (readers never see
-    half a file; a symlink planted at `path` is replaced, not followed)."""
+    """Write `data` as JSON to `path` atomically (tofd.outputs), creating its directory."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # as open() would create it, not mkstemp's 0600
-        with os.fdopen(fd, "w") as fh:
-            fh.write(json.dumps(data, indent=1) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text(path, json.dumps(data, indent=1) + "\n")
