@@ -50,15 +50,17 @@ def _docstring(module: str) -> str:
     return ast.get_docstring(ast.parse(Path(spec.origin).read_text(encoding="utf-8"))) or ""
 
 
-def build_parser(full: Collection[str] | None = None) -> argparse.ArgumentParser:
-    """The parser; only the commands in `full` (all when None) import their module and get their arguments."""
+def build_parser(full: Collection[str] | None = None, commands: dict[str, str] | None = None
+                 ) -> argparse.ArgumentParser:
+    """The parser of `commands` (_command_modules() when None); only the commands in `full` (all when None) import
+    their module and get their arguments."""
     parser = _Parser(prog="tofd", description=DESCRIPTION, epilog=EPILOG,
                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"tofd {tofd.__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages (same as --log-level debug)")
     parser.add_argument("--log-level", choices=LEVELS, default="info", help="lowest level logged (default info)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
-    for command, module_name in _command_modules().items():
+    for command, module_name in (commands or _command_modules()).items():
         doc = _docstring(module_name)
         p = sub.add_parser(command, help=doc.splitlines()[0] if doc else "", description=doc,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -69,9 +71,8 @@ def build_parser(full: Collection[str] | None = None) -> argparse.ArgumentParser
     return parser
 
 
-def _named_command(argv: list[str]) -> set[str]:
-    """The command named on the command line (its first word that is a command), or none."""
-    commands = _command_modules()
+def _named_command(argv: list[str], commands: Collection[str]) -> set[str]:
+    """The command named on the command line (its first word that is one of `commands`), or none."""
     return next(({word} for word in argv if word in commands), set())
 
 
@@ -81,7 +82,8 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
     process right away, without the interpreter's teardown of its modules (the Rerun SDK, numpy, ... take up
     to a second), so that SIGTERM ends the service within pipeline.shutdown_timeout_s."""
     argv = sys.argv[1:] if argv is None else argv
-    args = build_parser(_named_command(argv)).parse_args(argv)
+    commands = _command_modules()
+    args = build_parser(_named_command(argv, commands), commands).parse_args(argv)
     setup_logging("debug" if args.verbose else args.log_level)
     code = _run(args)
     if exit_at_once and getattr(args, "exit_at_once", False):

@@ -54,7 +54,7 @@ def load(key: str, n_poses: int) -> dict[int, Pose] | None:
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         log.warning("ignoring the emulator's render cache %s: %s", path, exc)
         return None
-    return {i: (ranges[i].astype(np.float32), amplitudes[i].astype("<u2"),
+    return {i: (ranges[i].astype(np.float32, copy=False), amplitudes[i].astype("<u2", copy=False),
                 GroundTruth(nose_px=(float(nose_px[i, 0]), float(nose_px[i, 1])), visible=bool(visible[i]),
                             nose_xyz_m=None if np.isnan(nose_xyz[i]).any() else tuple(map(float, nose_xyz[i]))))
             for i in range(n_poses)}
