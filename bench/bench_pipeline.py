@@ -36,6 +36,7 @@ from tofd.config import load_config
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline
 from tofd.service.viewer import RerunLogger, RerunTarget
+from tofd.service.viewer.logger import frames_per_send
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -101,7 +102,9 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     pipeline: Pipeline
     warmup = max(1, (max_frames or 300) // 10)
     lat = Latencies(warmup, lambda: processes(pipeline))
-    pipeline = Pipeline(cfg, policy, viewer=RerunLogger(target.rec, cfg.intrinsics) if target else None,
+    logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud, frames_per_send(cfg.rerun, policy)) \
+        if target else None
+    pipeline = Pipeline(cfg, policy, viewer=logger,
                         writers=(lat,), model=load_service_model(cfg), live_source=live)
     rss, rss_parent, stop_sampling = [], [], threading.Event()
     rss_each: dict[str, list[float]] = {}

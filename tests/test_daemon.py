@@ -89,7 +89,7 @@ def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     assert set(centers) == set(counters)
     for x in lines:
         want = x["track"]["nose_px"]
-        assert centers[x["frame_counter"]] == ([pytest.approx(want, abs=0.01)] if want else None)
+        assert centers[x["frame_counter"]] == ([pytest.approx(want, abs=0.01)] if want else [])
 
 
 def test_replay_of_a_missing_file_is_a_one_line_error(tmp_path):

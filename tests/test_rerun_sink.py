@@ -11,14 +11,17 @@ from tofd.config import Config
 from tofd.service.pipeline import Pipeline
 from tofd.service.viewer import RerunLogger, RerunTarget
 from tofd.service.viewer import blueprint as bp
+from tofd.service.viewer.logger import frames_per_send
 
 
-def test_saved_rrd_holds_every_frame(tmp_path):
+@pytest.mark.parametrize("batch_frames", [1, 4])
+def test_saved_rrd_holds_every_frame(tmp_path, batch_frames):
+    """Sent frame by frame or 4 at a time (19 frames: the last batch is partial, sent when the sink ends)."""
     cfg = Config()
     path = tmp_path / "run.rrd"
     target = RerunTarget(cfg.rerun, "save", path=str(path))
     kept = {}
-    pipeline = Pipeline(cfg, "lossless", viewer=RerunLogger(target.rec, cfg.intrinsics),
+    pipeline = Pipeline(cfg, "lossless", viewer=RerunLogger(target.rec, cfg.intrinsics, batch_frames=batch_frames),
                         writers=(lambda r: kept.__setitem__(r.frame.frame_counter, r),))
     source = RenderedSource(20, skip_counters=(7,), n_distinct=3)
     pipeline.start(source)
@@ -31,6 +34,35 @@ def test_saved_rrd_holds_every_frame(tmp_path):
     assert events.column("frame").to_pylist() == [8]
     assert "counter_gap" in events.column("TextLog:text")[0].as_py()[0]
     assert RrdReader(str(path)).blueprints(), "the blueprint is stored with the recording"
+
+
+def test_a_batch_is_sent_once_its_first_frame_waited_long_enough(tmp_path):
+    """However large the batch, a frame reaches the stream within MAX_BATCH_AGE_S of the next one (slow replay)."""
+    import time
+
+    import rerun as rr
+    from rrd_helpers import read_entities
+
+    from tofd.service.viewer.logger import MAX_BATCH_AGE_S
+
+    kept = []
+    pipeline = Pipeline(Config(), "lossless", writers=(kept.append,))
+    pipeline.start(RenderedSource(3, n_distinct=1))
+    assert pipeline.wait(60)
+    pipeline.close()
+    rec = rr.RecordingStream("tofd-test")
+    rec.save(str(tmp_path / "slow.rrd"))
+    logger = RerunLogger(rec, Config().intrinsics, batch_frames=100)
+    logger(kept[0])
+    logger(kept[1])
+    assert logger.pending == 2
+    time.sleep(MAX_BATCH_AGE_S)
+    logger(kept[2])
+    assert logger.pending == 0
+    rec.flush()
+    rec.disconnect()
+    ranges = read_entities(str(tmp_path / "slow.rrd"))[bp.RANGE][1]
+    assert ranges.column("frame").to_pylist() == [r.frame.frame_counter for r in kept]
 
 
 def test_bad_sink_is_rejected():
@@ -120,7 +152,8 @@ def test_saved_rrd_is_batched_and_the_viewer_sends_no_usage_data(tmp_path, monke
     path = tmp_path / "run.rrd"
     target = RerunTarget(cfg.rerun, "save", path=str(path))
     assert os.environ.get("CI") == "1"
-    pipeline = Pipeline(cfg, "lossless", viewer=RerunLogger(target.rec, cfg.intrinsics))
+    logger = RerunLogger(target.rec, cfg.intrinsics, batch_frames=frames_per_send(cfg.rerun, "lossless"))
+    pipeline = Pipeline(cfg, "lossless", viewer=logger)
     pipeline.start(RenderedSource(60, n_distinct=3))
     assert pipeline.wait(120)
     pipeline.close()

@@ -122,6 +122,7 @@ def test_viewer_logs_the_track_box_with_its_confidence(tmp_path):
     results = tracked_results([hit(0.0)] * 5 + [MISS] * 20)
     for r in results:
         logger(r)
+    logger.flush()
     target.close()
     tables = read_entities(str(path))
     boxes = tables[bp.TRACK_2D][1]

@@ -97,11 +97,13 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     run_s, started_s = 0.0, time.monotonic()
     with StopSignals() as stop:  # from here a signal is a stop request, also while the children start
         try:
-            from tofd.service.viewer.process import ViewerProcess  # imports the Rerun SDK: only when serving
+            from tofd.service.viewer.logger import frames_per_send  # these import the Rerun SDK: only when serving
+            from tofd.service.viewer.process import ViewerProcess
 
             identity = run_identity(cfg)
             if cfg.rerun.sink != "none":
-                viewer = ViewerProcess(cfg, cfg.rerun.sink, cancelled=lambda: bool(stop))
+                viewer = ViewerProcess(cfg, cfg.rerun.sink, frames_per_send(cfg.rerun, policy),
+                                       cancelled=lambda: bool(stop))
             metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe),
                                 model=load_service_model(cfg), live_source=live_source)

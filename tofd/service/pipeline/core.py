@@ -345,11 +345,14 @@ class Pipeline:
     # ---------------------------------------------------------------- sink
     def _sink_loop(self) -> None:
         offer = getattr(self.viewer, "offer", None)
+        flush = None if offer is not None else getattr(self.viewer, "flush", None)  # an inline viewer's batch
         block_s = self.cfg.pipeline.shutdown_timeout_s if self.policy == "lossless" else 0.0
         while True:
             result = self.outq.get(POLL_S)
             if result is None:
                 if self._abort.is_set() or (self._collect_done.is_set() and len(self.outq) == 0):
+                    if flush is not None:
+                        self._flush_inline(flush)
                     return
                 continue
             try:
@@ -368,6 +371,14 @@ class Pipeline:
             self.stats.record(result.timings_ms)
             if offer is not None and not offer(result, block_s):
                 self.ledger.skip_viewer(result.seq, result.frame.frame_counter, "blocked")
+
+    @staticmethod
+    def _flush_inline(flush: Callable[[], None]) -> None:
+        """Send what an inline viewer still batches; its failure costs those frames' viewer rows, nothing else."""
+        try:
+            flush()
+        except Exception:
+            log.exception("the viewer failed to send its last frames")
 
     # ---------------------------------------------------------------- monitoring
     def snapshot(self) -> dict:

@@ -1,30 +1,48 @@
-"""Logs one FrameResult to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
+"""Logs FrameResults to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
 
 Per frame (~0.6 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right),
 the radial range outside it, amplitude (uint16), mask, four feature maps, the foreground cloud (~3000 points),
 the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of TRACK_BOX_M about its pixel,
 labelled with its confidence, and its 3-D point) and the track's confidence, one scalar per stage timing.
-Timelines: `frame` (device frame counter) and `device_time` (device clock). set_time is thread-local in Rerun, so it
-is called here, on the logging thread.
+Timelines: `frame` (device frame counter) and `device_time` (device clock).
+
+Everything per frame goes out as columns (Rerun's send_columns), `batch_frames` frames per send: a log call
+costs about four times the CPU of its share of a batched send, and on two cores that CPU is the feature
+workers'. Lossless runs and files batch (frames_per_send); live runs to a viewer send what the views show each
+frame at once, so the viewer is never behind, and the time series SERIES_FRAMES at once (a plot can lag).
+A missing nose or track is a row with no points (nothing drawn); styles that never change (colour maps,
+metres, radii, colours) are logged once, static.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from functools import cache
 
 import numpy as np
 import rerun as rr
+from rerun.components import ImageFormat
 
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.tracking import TrackState
+from tofd.config import RerunConfig
 from tofd.service.pipeline.results import FrameResult, track_px
 from tofd.service.pipeline.stats import TIMED_STAGES
 from tofd.service.viewer import blueprint as bp
+from tofd.service.viewer.wire import OWN_TIMINGS
 
 NOSE_COLOR = (255, 0, 255)
 TRACK_COLOR = (0, 200, 255)
 TRACK_BOX_M = 0.03  # metres: side of the track's box in the image, at the track's depth (a nose's size)
+MAX_BATCH_AGE_S = 0.5  # a batch is sent once its first frame waited this long, however few frames it holds
+SERIES_FRAMES = 15  # the time series (stage timings, track confidence) go out at least this many frames at once
+
+
+def frames_per_send(cfg: RerunConfig, policy: str) -> int:
+    """Frames per column send: cfg.batch_frames for lossless runs (replay) and into a file, 1 for live runs
+    ("latest") to a viewer, which should show each frame as soon as it is done."""
+    return cfg.batch_frames if policy == "lossless" or cfg.sink == "save" else 1
 
 
 @cache
@@ -47,76 +65,200 @@ def colour_by(values: np.ndarray) -> np.ndarray:
     return lut[np.where(finite, idx, 0).astype(np.intp)]
 
 
-def z_depth(radial_m: np.ndarray, ray_z: np.ndarray) -> np.ndarray:
-    """(H, W) float32 planar depth (metres along the optical axis) of a radial range map: range * ray_z."""
-    return (radial_m * ray_z).astype(np.float32)
+def fill_planes(out: dict[str, np.ndarray], r: FrameResult, ray_z: np.ndarray) -> None:
+    """Write one frame's images into `out` (entity -> (H, W) row of the batch's buffer): z-depth (radial range
+    times ray_z) and radial range in metres, amplitude as uint16 sensor units, mask, feature maps; NaN -> 0."""
+    radial = np.fmax(r.frame.range_m, 0.0, out=out[bp.RANGE_RADIAL])  # fmax drops NaN; ranges are >= 0
+    np.multiply(radial, ray_z, out=out[bp.RANGE])
+    np.clip(np.rint(np.fmax(r.frame.amplitude, 0.0)), 0, 65535, out=out[bp.AMPLITUDE], casting="unsafe")
+    out[bp.MASK][...] = r.mask
+    for name, path in bp.FEATURES.items():
+        np.fmax(r.features[name], 0.0, out=out[path])  # eccentricities are >= 0; NaN outside the foreground
 
 
-def amplitude_u16(amplitude: np.ndarray) -> np.ndarray:
-    """(H, W) uint16 amplitude (the sensor's integer units), rounded and clipped; NaN becomes 0."""
-    return np.clip(np.rint(np.nan_to_num(amplitude, nan=0.0)), 0, 65535).astype(np.uint16)
+@dataclass(frozen=True, slots=True)
+class ImageEntity:
+    """A per-frame image: its archetype, pixel type, colour model and the static style logged once."""
+
+    archetype: type
+    dtype: type
+    style: rr.AsComponents | None = None
+    color_model: str | None = None
+
+
+# entities with a variable number of instances per frame (0 = none): archetype, static style
+PARTS: dict[str, tuple[type, rr.AsComponents | None]] = {
+    bp.FOREGROUND: (rr.Points3D, rr.Points3D.from_fields(radii=0.002)),
+    bp.NOSE_2D: (rr.Points2D, rr.Points2D.from_fields(radii=3, colors=[NOSE_COLOR], labels="nose")),
+    bp.NOSE_3D: (rr.Points3D, rr.Points3D.from_fields(radii=0.01, colors=[NOSE_COLOR])),
+    bp.TRACK_2D: (rr.Boxes2D, rr.Boxes2D.from_fields(colors=[TRACK_COLOR])),
+    bp.TRACK_3D: (rr.Points3D, rr.Points3D.from_fields(radii=0.006, colors=[TRACK_COLOR])),
+    bp.TRACK_CONFIDENCE: (rr.Scalars, None),
+    **{f"{bp.TIMINGS}/{stage}": (rr.Scalars, rr.SeriesLines(names=f"{stage} [ms]")) for stage in TIMED_STAGES},
+}
+
+
+@dataclass(slots=True)
+class Batch:
+    """Frames not yet sent: their counters and device times, and the rows of each PARTS entity."""
+
+    opened_s: float = 0.0  # monotonic: when its first frame came
+    frames: list[int] = field(default_factory=list)
+    device_s: list[float] = field(default_factory=list)
+    parts: dict[str, list[tuple[int, dict[str, np.ndarray | list]]]] = field(default_factory=dict)
+
+    def open_row(self, frame_counter: int, device_s: float) -> int:
+        """Append a frame; its row."""
+        if not self.frames:
+            self.opened_s = time.monotonic()
+        self.frames.append(frame_counter)
+        self.device_s.append(device_s)
+        return len(self.frames) - 1
+
+    def add(self, path: str, row: int, **components: np.ndarray | list) -> None:
+        """Frame `row`'s instances of a PARTS entity: each component has one entry per instance."""
+        self.parts.setdefault(path, []).append((row, components))
+
+    def due(self, frames: int) -> bool:
+        """It holds `frames` frames, or its first one waited MAX_BATCH_AGE_S."""
+        return len(self.frames) >= frames or (bool(self.frames) and time.monotonic() - self.opened_s >= MAX_BATCH_AGE_S)
+
+
+@dataclass(slots=True)
+class Shown(Batch):
+    """The batch of what the views show per frame (images, points, boxes), with each frame's arrival, own
+    logging time and row in the series batch."""
+
+    arrival_s: list[float] = field(default_factory=list)
+    call_ms: list[float] = field(default_factory=list)
+    series_row: list[int] = field(default_factory=list)
 
 
 class RerunLogger:
-    """Callable sink: logs static entities once at construction, then every FrameResult it is given."""
+    """Callable sink: logs static entities once at construction, then every FrameResult it is given, sending
+    them `batch_frames` at a time (flush() sends what waits; call it before closing the stream)."""
 
-    def __init__(self, rec: rr.RecordingStream, intrinsics: Intrinsics, point_cloud: bool = True):
-        self.rec, self.point_cloud = rec, point_cloud
+    def __init__(self, rec: rr.RecordingStream, intrinsics: Intrinsics, point_cloud: bool = True,
+                 batch_frames: int = 1):
+        self.rec, self.point_cloud, self.batch_frames = rec, point_cloud, batch_frames
+        self.intrinsics = intrinsics
         self._rays = intrinsics.unit_rays().astype(np.float32)
         self._ray_z = np.ascontiguousarray(self._rays[..., 2])  # z-depth = radial range * cos(angle to the axis)
+        range_style = rr.DepthImage.from_fields(meter=1.0, colormap="turbo")
+        # a DepthImage is Rerun's colour-mapped scalar image; the eccentricities are not depths (0 = background)
+        feature_style = rr.DepthImage.from_fields(colormap="viridis")
+        self._images = {bp.RANGE: ImageEntity(rr.DepthImage, np.float32, range_style),
+                        bp.RANGE_RADIAL: ImageEntity(rr.DepthImage, np.float32, range_style),
+                        bp.AMPLITUDE: ImageEntity(rr.Image, np.uint16, color_model="L"),
+                        bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8),
+                        **{path: ImageEntity(rr.DepthImage, np.float32, feature_style)
+                           for path in bp.FEATURES.values()}}
+        height, width = intrinsics.shape
+        self._buffers = {path: np.empty((batch_frames, height, width), image.dtype)  # reused: Rerun copies them
+                         for path, image in self._images.items()}
+        self._formats = {path: ImageFormat(width=width, height=height, color_model=image.color_model,
+                                           channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(image.dtype)))
+                         for path, image in self._images.items()}
+        self._shown, self._series = Shown(), Batch()
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
         rec.log(bp.CAMERA, rr.Pinhole(focal_length=[intrinsics.fx, intrinsics.fy],
                                       principal_point=[intrinsics.cx + 0.5, intrinsics.cy + 0.5],
                                       width=intrinsics.width, height=intrinsics.height), static=True)
         rec.log(bp.MASK, rr.AnnotationContext([(0, "background", (0, 0, 0)), (1, "foreground", (230, 60, 40))]),
                 static=True)
-        for stage in TIMED_STAGES:
-            rec.log(f"{bp.TIMINGS}/{stage}", rr.SeriesLines(names=f"{stage} [ms]"), static=True)
+        styles = {**{path: image.style for path, image in self._images.items()},
+                  **{path: style for path, (_, style) in PARTS.items()}}
+        for path, style in styles.items():
+            if style is not None:
+                rec.log(path, style, static=True)
+
+    @property
+    def pending(self) -> int:
+        """Frames logged but not yet sent to the views."""
+        return len(self._shown.frames)
 
     def __call__(self, r: FrameResult) -> None:
         t0 = time.perf_counter()
-        rec, frame = self.rec, r.frame
-        rec.set_time("frame", sequence=frame.frame_counter)
-        rec.set_time("device_time", duration=frame.timestamp_us * 1e-6)
+        frame, shown, series = r.frame, self._shown, self._series
+        row = shown.open_row(frame.frame_counter, frame.timestamp_us * 1e-6)
+        shown.series_row.append(series.open_row(frame.frame_counter, frame.timestamp_us * 1e-6))
+        shown.arrival_s.append(r.arrival_s)
         if r.gap_before:
-            rec.log(bp.EVENTS, rr.TextLog(f"{r.gap_before} before frame {frame.frame_counter}",
-                                          level=rr.TextLogLevel.WARN))
-        radial = np.nan_to_num(frame.range_m, nan=0.0)
-        rec.log(bp.RANGE, rr.DepthImage(z_depth(radial, self._ray_z), meter=1.0, colormap="turbo"))
-        rec.log(bp.RANGE_RADIAL, rr.DepthImage(radial, meter=1.0, colormap="turbo"))
-        rec.log(bp.AMPLITUDE, rr.Image(amplitude_u16(frame.amplitude)))
-        rec.log(bp.MASK, rr.SegmentationImage(r.mask.view(np.uint8)))
-        for name, path in bp.FEATURES.items():
-            # a DepthImage is Rerun's colour-mapped scalar image; these are eccentricities, NaN (shown as 0)
-            # outside the foreground, not depths.
-            rec.log(path, rr.DepthImage(np.nan_to_num(r.features[name], nan=0.0), colormap="viridis"))
+            self.rec.set_time("frame", sequence=frame.frame_counter)  # thread-local: set on the logging thread
+            self.rec.set_time("device_time", duration=frame.timestamp_us * 1e-6)
+            self.rec.log(bp.EVENTS, rr.TextLog(f"{r.gap_before} before frame {frame.frame_counter}",
+                                               level=rr.TextLogLevel.WARN))
+        fill_planes({path: buffer[row] for path, buffer in self._buffers.items()}, r, self._ray_z)
         if self.point_cloud:
-            eps0 = r.features["range_nfft_eps0"][r.mask]
-            points = self._rays[r.mask] * frame.range_m[r.mask][:, None]
-            rec.log(bp.FOREGROUND, rr.Points3D(points, colors=colour_by(eps0), radii=0.002))
-        det = r.detection
-        if det is not None and det.nose_px is not None:
-            rec.log(bp.NOSE_2D, rr.Points2D([det.nose_px], radii=3, colors=[NOSE_COLOR], labels="nose"))
-            rec.log(bp.NOSE_3D, rr.Points3D([det.nose_xyz_m], radii=0.01, colors=[NOSE_COLOR]))
-        elif det is not None:
-            rec.log(bp.NOSE_2D, rr.Clear(recursive=False))
-            rec.log(bp.NOSE_3D, rr.Clear(recursive=False))
-        if r.track is not None:
-            self._log_track(r.track, frame.intrinsics)
+            shown.add(bp.FOREGROUND, row, positions=self._rays[r.mask] * frame.range_m[r.mask][:, None],
+                      colors=colour_by(r.features["range_nfft_eps0"][r.mask]))
+        self._add_nose_and_track(r, row, shown.series_row[row])
         for stage, ms in r.timings_ms.items():
-            rec.log(f"{bp.TIMINGS}/{stage}", rr.Scalars(ms))
-        rec.log(f"{bp.TIMINGS}/logging", rr.Scalars((time.perf_counter() - t0) * 1e3))
-        rec.log(f"{bp.TIMINGS}/latency", rr.Scalars((time.monotonic() - r.arrival_s) * 1e3))
+            if stage not in OWN_TIMINGS:
+                series.add(f"{bp.TIMINGS}/{stage}", shown.series_row[row], scalars=[ms])
+        shown.call_ms.append((time.perf_counter() - t0) * 1e3)
+        if series.due(max(self.batch_frames, SERIES_FRAMES)):
+            self.flush()  # the views' batch first: its frames' logging times and latencies join the series
+        elif shown.due(self.batch_frames):
+            self._send_shown()
 
-    def _log_track(self, track: TrackState, intrinsics: Intrinsics) -> None:
-        """The confirmed track's box and point (cleared while there is none) and its confidence."""
-        rec, px = self.rec, track_px(track, intrinsics)
+    def _add_nose_and_track(self, r: FrameResult, row: int, series_row: int) -> None:
+        """The detected nose (none: an empty row), and the confirmed track's box, point and confidence."""
+        shown, det, track = self._shown, r.detection, r.track
+        if det is not None:
+            found = det.nose_px is not None
+            shown.add(bp.NOSE_2D, row, positions=[det.nose_px] if found else np.empty((0, 2)))
+            shown.add(bp.NOSE_3D, row, positions=[det.nose_xyz_m] if found else np.empty((0, 3)))
+        if track is None:
+            return
+        px = track_px(track, self.intrinsics)
         if px is not None and track.nose_xyz_m is not None:
-            side = TRACK_BOX_M * intrinsics.fx / track.nose_xyz_m[2]
-            rec.log(bp.TRACK_2D, rr.Boxes2D(centers=[px], sizes=[[side, side]], colors=[TRACK_COLOR],
-                                            labels=f"track {track.confidence:.2f}"))
-            rec.log(bp.TRACK_3D, rr.Points3D([track.nose_xyz_m], radii=0.006, colors=[TRACK_COLOR]))
+            half = TRACK_BOX_M / 2 * self.intrinsics.fx / track.nose_xyz_m[2]
+            shown.add(bp.TRACK_2D, row, centers=[px], half_sizes=[[half, half]],
+                      labels=[f"track {track.confidence:.2f}"])
+            shown.add(bp.TRACK_3D, row, positions=[track.nose_xyz_m])
         else:
-            rec.log(bp.TRACK_2D, rr.Clear(recursive=False))
-            rec.log(bp.TRACK_3D, rr.Clear(recursive=False))
-        rec.log(bp.TRACK_CONFIDENCE, rr.Scalars(track.confidence))
+            shown.add(bp.TRACK_2D, row, centers=np.empty((0, 2)), half_sizes=np.empty((0, 2)),
+                      labels=np.empty(0, str))
+            shown.add(bp.TRACK_3D, row, positions=np.empty((0, 3)))
+        self._series.add(bp.TRACK_CONFIDENCE, series_row, scalars=[track.confidence])
+
+    def flush(self) -> None:
+        """Send everything that waits."""
+        self._send_shown()
+        series, self._series = self._series, Batch()
+        self._send_parts(series)
+
+    def _send_shown(self) -> None:
+        """Send the views' batch; its frames' logging time (own share plus the send's) and latency join the
+        series."""
+        b, self._shown = self._shown, Shown()
+        if not b.frames:
+            return
+        t0 = time.perf_counter()
+        rows = range(len(b.frames))
+        for path, image in self._images.items():
+            buffers = self._buffers[path][: len(rows)].reshape(len(rows), -1).view(np.uint8)
+            formats = [self._formats[path]] * len(rows)
+            self._send(path, b, rows, image.archetype.columns(buffer=buffers, format=formats))
+        self._send_parts(b)
+        share_ms = (time.perf_counter() - t0) * 1e3 / len(rows)
+        now = time.monotonic()
+        for i, at in enumerate(b.series_row):
+            self._series.add(f"{bp.TIMINGS}/logging", at, scalars=[b.call_ms[i] + share_ms])
+            self._series.add(f"{bp.TIMINGS}/latency", at, scalars=[(now - b.arrival_s[i]) * 1e3])
+
+    def _send_parts(self, b: Batch) -> None:
+        """send_columns of each PARTS entity of the batch, partitioned by frame."""
+        for path, entries in b.parts.items():
+            at, components = zip(*entries, strict=True)
+            lengths = [len(next(iter(c.values()))) for c in components]
+            columns = {name: np.concatenate([np.asarray(c[name]) for c in components]) for name in components[0]}
+            self._send(path, b, at, PARTS[path][0].columns(**columns).partition(lengths))
+
+    def _send(self, path: str, b: Batch, rows: Sequence[int], columns: rr.ComponentColumnList) -> None:
+        """send_columns of `columns` at the batch's frames `rows`, on both timelines."""
+        at = np.asarray(rows, np.intp)
+        self.rec.send_columns(path, indexes=[
+            rr.TimeColumn("frame", sequence=np.asarray(b.frames, np.int64)[at]),
+            rr.TimeColumn("device_time", duration=np.asarray(b.device_s, np.float64)[at])], columns=columns)

@@ -32,10 +32,13 @@ log = logging.getLogger(__name__)
 
 CLOSE = b"close"
 POLL_S = 0.1  # seconds between checks of a start's `cancelled`
+IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this long without a new frame
 
 
-def viewer_main(cfg_table: dict, sink: str, parent_pid: int, frames: Connection, status: Connection) -> None:
-    """Entry point of the viewer process: log every frame it is sent until CLOSE or the pipe closes."""
+def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, frames: Connection,
+                status: Connection) -> None:
+    """Entry point of the viewer process: log every frame it is sent until CLOSE or the pipe closes; what waits
+    in the logger's batch is sent when no frame came for IDLE_FLUSH_S, and at the end."""
     from tofd.service.lifeline import die_with_parent
 
     die_with_parent(parent_pid)
@@ -48,26 +51,37 @@ def viewer_main(cfg_table: dict, sink: str, parent_pid: int, frames: Connection,
     cfg = config_from_dict(cfg_table)
     try:
         target = RerunTarget(cfg.rerun, sink)
-        logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud)
+        logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud, batch_frames)
     except Exception as exc:  # reported to the parent as one line
         status.send_bytes(json.dumps({"error": str(exc)}).encode())
         return
     status.send_bytes(json.dumps({"ready": target.web_url}).encode())
     logged = errors = 0
+
+    def logging_step(step: Callable[[], None], what: str) -> bool:
+        """Run one logger call; a failure (e.g. a counter beyond int64) is counted and the rest goes on."""
+        nonlocal errors
+        try:
+            step()
+            return True
+        except Exception as exc:
+            errors += 1
+            if errors <= 3:
+                log.warning("viewer: %s not logged: %s: %s", what, type(exc).__name__, exc)
+            return False
+
     while True:
         try:
+            if not frames.poll(IDLE_FLUSH_S):
+                logging_step(logger.flush, "batch")
+                continue
             blob = frames.recv_bytes()
         except (EOFError, OSError):
             break
         if blob == CLOSE:
             break
-        try:
-            logger(wire.decode(blob, cfg.intrinsics))
-            logged += 1
-        except Exception as exc:  # one frame Rerun cannot take (e.g. a counter beyond int64) is skipped
-            errors += 1
-            if errors <= 3:
-                log.warning("viewer: frame not logged: %s: %s", type(exc).__name__, exc)
+        logged += logging_step(lambda: logger(wire.decode(blob, cfg.intrinsics)), "frame")
+    logging_step(logger.flush, "batch")
     target.close(cfg.pipeline.shutdown_timeout_s)
     status.send_bytes(json.dumps({"closed": {"frames": logged, "errors": errors}}).encode())
 
@@ -76,15 +90,15 @@ class ViewerProcess:
     """The parent's handle: start the child (raising ViewerError if its sink cannot start), `offer` frames,
     `close` within a deadline. Use from one thread for offer and one for close."""
 
-    def __init__(self, cfg: Config, sink: str, queue_frames: int = 8, start_timeout_s: float = 30.0,
-                 cancelled: Callable[[], bool] = lambda: False):
+    def __init__(self, cfg: Config, sink: str, batch_frames: int = 1, queue_frames: int = 8,
+                 start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False):
         from tofd.service.pipeline.core import config_table
         from tofd.service.viewer.targets import ViewerError
 
         ctx = mp.get_context("spawn")
         frames_r, self._frames = ctx.Pipe(duplex=False)
         self._status, status_w = ctx.Pipe(duplex=False)
-        self.process = ctx.Process(target=viewer_main, args=(config_table(cfg), sink, os.getpid(), frames_r, status_w),
+        self.process = ctx.Process(target=viewer_main, args=(config_table(cfg), sink, batch_frames, os.getpid(), frames_r, status_w),
                                    name="tofd-viewer", daemon=True)
         self.process.start()
         frames_r.close()
