@@ -75,7 +75,7 @@ def service_model(cfg: Config, file: ModelFile) -> NoseModel | None:
 
 
 def load_service_model(cfg: Config) -> NoseModel | None:
-    """service_model of cfg.detector's model file, read here."""
+    """service_model of cfg.detector's model file, read here (for callers that need no identity, e.g. batch)."""
     return service_model(cfg, read_model_file(cfg))
 
 

@@ -11,8 +11,8 @@ class StopSignals:
     """Context manager: while active, SIGTERM and SIGINT are recorded (`received`, `first_at_s`, monotonic)
     and, if given, passed to `on_signal(signum, first)`; the previous handlers come back on exit.
 
-    `on_signal` runs in the handler, so it may interrupt any code: it may only print, start a thread or raise
-    (e.g. to end a blocking call that is no stop-polling loop)."""
+    `on_signal` runs in the handler and may interrupt any code, so it keeps to printing, starting a thread or
+    raising (e.g. to end a blocking call that polls no stop request)."""
 
     SIGNALS = (signal.SIGTERM, signal.SIGINT)
 
