@@ -11,10 +11,10 @@ import json
 import math
 from pathlib import Path
 
+from tofd.algorithm.detector import NoseModel
 from tofd.batch.plan import run_digests
 from tofd.batch.rows import frame_row, pipeline_fields, rows_digest
 from tofd.config import Config, config_table
-from tofd.service.model import load_service_model
 from tofd.service.pipeline.results import FrameResult
 
 FORMAT = "tofd.golden.v1"
@@ -36,9 +36,8 @@ class GoldenRecorder:
         self.rows.append(pipeline_fields(frame_row(result)))
 
 
-def golden_document(rows: list[dict], recording: str, cfg: Config) -> dict:
-    """The golden file's content for `rows` of `recording` made with `cfg` and its detector model."""
-    model = load_service_model(cfg)
+def golden_document(rows: list[dict], recording: str, cfg: Config, model: NoseModel | None) -> dict:
+    """The golden file's content for `rows` of `recording` made with `cfg` and the detector `model` (None: none)."""
     return {"format": FORMAT, "recording": recording,
             "digests": run_digests(config_table(cfg), None if model is None else model.to_dict()),
             "tolerances": TOLERANCES, "results_digest": rows_digest(rows), "frames": rows}

@@ -19,6 +19,8 @@ from typing import TYPE_CHECKING
 from tofd import arguments
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from drivers.source import FrameSource
 
 PROGRESS_INTERVAL_S = 1.0
@@ -35,28 +37,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="camera serial (8 hex digits); overrides [camera] serial")
 
 
-class _StopOnSignal:
-    """SIGINT/SIGTERM: set `event` and close the source from a helper thread (its read may be blocked)."""
+def _finish_on_signal(source: FrameSource) -> Callable[[int, bool], None]:
+    """StopSignals' callback: say so on the first signal, close the source from a helper thread (its read
+    may be blocked)."""
 
-    def __init__(self, source: FrameSource) -> None:
-        self.event = threading.Event()
-        self._source = source
-        self._previous: dict[int, object] = {}
-
-    def _handle(self, signum: int, _frame: object) -> None:
-        if not self.event.is_set():
+    def finish(signum: int, first: bool) -> None:
+        if first:
             print(f"\n{signal.Signals(signum).name}: finishing the recording", file=sys.stderr)
-        self.event.set()
-        threading.Thread(target=self._source.close, daemon=True).start()
+        threading.Thread(target=source.close, daemon=True).start()
 
-    def __enter__(self) -> _StopOnSignal:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
+    return finish
 
 
 def _status(frames: int, elapsed_s: float, nbytes: int, counters: dict[str, int]) -> str:
@@ -71,6 +61,7 @@ def main(args: argparse.Namespace) -> int:
     from drivers.source import DriverError
     from tofd.config import load_config
     from tofd.service.camera import open_camera
+    from tofd.service.signals import StopSignals
 
     config = load_config(args.config)
     if args.serial is not None:  # checked by arguments.serial when parsed
@@ -84,7 +75,7 @@ def main(args: argparse.Namespace) -> int:
     frames = 0
     t_start = time.monotonic()
     try:
-        with source, _StopOnSignal(source) as stop, \
+        with source, StopSignals(_finish_on_signal(source)) as stop, \
                 RecordingWriter(args.out, config=dataclasses.asdict(config)) as writer:
             print(f"recording to {args.out} (Ctrl-C to stop)", file=sys.stderr)
             next_report = t_start + PROGRESS_INTERVAL_S
@@ -96,7 +87,7 @@ def main(args: argparse.Namespace) -> int:
                     line = _status(frames, now - t_start, writer.bytes_written, source.counters)
                     print(f"\r{line}" if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
                     next_report = now + PROGRESS_INTERVAL_S
-                if stop.event.is_set() or (args.frames is not None and frames >= args.frames) or \
+                if stop or (args.frames is not None and frames >= args.frames) or \
                         (args.seconds is not None and now - t_start >= args.seconds):
                     break
     except OSError as exc:

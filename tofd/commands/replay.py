@@ -18,10 +18,14 @@ import logging
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tofd import arguments
 from tofd.config import Config
 from tofd.service.daemon import RERUN_SPEC_HELP
+
+if TYPE_CHECKING:
+    from tofd.algorithm.detector import NoseModel
 
 log = logging.getLogger(__name__)
 
@@ -155,15 +159,15 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
           + (f", {loops + 1} passes" if args.loop else "")
           + f", {s['fps']} fps; wrote {out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
     if golden is not None:
-        return check_golden(args, golden.rows, stem, cfg) or result.exit_code
+        return check_golden(args, golden.rows, stem, cfg, result.model) or result.exit_code
     return result.exit_code
 
 
-def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Config) -> int:
+def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Config, model: NoseModel | None) -> int:
     """Write and/or check the golden file; 1 (with the differences on stderr) on a regression."""
     from tofd.batch.golden import compare, golden_document, load_golden, write_golden
 
-    doc = golden_document(rows, stem, cfg)
+    doc = golden_document(rows, stem, cfg, model)
     if args.write_golden:
         write_golden(args.write_golden, doc)
         print(f"tofd replay: wrote golden file {args.write_golden} ({len(rows)} frames)", file=sys.stderr)

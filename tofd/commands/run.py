@@ -12,8 +12,6 @@ import argparse
 import logging
 import signal
 import sys
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -43,19 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write the drop ledger and run statistics here at exit")
 
 
-@contextmanager
-def stop_on_signals() -> Iterator[None]:
-    """While preparing: SIGTERM and SIGINT raise Stopped (the pipeline installs its own handlers later)."""
-
-    def handler(signum: int, _frame: object) -> None:
-        raise Stopped(signal.Signals(signum).name)
-
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGTERM, signal.SIGINT)}
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
+def _raise_stopped(signum: int, _first: bool) -> None:
+    """StopSignals' callback while the camera is prepared: Stopped ends that blocking call (serve() later polls
+    its own StopSignals instead)."""
+    raise Stopped(signal.Signals(signum).name)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -65,6 +54,7 @@ def main(args: argparse.Namespace) -> int:
     from tofd.service.camera import open_camera
     from tofd.service.daemon import parse_rerun_spec, serve
     from tofd.service.pipeline import PipelineError
+    from tofd.service.signals import StopSignals
     from tofd.service.viewer import ViewerError
 
     cfg = parse_rerun_spec(args.rerun, load_config(args.config))
@@ -76,7 +66,7 @@ def main(args: argparse.Namespace) -> int:
         check_output_file(args.summary, "--summary")
     policy = "latest" if cfg.pipeline.policy == "auto" else cfg.pipeline.policy
     try:
-        with stop_on_signals():
+        with StopSignals(_raise_stopped):
             camera = open_camera(cfg, args.emulate)
     except Stopped as exc:
         print(f"tofd run: {exc} before the camera was ready; stopped", file=sys.stderr)

@@ -20,7 +20,7 @@ from drivers.source import FrameSource
 from tofd.config import Config, ConfigError, config_digest
 from tofd.progress import Progress
 from tofd.service.health import HealthServer, ServiceMetrics, sd_notify
-from tofd.service.model import load_service_model, model_identity
+from tofd.service.model import ModelIdentity, read_model_file, service_model
 from tofd.service.pipeline.core import Pipeline, Sink
 from tofd.service.pipeline.queues import Policy
 from tofd.service.shutdown import Shutdown
@@ -30,6 +30,7 @@ from tofd.service.supervise import show_progress, supervise
 from tofd.service.viewer.spec import RERUN_SPEC_HELP, parse_rerun_spec
 
 if TYPE_CHECKING:
+    from tofd.algorithm.detector import NoseModel
     from tofd.service.viewer.process import ViewerProcess
 
 __all__ = ["RERUN_SPEC_HELP", "Progress", "ServiceResult", "parse_rerun_spec", "serve"]
@@ -41,13 +42,13 @@ log = logging.getLogger(__name__)
 class ServiceResult:
     exit_code: int
     summary: dict  # ledger summary + final snapshot
+    model: NoseModel | None  # the nose model the run used (None: it ran without one)
     web_url: str | None = None
 
 
-def run_identity(cfg: Config) -> dict[str, str]:
+def run_identity(cfg: Config, model: ModelIdentity) -> dict[str, str]:
     """What this run computes with (logged at start; labels of tofd_build_info; in the summary): the model's
     resolved path and SHA-256 and the config's digest."""
-    model = model_identity(cfg)
     log.info("model: %s (sha256 %s, variant %s)", model.path or "none", model.sha256[:16] or "-",
              cfg.detector.variant)
     return {"model_path": model.path, "model_sha256": model.sha256, "config_sha256": config_digest(cfg)}
@@ -100,13 +101,15 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             from tofd.service.viewer.logger import frames_per_send  # these import the Rerun SDK: only when serving
             from tofd.service.viewer.process import ViewerProcess
 
-            identity = run_identity(cfg)
+            model_file = read_model_file(cfg)
+            identity = run_identity(cfg, model_file.identity)
             if cfg.rerun.sink != "none":
                 viewer = ViewerProcess(cfg, cfg.rerun.sink, frames_per_send(cfg.rerun, policy),
                                        cancelled=lambda: bool(stop))
             metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
-            pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe),
-                                model=load_service_model(cfg), live_source=live_source)
+            model = service_model(cfg, model_file)
+            pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe), model=model,
+                                live_source=live_source)
             health = _health(cfg, pipeline, metrics)
             pipeline.start(source, max_frames, cancelled=lambda: bool(stop))
             started_s = time.monotonic()
@@ -133,4 +136,4 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
         progress.done()
     if summary_path is not None:
         write_json_atomic(summary_path, summary)
-    return ServiceResult(1 if pipeline.error else 0, summary, viewer.web_url if viewer else None)
+    return ServiceResult(1 if pipeline.error else 0, summary, model, viewer.web_url if viewer else None)

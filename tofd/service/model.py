@@ -7,7 +7,7 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from tofd.algorithm.detector import ModelError, NoseDetector, NoseModel, load_model
+from tofd.algorithm.detector import ModelError, NoseDetector, NoseModel, load_model, parse_model
 from tofd.config import Config, ConfigError, default_file
 
 log = logging.getLogger(__name__)
@@ -34,30 +34,49 @@ def resolve_model_path(model_path: str | Path) -> Path:
     return path if path.is_absolute() else default_file(str(path))
 
 
-def model_identity(cfg: Config) -> ModelIdentity:
-    """Resolved path and SHA-256 of cfg.detector's model file; NO_MODEL when there is none."""
+@dataclass(frozen=True, slots=True)
+class ModelFile:
+    """cfg.detector's model file as read once, so that its identity and the model it holds are the same bytes."""
+
+    path: Path  # resolved
+    data: bytes | None  # None: there is no file at `path`
+
+    @property
+    def identity(self) -> ModelIdentity:
+        """Resolved path and SHA-256 of the bytes; NO_MODEL without a file."""
+        if self.data is None:
+            return NO_MODEL
+        return ModelIdentity(str(self.path), hashlib.sha256(self.data).hexdigest())
+
+
+def read_model_file(cfg: Config) -> ModelFile:
+    """The bytes of cfg.detector's model file (None when it does not exist); ConfigError when it cannot be read."""
     path = resolve_model_path(cfg.detector.model_path).resolve()
     try:
-        return ModelIdentity(str(path), hashlib.sha256(path.read_bytes()).hexdigest())
+        return ModelFile(path, path.read_bytes())
     except FileNotFoundError:
-        return NO_MODEL
+        return ModelFile(path, None)
     except OSError as exc:
         raise ConfigError(f"detector.model_path: cannot read {path}: {exc.strerror}") from None
 
 
-def load_service_model(cfg: Config) -> NoseModel | None:
-    """The model of cfg.detector, checked against the config's feature settings; None (with a warning) when its
-    file does not exist. ConfigError names a model that cannot be used."""
-    path = resolve_model_path(cfg.detector.model_path).resolve()
-    if not path.exists():
-        log.warning("no detector model at %s (detector.model_path): running without nose detection", path)
+def service_model(cfg: Config, file: ModelFile) -> NoseModel | None:
+    """The model in `file`, checked against the config's feature settings; None (with a warning) when there is
+    no file. ConfigError names a model that cannot be used."""
+    if file.data is None:
+        log.warning("no detector model at %s (detector.model_path): running without nose detection", file.path)
         return None
     try:
-        model = load_model(path)
+        model = parse_model(file.data.decode(), str(file.path))
         NoseDetector(model, cfg.detector, cfg.features, cfg.segmentation, cfg.intrinsics)
     except ModelError as exc:
         raise ConfigError(f"detector.model_path: {exc}") from None
     return model
+
+
+def load_service_model(cfg: Config) -> NoseModel | None:
+    """service_model of cfg.detector's model file, read here (for callers that need no identity, e.g. batch)."""
+    return service_model(cfg, read_model_file(cfg))
 
 
 def load_detector(cfg: Config) -> NoseDetector:

@@ -19,10 +19,11 @@ from tofd.algorithm.detector.model_file import (
     NoseModel,
     VariantModel,
     load_model,
+    parse_model,
     save_model,
 )
 from tofd.algorithm.names import VARIANTS
 
 __all__ = ["ALL_FOREGROUND", "VARIANTS", "Box", "Candidates", "Detection", "ModelError", "ModelMismatch",
            "NoseDetector", "NoseModel", "VariantModel", "border_distance_m", "depth_noise_m", "detect", "front_gap_m",
-           "learn_box", "load_model", "save_model", "stack_features", "to_log_features"]
+           "learn_box", "load_model", "parse_model", "save_model", "stack_features", "to_log_features"]

@@ -121,13 +121,19 @@ def load_model(path: str | Path) -> NoseModel:
     """Read a model JSON; ModelError names the file and the bad key."""
     path = Path(path)
     try:
-        d = json.loads(path.read_text())
+        text = path.read_text()
     except OSError as exc:
         raise ModelError(f"cannot read model {path}: {exc.strerror}") from None
+    return parse_model(text, str(path))
+
+
+def parse_model(text: str, where: str) -> NoseModel:
+    """The model in JSON `text` (read by the caller, e.g. once for both its hash and its content); ModelError
+    names `where` (the file) and the bad key."""
+    try:
+        d = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ModelError(f"{path}: invalid JSON: {exc}") from None
+        raise ModelError(f"{where}: invalid JSON: {exc}") from None
     if not isinstance(d, dict):
-        raise ModelError(f"{path}: expected a JSON object")
-    return NoseModel.from_dict(d, str(path))
-
-
+        raise ModelError(f"{where}: expected a JSON object")
+    return NoseModel.from_dict(d, where)
