@@ -149,20 +149,21 @@ def test_replay_argument_mistakes(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("kind", ["invalid_json", "not_a_model", "directory"])
+@pytest.mark.parametrize("kind", ["invalid_json", "not_utf8", "not_a_model", "directory"])
 def test_a_model_file_that_cannot_be_used_stops_replay_with_exit_2_naming_it(tmp_path, kind):
     model = tmp_path / "nose_model.json"
     if kind == "directory":
         model.mkdir()
     else:
-        model.write_text({"invalid_json": "{ not json", "not_a_model": '{"format": "other"}'}[kind])
+        model.write_bytes({"invalid_json": b"{ not json", "not_utf8": b'{"format": "\xff"}',
+                           "not_a_model": b'{"format": "other"}'}[kind])
     config = tmp_path / "tofd.toml"
     config.write_text(f'[detector]\nmodel_path = "{model}"\n')
     proc = tofd("replay", str(CLIP), "--config", str(config), "--out", str(tmp_path / "o"), "--rerun", "none")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
     last = proc.stderr.strip().splitlines()[-1]  # after the INFO line naming the model (not for the directory)
     assert last.startswith("tofd replay: config error: detector.model_path: ") and str(model) in last, last
-    assert {"invalid_json": "invalid JSON", "not_a_model": "key 'format' is 'other'",
+    assert {"invalid_json": "invalid JSON", "not_utf8": "invalid JSON", "not_a_model": "key 'format' is 'other'",
             "directory": "cannot read"}[kind] in last
 
 

@@ -20,9 +20,6 @@ class ModelIdentity:
     path: str
     sha256: str
 
-    def to_dict(self) -> dict[str, str]:
-        return {"path": self.path, "sha256": self.sha256}
-
 
 NO_MODEL = ModelIdentity("", "")
 
@@ -67,7 +64,7 @@ def service_model(cfg: Config, file: ModelFile) -> NoseModel | None:
         log.warning("no detector model at %s (detector.model_path): running without nose detection", file.path)
         return None
     try:
-        model = parse_model(file.data.decode(), str(file.path))
+        model = parse_model(file.data, str(file.path))
         NoseDetector(model, cfg.detector, cfg.features, cfg.segmentation, cfg.intrinsics)
     except ModelError as exc:
         raise ConfigError(f"detector.model_path: {exc}") from None

@@ -127,12 +127,12 @@ def load_model(path: str | Path) -> NoseModel:
     return parse_model(text, str(path))
 
 
-def parse_model(text: str, where: str) -> NoseModel:
+def parse_model(text: str | bytes, where: str) -> NoseModel:
     """The model in JSON `text` (read by the caller, e.g. once for both its hash and its content); ModelError
     names `where` (the file) and the bad key."""
     try:
         d = json.loads(text)
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ModelError(f"{where}: invalid JSON: {exc}") from None
     if not isinstance(d, dict):
         raise ModelError(f"{where}: expected a JSON object")
