@@ -58,11 +58,11 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, 
     status.send_bytes(json.dumps({"ready": target.web_url}).encode())
     logged = errors = 0
 
-    def logging_step(step: Callable[[], None], what: str) -> bool:
-        """Run one logger call; a failure (e.g. a counter beyond int64) is counted and the rest goes on."""
+    def logging_step(what: str, step: Callable[..., None], *args: object) -> bool:
+        """step(*args), one logger call; a failure is counted and warned about, and the rest goes on."""
         nonlocal errors
         try:
-            step()
+            step(*args)
             return True
         except Exception as exc:
             errors += 1
@@ -73,15 +73,15 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, 
     while True:
         try:
             if not frames.poll(IDLE_FLUSH_S):
-                logging_step(logger.flush, "batch")
+                logging_step("batch", logger.flush)
                 continue
             blob = frames.recv_bytes()
         except (EOFError, OSError):
             break
         if blob == CLOSE:
             break
-        logged += logging_step(lambda: logger(wire.decode(blob, cfg.intrinsics)), "frame")
-    logging_step(logger.flush, "batch")
+        logged += logging_step("frame", lambda data: logger(wire.decode(data, cfg.intrinsics)), blob)
+    logging_step("batch", logger.flush)
     target.close(cfg.pipeline.shutdown_timeout_s)
     status.send_bytes(json.dumps({"closed": {"frames": logged, "errors": errors}}).encode())
 
@@ -98,8 +98,8 @@ class ViewerProcess:
         ctx = mp.get_context("spawn")
         frames_r, self._frames = ctx.Pipe(duplex=False)
         self._status, status_w = ctx.Pipe(duplex=False)
-        self.process = ctx.Process(target=viewer_main, args=(config_table(cfg), sink, batch_frames, os.getpid(), frames_r, status_w),
-                                   name="tofd-viewer", daemon=True)
+        self.process = ctx.Process(target=viewer_main, name="tofd-viewer", daemon=True,
+                                   args=(config_table(cfg), sink, batch_frames, os.getpid(), frames_r, status_w))
         self.process.start()
         frames_r.close()
         status_w.close()
