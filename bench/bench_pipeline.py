@@ -3,9 +3,11 @@
     python bench/bench_pipeline.py                 # short: 20 s live, 300 replayed frames
     python bench/bench_pipeline.py --minutes 10    # the soak: 10 min live (RSS flat within 5 %?)
 
-Every mode runs the real pipeline (2 worker processes, FFT + NFFT + detection) with the Rerun .rrd sink
-(written to a temp dir) and, for comparison in the same run, without any Rerun sink. Latency is capture
-(driver receive) -> sink done. RSS is the sum over the service process and its workers, sampled every
+Every mode runs the real pipeline (2 worker processes, FFT + NFFT + detection) with the daemon's Rerun viewer
+process (writing an .rrd to a temp dir, sending as it would to a connected viewer: frame by frame live,
+batched in replay) and, for comparison in the same run, without any Rerun sink. Latency is capture (driver
+receive) -> sink done; viewer latency is capture -> handed to Rerun in the viewer process, as it logged it
+(read back from the .rrd). RSS is the sum over the service process and its workers, sampled every
 second; "RSS growth" compares the mean of the last fifth of the run with the mean of the second fifth
 (after warm-up). CPU per frame of each process (utime + stime from /proc, after the first tenth of the
 frames) gives the compute bound of lossless replay: workers / mean worker CPU time per frame; the bench
@@ -35,8 +37,9 @@ from drivers.recording.replay import ReplaySource
 from tofd.config import load_config
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline
-from tofd.service.viewer import RerunLogger, RerunTarget
+from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.logger import frames_per_send
+from tofd.service.viewer.process import ViewerProcess
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -57,17 +60,33 @@ class Latencies:
             self.cpu_at_warmup = {name: cpu_s(pid) for name, pid in self._pids().items()}
 
 
-def processes(pipeline: Pipeline) -> dict[str, int]:
-    """name -> pid of the service process and its workers."""
-    return {"main": os.getpid(), **{f"worker{w.index}": w.pid for w in pipeline.workers if w.pid}}
+def processes(pipeline: Pipeline, viewer: ViewerProcess | None) -> dict[str, int]:
+    """name -> pid of the service process, its workers and its viewer process."""
+    return {"main": os.getpid(), **{f"worker{w.index}": w.pid for w in pipeline.workers if w.pid},
+            **({"viewer": viewer.process.pid} if viewer is not None and viewer.process.pid else {})}
 
 
-def per_process(pipeline: Pipeline, lat: Latencies, rss: dict[str, list[float]]) -> dict:
+def viewer_latencies_ms(rrd: Path) -> np.ndarray:
+    """Each frame's capture -> viewer latency (ms), as the viewer process logged it (/timings/latency), read back
+    from the .rrd with Rerun's own reader, in frame order."""
+    from rerun.chunk import RrdReader
+
+    rows = []
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        if chunk.entity_path == f"{bp.TIMINGS}/latency" and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            rows += zip(batch.column("frame").to_pylist(), (v[0] for v in batch.column("Scalars:scalars").to_pylist()),
+                        strict=True)
+    return np.array([ms for _, ms in sorted(rows)])
+
+
+def per_process(pipeline: Pipeline, viewer: ViewerProcess | None, lat: Latencies,
+                rss: dict[str, list[float]]) -> dict:
     """CPU ms per delivered frame after warm-up and RSS (max, MiB) of each process; the workers' mean CPU per
     frame and the compute bound it sets, workers / (mean worker CPU per frame)."""
     frames = len(lat.ms) - lat.warmup
     out: dict = {}
-    for name, pid in processes(pipeline).items():
+    for name, pid in processes(pipeline, viewer).items():
         if name in lat.cpu_at_warmup and frames > 0:
             cpu_ms = (cpu_s(pid) - lat.cpu_at_warmup[name]) * 1e3 / frames
             out[name] = {"cpu_ms_per_frame": round(cpu_ms, 2), "rss_mb_max": round(max(rss.get(name) or [0.0]), 1)}
@@ -98,20 +117,21 @@ def with_detector(cfg, tmp: Path):
 
 def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | None, max_frames: int | None,
         tmp: Path) -> dict:
-    target = RerunTarget(cfg.rerun, "save", path=str(tmp / f"{policy}-{time.monotonic_ns()}.rrd")) if rerun else None
+    viewer: ViewerProcess | None = None
+    rrd = tmp / f"{policy}-{time.monotonic_ns()}.rrd"
+    if rerun:  # the daemon's viewer process, sending as it would to a connected viewer (live: frame by frame)
+        sends = frames_per_send(replace(cfg.rerun, sink="connect"), policy)
+        viewer = ViewerProcess(replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd))), "save", sends)
     pipeline: Pipeline
     warmup = max(1, (max_frames or 300) // 10)
-    lat = Latencies(warmup, lambda: processes(pipeline))
-    logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud, frames_per_send(cfg.rerun, policy)) \
-        if target else None
-    pipeline = Pipeline(cfg, policy, viewer=logger,
-                        writers=(lat,), model=load_service_model(cfg), live_source=live)
+    lat = Latencies(warmup, lambda: processes(pipeline, viewer))
+    pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(lat,), model=load_service_model(cfg), live_source=live)
     rss, rss_parent, stop_sampling = [], [], threading.Event()
     rss_each: dict[str, list[float]] = {}
 
     def sample() -> None:
         while not stop_sampling.wait(1.0):
-            each = {name: rss_mb(pid) for name, pid in processes(pipeline).items()}
+            each = {name: rss_mb(pid) for name, pid in processes(pipeline, viewer).items()}
             for name, mb in each.items():
                 rss_each.setdefault(name, []).append(mb)
             rss.append(sum(each.values()))
@@ -127,10 +147,15 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     pipeline.wait()
     elapsed = time.monotonic() - t0
     stop_sampling.set()
-    usage = per_process(pipeline, lat, rss_each)
+    usage = per_process(pipeline, viewer, lat, rss_each)
     summary = pipeline.close()
-    if target is not None:
-        target.close()
+    shown = {}
+    if viewer is not None:
+        report = viewer.close(60.0)
+        seen = viewer_latencies_ms(rrd)[len(lat.ms) // 10:]  # skip the warm-up tenth
+        shown = {"viewer_frames": report.get("frames"), "viewer_exit": report["exit"],
+                 "viewer_latency_p50_ms": round(float(np.percentile(seen, 50)), 1),
+                 "viewer_latency_p99_ms": round(float(np.percentile(seen, 99)), 1)}
     q = pipeline.stats.quantiles_ms()
     latency = np.asarray(lat.ms[len(lat.ms) // 10:])  # skip the warm-up tenth
     n = len(rss)
@@ -141,6 +166,7 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
         "fps": round(summary["frames_out"] / elapsed, 2),
         "latency_p50_ms": round(float(np.percentile(latency, 50)), 1),
         "latency_p99_ms": round(float(np.percentile(latency, 99)), 1),
+        **shown,
         "stage_p50_ms": {k: round(v[0], 2) for k, v in q.items()},
         "stage_p99_ms": {k: round(v[1], 2) for k, v in q.items()},
         "rss_mb_first": round(rss[0], 1) if rss else None, "rss_mb_max": round(max(rss), 1) if rss else None,
@@ -162,18 +188,20 @@ def summarise(results: dict) -> None:
     results["replay_rerun_cost_ratio"] = round(r_off["fps"] / r_on["fps"], 2)
     results["replay_with_over_without_rerun"] = round(r_on["fps"] / r_off["fps"], 2)  # goal >= 0.9
     results["replay_over_compute_bound"] = round(r_off["fps"] / bound, 2) if bound else None  # goal >= 0.9
-    results["mode_rows"] = [{"mode": m, **{k: results[m][k] for k in (
-        "fps", "latency_p50_ms", "latency_p99_ms", "frames_in", "frames_out", "frames_dropped", "rss_mb_max",
-        "rss_growth_pct", "worker_cpu_ms_per_frame", "compute_bound_fps")}} for m in MODES]
+    results["mode_rows"] = [{"mode": m, **{k: results[m].get(k) for k in (
+        "fps", "latency_p50_ms", "latency_p99_ms", "viewer_latency_p50_ms", "viewer_latency_p99_ms", "frames_in",
+        "frames_out", "frames_dropped", "rss_mb_max", "rss_growth_pct", "worker_cpu_ms_per_frame",
+        "compute_bound_fps")}} for m in MODES]
     results["process_rows"] = [{"mode": m, "process": name, **usage}
                                for m in MODES for name, usage in results[m]["processes"].items()]
 
 
 def print_tables(results: dict) -> None:
-    print(f"{'mode':28} {'fps':>7} {'p50 ms':>7} {'p99 ms':>7} {'in':>6} {'out':>6} {'drop':>5} {'RSS MB':>7} "
-          f"{'RSS +%':>7} {'bound fps':>9}")
+    print(f"{'mode':28} {'fps':>7} {'p50 ms':>7} {'p99 ms':>7} {'viewer p50':>10} {'viewer p99':>10} {'in':>6} "
+          f"{'out':>6} {'drop':>5} {'RSS MB':>7} {'RSS +%':>7} {'bound fps':>9}")
     for r in results["mode_rows"]:
         print(f"{r['mode']:28} {r['fps']:7.1f} {r['latency_p50_ms']:7.1f} {r['latency_p99_ms']:7.1f} "
+              f"{r['viewer_latency_p50_ms'] or float('nan'):10.1f} {r['viewer_latency_p99_ms'] or float('nan'):10.1f} "
               f"{r['frames_in']:6d} {r['frames_out']:6d} {r['frames_dropped']:5d} {r['rss_mb_max'] or 0:7.0f} "
               f"{r['rss_growth_pct'] if r['rss_growth_pct'] is not None else float('nan'):7.2f} "
               f"{r['compute_bound_fps'] or float('nan'):9.1f}")

@@ -19,6 +19,9 @@ VARIANTS: dict[str, tuple[str, ...]] = {
 VIEWED_FAMILIES = ("range_fft", "range_nfft")
 """Families the live pipeline always computes, for the viewer."""
 
+VIEWED_MAPS = tuple(f"{fam}_{eps}" for fam in VIEWED_FAMILIES for eps in ("eps0", "eps2"))
+"""The feature maps the viewer shows."""
+
 
 def families_for(names: tuple[str, ...] | list[str]) -> tuple[str, ...]:
     """The families needed to compute the given map names."""

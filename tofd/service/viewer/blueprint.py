@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import rerun.blueprint as rrb
 
+from tofd.algorithm.names import VIEWED_MAPS
+
 CAMERA = "/world/camera"  # Pinhole (intrinsics); x right, y down, z forward, metres
 IMAGE = f"{CAMERA}/image"  # the camera's image plane: 2-D views of range, amplitude, mask line up with 3-D
 RANGE = f"{IMAGE}/depth"  # DepthImage: z-depth (planar, along the optical axis), metres: projects correctly in 3-D
@@ -16,12 +18,8 @@ NOSE_3D = "/world/nose"  # Points3D: detected nose tip, metres
 TRACK_2D = f"{IMAGE}/nose_track"  # Boxes2D: the confirmed nose track, pixels, labelled with its confidence
 TRACK_3D = "/world/nose_track"  # Points3D: the confirmed nose track, metres
 TRACK_CONFIDENCE = "/track/confidence"  # Scalars: the nose track's confidence (0-1), every frame
-FEATURES = {  # feature map name (tofd.algorithm.detector naming) -> entity; colour-mapped scalar images
-    "range_fft_eps0": "/features/fft/eps0",
-    "range_fft_eps2": "/features/fft/eps2",
-    "range_nfft_eps0": "/features/nfft/eps0",
-    "range_nfft_eps2": "/features/nfft/eps2",
-}
+FEATURES = {name: "/features/" + name.removeprefix("range_").replace("_", "/") for name in VIEWED_MAPS}
+"""Feature map name -> entity (range_fft_eps0 -> /features/fft/eps0); colour-mapped scalar images."""
 TIMINGS = "/timings"  # Scalars per stage, milliseconds
 EVENTS = "/events"  # TextLog: device gaps and reconnects
 

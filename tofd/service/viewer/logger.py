@@ -22,8 +22,9 @@ from dataclasses import dataclass, field
 from functools import cache
 
 import numpy as np
+import pyarrow as pa
 import rerun as rr
-from rerun.components import ImageFormat
+from rerun.components import ImageBufferBatch, ImageFormat
 
 from drivers.intrinsics import Intrinsics
 from tofd.config import RerunConfig
@@ -74,6 +75,14 @@ def fill_planes(out: dict[str, np.ndarray], r: FrameResult, ray_z: np.ndarray) -
     out[bp.MASK][...] = r.mask
     for name, path in bp.FEATURES.items():
         np.fmax(r.features[name], 0.0, out=out[path])  # eccentricities are >= 0; NaN outside the foreground
+
+
+def blobs(images: np.ndarray) -> pa.ListArray:
+    """(N, H, W) images as N image buffers (Rerun's ImageBuffer arrow type) without a copy."""
+    size = images[0].nbytes if len(images) else 0
+    offsets = pa.array(np.arange(len(images) + 1, dtype=np.int32) * size)
+    return pa.ListArray.from_arrays(offsets, pa.array(images.reshape(-1).view(np.uint8)),
+                                    type=ImageBufferBatch._ARROW_DATATYPE)
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,6 +138,7 @@ class Shown(Batch):
     """The batch of what the views show per frame (images, points, boxes), with each frame's arrival, own
     logging time and row in the series batch."""
 
+    images: dict[str, np.ndarray] = field(default_factory=dict)  # entity -> (batch_frames, H, W), row per frame
     arrival_s: list[float] = field(default_factory=list)
     call_ms: list[float] = field(default_factory=list)
     series_row: list[int] = field(default_factory=list)
@@ -153,13 +163,12 @@ class RerunLogger:
                         bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8),
                         **{path: ImageEntity(rr.DepthImage, np.float32, feature_style)
                            for path in bp.FEATURES.values()}}
+        self._shape = intrinsics.shape
         height, width = intrinsics.shape
-        self._buffers = {path: np.empty((batch_frames, height, width), image.dtype)  # reused: Rerun copies them
-                         for path, image in self._images.items()}
         self._formats = {path: ImageFormat(width=width, height=height, color_model=image.color_model,
                                            channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(image.dtype)))
                          for path, image in self._images.items()}
-        self._shown, self._series = Shown(), Batch()
+        self._shown, self._series = self._new_shown(), Batch()
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
         rec.log(bp.CAMERA, rr.Pinhole(focal_length=[intrinsics.fx, intrinsics.fy],
                                       principal_point=[intrinsics.cx + 0.5, intrinsics.cy + 0.5],
@@ -188,7 +197,7 @@ class RerunLogger:
             self.rec.set_time("device_time", duration=frame.timestamp_us * 1e-6)
             self.rec.log(bp.EVENTS, rr.TextLog(f"{r.gap_before} before frame {frame.frame_counter}",
                                                level=rr.TextLogLevel.WARN))
-        fill_planes({path: buffer[row] for path, buffer in self._buffers.items()}, r, self._ray_z)
+        fill_planes({path: buffer[row] for path, buffer in shown.images.items()}, r, self._ray_z)
         if self.point_cloud:
             shown.add(bp.FOREGROUND, row, positions=self._rays[r.mask] * frame.range_m[r.mask][:, None],
                       colors=colour_by(r.features["range_nfft_eps0"][r.mask]))
@@ -232,13 +241,13 @@ class RerunLogger:
     def _send_shown(self) -> None:
         """Send the views' batch; its frames' logging time (own share plus the send's) and latency join the
         series."""
-        b, self._shown = self._shown, Shown()
-        if not b.frames:
+        if not self._shown.frames:
             return
+        b, self._shown = self._shown, self._new_shown()
         t0 = time.perf_counter()
         rows = range(len(b.frames))
         for path, image in self._images.items():
-            buffers = self._buffers[path][: len(rows)].reshape(len(rows), -1).view(np.uint8)
+            buffers = blobs(b.images[path][: len(rows)])
             formats = [self._formats[path]] * len(rows)
             self._send(path, b, rows, image.archetype.columns(buffer=buffers, format=formats))
         self._send_parts(b)
@@ -247,6 +256,11 @@ class RerunLogger:
         for i, at in enumerate(b.series_row):
             self._series.add(f"{bp.TIMINGS}/logging", at, scalars=[b.call_ms[i] + share_ms])
             self._series.add(f"{bp.TIMINGS}/latency", at, scalars=[(now - b.arrival_s[i]) * 1e3])
+
+    def _new_shown(self) -> Shown:
+        """An empty views' batch with fresh image buffers (Rerun keeps the sent ones: they are not copied)."""
+        return Shown(images={path: np.empty((self.batch_frames, *self._shape), image.dtype)
+                             for path, image in self._images.items()})
 
     def _send_parts(self, b: Batch) -> None:
         """send_columns of each PARTS entity of the batch, partitioned by frame."""

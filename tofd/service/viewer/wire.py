@@ -13,12 +13,13 @@ import numpy as np
 
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.names import MAP_NAMES
+from tofd.algorithm.names import VIEWED_MAPS
 from tofd.service.pipeline.results import FrameResult, track_dict, track_from
 from tofd.service.pipeline.slots import SLOT_FIELDS
 from tofd.service.pipeline.stages import detection_dict, detection_from
 
-PLANES = SLOT_FIELDS  # the frame's planes and what the workers computed: the slot's fields, in the slot's order
+PLANES = tuple((name, dtype) for name, dtype in SLOT_FIELDS if name in ("range_m", "amplitude", "mask", *VIEWED_MAPS))
+"""The planes the viewer logs: the frame's, the mask and the viewed feature maps, in the slot's order."""
 
 OWN_TIMINGS = ("logging", "latency")  # the viewer process measures these itself (RerunLogger)
 
@@ -48,6 +49,6 @@ def decode(blob: bytes, intrinsics: Intrinsics) -> FrameResult:
     frame = Frame(planes["range_m"], planes["amplitude"], h["frame_counter"], h["timestamp_us"],
                   host_monotonic_s=h["host_monotonic_s"], host_wall_s=0.0, intrinsics=intrinsics)
     return FrameResult(seq=h["seq"], frame=frame, mask=planes["mask"],
-                       features={name: planes[name] for name in MAP_NAMES}, nfft_iterations=h["nfft_iterations"],
+                       features={name: planes[name] for name in VIEWED_MAPS}, nfft_iterations=h["nfft_iterations"],
                        nfft_residual=h["nfft_residual"], arrival_s=h["arrival_s"], timings_ms=h["timings_ms"],
                        detection=detection_from(h), track=track_from(h["track"]), gap_before=h["gap_before"])
