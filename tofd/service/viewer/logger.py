@@ -24,7 +24,7 @@ from functools import cache
 import numpy as np
 import pyarrow as pa
 import rerun as rr
-from rerun.components import ImageBufferBatch, ImageFormat
+from rerun.components import ImageBufferBatch, ImageFormat, ImageFormatBatch
 
 from drivers.intrinsics import Intrinsics
 from tofd.config import RerunConfig
@@ -115,6 +115,7 @@ class Batch:
     frames: list[int] = field(default_factory=list)
     device_s: list[float] = field(default_factory=list)
     parts: dict[str, list[tuple[int, dict[str, np.ndarray | list]]]] = field(default_factory=dict)
+    indexes: list[rr.TimeColumn] | None = None  # the time columns of all its frames, once built
 
     def open_row(self, frame_counter: int, device_s: float) -> int:
         """Append a frame; its row."""
@@ -165,9 +166,10 @@ class RerunLogger:
                            for path in bp.FEATURES.values()}}
         self._shape = intrinsics.shape
         height, width = intrinsics.shape
-        self._formats = {path: ImageFormat(width=width, height=height, color_model=image.color_model,
-                                           channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(image.dtype)))
-                         for path, image in self._images.items()}
+        self._formats = {path: ImageFormatBatch([ImageFormat(  # as arrow, built once: Rerun's conversion is slow
+            width=width, height=height, color_model=image.color_model,
+            channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(image.dtype)))]).as_arrow_array()
+            for path, image in self._images.items()}
         self._shown, self._series = self._new_shown(), Batch()
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
         rec.log(bp.CAMERA, rr.Pinhole(focal_length=[intrinsics.fx, intrinsics.fy],
@@ -247,9 +249,9 @@ class RerunLogger:
         t0 = time.perf_counter()
         rows = range(len(b.frames))
         for path, image in self._images.items():
-            buffers = blobs(b.images[path][: len(rows)])
-            formats = [self._formats[path]] * len(rows)
-            self._send(path, b, rows, image.archetype.columns(buffer=buffers, format=formats))
+            formats = self._formats[path].take(np.zeros(len(rows), np.intp))  # the one format, once per frame
+            self._send(path, b, rows, image.archetype.columns(buffer=blobs(b.images[path][: len(rows)]),
+                                                              format=formats))
         self._send_parts(b)
         share_ms = (time.perf_counter() - t0) * 1e3 / len(rows)
         now = time.monotonic()
@@ -271,8 +273,14 @@ class RerunLogger:
             self._send(path, b, at, PARTS[path][0].columns(**columns).partition(lengths))
 
     def _send(self, path: str, b: Batch, rows: Sequence[int], columns: rr.ComponentColumnList) -> None:
-        """send_columns of `columns` at the batch's frames `rows`, on both timelines."""
-        at = np.asarray(rows, np.intp)
-        self.rec.send_columns(path, indexes=[
-            rr.TimeColumn("frame", sequence=np.asarray(b.frames, np.int64)[at]),
-            rr.TimeColumn("device_time", duration=np.asarray(b.device_s, np.float64)[at])], columns=columns)
+        """send_columns of `columns` at the batch's frames `rows`, on both timelines (built once per batch
+        when the rows are all of its frames, as for every image)."""
+        every = len(rows) == len(b.frames)
+        if not every or b.indexes is None:
+            at = np.asarray(rows, np.intp)
+            indexes = [rr.TimeColumn("frame", sequence=np.asarray(b.frames, np.int64)[at]),
+                       rr.TimeColumn("device_time", duration=np.asarray(b.device_s, np.float64)[at])]
+            if not every:
+                return self.rec.send_columns(path, indexes=indexes, columns=columns)
+            b.indexes = indexes
+        self.rec.send_columns(path, indexes=b.indexes, columns=columns)
