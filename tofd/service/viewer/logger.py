@@ -79,8 +79,7 @@ def fill_planes(out: dict[str, np.ndarray], r: FrameResult, ray_z: np.ndarray) -
 
 def blobs(images: np.ndarray) -> pa.ListArray:
     """(N, H, W) images as N image buffers (Rerun's ImageBuffer arrow type) without a copy."""
-    size = images[0].nbytes if len(images) else 0
-    offsets = pa.array(np.arange(len(images) + 1, dtype=np.int32) * size)
+    offsets = pa.array(np.arange(len(images) + 1, dtype=np.int32) * (images.nbytes // max(len(images), 1)))
     return pa.ListArray.from_arrays(offsets, pa.array(images.reshape(-1).view(np.uint8)),
                                     type=ImageBufferBatch._ARROW_DATATYPE)
 
@@ -129,6 +128,19 @@ class Batch:
         """Frame `row`'s instances of a PARTS entity: each component has one entry per instance."""
         self.parts.setdefault(path, []).append((row, components))
 
+    def time_columns(self, rows: Sequence[int]) -> list[rr.TimeColumn]:
+        """The `frame` and `device_time` columns of frames `rows` (built once for all the batch's frames, the rows
+        of every image)."""
+        every = len(rows) == len(self.frames)
+        if every and self.indexes is not None:
+            return self.indexes
+        at = np.asarray(rows, np.intp)
+        indexes = [rr.TimeColumn("frame", sequence=np.asarray(self.frames, np.int64)[at]),
+                   rr.TimeColumn("device_time", duration=np.asarray(self.device_s, np.float64)[at])]
+        if every:
+            self.indexes = indexes
+        return indexes
+
     def due(self, frames: int) -> bool:
         """It holds `frames` frames, or its first one waited MAX_BATCH_AGE_S."""
         return len(self.frames) >= frames or (bool(self.frames) and time.monotonic() - self.opened_s >= MAX_BATCH_AGE_S)
@@ -164,8 +176,7 @@ class RerunLogger:
                         bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8),
                         **{path: ImageEntity(rr.DepthImage, np.float32, feature_style)
                            for path in bp.FEATURES.values()}}
-        self._shape = intrinsics.shape
-        height, width = intrinsics.shape
+        self._shape = height, width = intrinsics.shape
         self._formats = {path: ImageFormatBatch([ImageFormat(  # as arrow, built once: Rerun's conversion is slow
             width=width, height=height, color_model=image.color_model,
             channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(image.dtype)))]).as_arrow_array()
@@ -191,12 +202,13 @@ class RerunLogger:
     def __call__(self, r: FrameResult) -> None:
         t0 = time.perf_counter()
         frame, shown, series = r.frame, self._shown, self._series
-        row = shown.open_row(frame.frame_counter, frame.timestamp_us * 1e-6)
-        shown.series_row.append(series.open_row(frame.frame_counter, frame.timestamp_us * 1e-6))
+        device_s = frame.timestamp_us * 1e-6
+        row = shown.open_row(frame.frame_counter, device_s)
+        shown.series_row.append(series.open_row(frame.frame_counter, device_s))
         shown.arrival_s.append(r.arrival_s)
         if r.gap_before:
             self.rec.set_time("frame", sequence=frame.frame_counter)  # thread-local: set on the logging thread
-            self.rec.set_time("device_time", duration=frame.timestamp_us * 1e-6)
+            self.rec.set_time("device_time", duration=device_s)
             self.rec.log(bp.EVENTS, rr.TextLog(f"{r.gap_before} before frame {frame.frame_counter}",
                                                level=rr.TextLogLevel.WARN))
         fill_planes({path: buffer[row] for path, buffer in shown.images.items()}, r, self._ray_z)
@@ -273,14 +285,5 @@ class RerunLogger:
             self._send(path, b, at, PARTS[path][0].columns(**columns).partition(lengths))
 
     def _send(self, path: str, b: Batch, rows: Sequence[int], columns: rr.ComponentColumnList) -> None:
-        """send_columns of `columns` at the batch's frames `rows`, on both timelines (built once per batch
-        when the rows are all of its frames, as for every image)."""
-        every = len(rows) == len(b.frames)
-        if not every or b.indexes is None:
-            at = np.asarray(rows, np.intp)
-            indexes = [rr.TimeColumn("frame", sequence=np.asarray(b.frames, np.int64)[at]),
-                       rr.TimeColumn("device_time", duration=np.asarray(b.device_s, np.float64)[at])]
-            if not every:
-                return self.rec.send_columns(path, indexes=indexes, columns=columns)
-            b.indexes = indexes
-        self.rec.send_columns(path, indexes=b.indexes, columns=columns)
+        """send_columns of `columns` at the batch's frames `rows`, on both timelines."""
+        self.rec.send_columns(path, indexes=b.time_columns(rows), columns=columns)
