@@ -1,6 +1,6 @@
 """Pipeline benchmark: live emulated camera at 30 fps, lossless replay throughput, RSS over the live run.
 
-    python bench/bench_pipeline.py                 # short: 20 s live, 300 replayed frames
+    python bench/bench_pipeline.py                 # short: 20 s live, 600 replayed frames
     python bench/bench_pipeline.py --minutes 10    # the soak: 10 min live (RSS flat within 5 %?)
 
 Every mode runs the real pipeline (2 worker processes, FFT + NFFT + detection) with the daemon's Rerun viewer
@@ -11,8 +11,9 @@ receive) -> sink done; viewer latency is capture -> handed to Rerun in the viewe
 second; "RSS growth" compares the mean of the last fifth of the run with the mean of the second fifth
 (after warm-up). CPU per frame of each process (utime + stime from /proc, after the first tenth of the
 frames) gives the compute bound of lossless replay: workers / mean worker CPU time per frame; the bench
-reports replay without Rerun against it and replay with Rerun against replay without. Prints tables and
-writes bench/results/bench_pipeline.json.
+reports replay without Rerun against it and replay with Rerun against replay without, both as steady
+throughput (frames per second over those same frames after the first tenth). Prints tables and writes
+bench/results/bench_pipeline.json.
 """
 
 from __future__ import annotations
@@ -47,17 +48,26 @@ CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
 
 class Latencies:
     """Sink keeping every delivered frame's end-to-end latency (ms); at the `warmup`-th frame it reads the CPU
-    time of every process, so CPU per frame leaves out start-up (imports, plans)."""
+    time of every process and the clock, so CPU per frame and steady throughput leave out start-up (imports,
+    plans, the first frames' queue fill)."""
 
     def __init__(self, warmup: int, pids: Callable[[], dict[str, int]]):
         self.ms: list[float] = []
         self.warmup, self._pids = warmup, pids
         self.cpu_at_warmup: dict[str, float] = {}
+        self.at_warmup_s = self.last_s = 0.0
 
     def __call__(self, r) -> None:
-        self.ms.append((time.monotonic() - r.arrival_s) * 1e3)
+        self.last_s = time.monotonic()
+        self.ms.append((self.last_s - r.arrival_s) * 1e3)
         if len(self.ms) == self.warmup:
             self.cpu_at_warmup = {name: cpu_s(pid) for name, pid in self._pids().items()}
+            self.at_warmup_s = self.last_s
+
+    def steady_fps(self) -> float | None:
+        """Frames delivered per second after warm-up: the window CPU per frame is measured over."""
+        frames, seconds = len(self.ms) - self.warmup, self.last_s - self.at_warmup_s
+        return frames / seconds if frames > 0 and seconds > 0 else None
 
 
 def processes(pipeline: Pipeline, viewer: ViewerProcess | None) -> dict[str, int]:
@@ -164,6 +174,7 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
         "frames_dropped": summary["frames_dropped"], "dropped_by_stage": summary["dropped_by_stage"],
         "consistent": summary["consistent"], "seconds": round(elapsed, 2),
         "fps": round(summary["frames_out"] / elapsed, 2),
+        "steady_fps": round(lat.steady_fps() or float("nan"), 2),
         "latency_p50_ms": round(float(np.percentile(latency, 50)), 1),
         "latency_p99_ms": round(float(np.percentile(latency, 99)), 1),
         **shown,
@@ -185,23 +196,25 @@ def summarise(results: dict) -> None:
     """Add the goal ratios and two tables (one row per mode, one per mode and process) to the results."""
     r_on, r_off = results["replay_lossless_rerun"], results["replay_lossless_no_rerun"]
     bound = r_off["compute_bound_fps"]
-    results["replay_rerun_cost_ratio"] = round(r_off["fps"] / r_on["fps"], 2)
-    results["replay_with_over_without_rerun"] = round(r_on["fps"] / r_off["fps"], 2)  # goal >= 0.9
-    results["replay_over_compute_bound"] = round(r_off["fps"] / bound, 2) if bound else None  # goal >= 0.9
+    # steady throughput: over the frames after warm-up, the window the compute bound's CPU times come from
+    results["replay_rerun_cost_ratio"] = round(r_off["steady_fps"] / r_on["steady_fps"], 2)
+    results["replay_with_over_without_rerun"] = round(r_on["steady_fps"] / r_off["steady_fps"], 2)  # goal >= 0.9
+    results["replay_over_compute_bound"] = round(r_off["steady_fps"] / bound, 2) if bound else None  # goal >= 0.9
     results["mode_rows"] = [{"mode": m, **{k: results[m].get(k) for k in (
-        "fps", "latency_p50_ms", "latency_p99_ms", "viewer_latency_p50_ms", "viewer_latency_p99_ms", "frames_in",
-        "frames_out", "frames_dropped", "rss_mb_max", "rss_growth_pct", "worker_cpu_ms_per_frame",
+        "fps", "steady_fps", "latency_p50_ms", "latency_p99_ms", "viewer_latency_p50_ms", "viewer_latency_p99_ms",
+        "frames_in", "frames_out", "frames_dropped", "rss_mb_max", "rss_growth_pct", "worker_cpu_ms_per_frame",
         "compute_bound_fps")}} for m in MODES]
     results["process_rows"] = [{"mode": m, "process": name, **usage}
                                for m in MODES for name, usage in results[m]["processes"].items()]
 
 
 def print_tables(results: dict) -> None:
-    print(f"{'mode':28} {'fps':>7} {'p50 ms':>7} {'p99 ms':>7} {'viewer p50':>10} {'viewer p99':>10} {'in':>6} "
-          f"{'out':>6} {'drop':>5} {'RSS MB':>7} {'RSS +%':>7} {'bound fps':>9}")
+    print(f"{'mode':28} {'fps':>7} {'steady':>7} {'p50 ms':>7} {'p99 ms':>7} {'viewer p50':>10} {'viewer p99':>10} "
+          f"{'in':>6} {'out':>6} {'drop':>5} {'RSS MB':>7} {'RSS +%':>7} {'bound fps':>9}")
     for r in results["mode_rows"]:
-        print(f"{r['mode']:28} {r['fps']:7.1f} {r['latency_p50_ms']:7.1f} {r['latency_p99_ms']:7.1f} "
-              f"{r['viewer_latency_p50_ms'] or float('nan'):10.1f} {r['viewer_latency_p99_ms'] or float('nan'):10.1f} "
+        print(f"{r['mode']:28} {r['fps']:7.1f} {r['steady_fps']:7.1f} {r['latency_p50_ms']:7.1f} "
+              f"{r['latency_p99_ms']:7.1f} {r['viewer_latency_p50_ms'] or float('nan'):10.1f} "
+              f"{r['viewer_latency_p99_ms'] or float('nan'):10.1f} "
               f"{r['frames_in']:6d} {r['frames_out']:6d} {r['frames_dropped']:5d} {r['rss_mb_max'] or 0:7.0f} "
               f"{r['rss_growth_pct'] if r['rss_growth_pct'] is not None else float('nan'):7.2f} "
               f"{r['compute_bound_fps'] or float('nan'):9.1f}")
@@ -220,7 +233,7 @@ def print_tables(results: dict) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--minutes", type=float, default=None, help="live run length (default: 20 s)")
-    ap.add_argument("--replay-frames", type=int, default=300, help="frames of lossless replay (looped clip)")
+    ap.add_argument("--replay-frames", type=int, default=600, help="frames of lossless replay (looped clip)")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "bench_pipeline.json")
     args = ap.parse_args()
     cfg = load_config()

@@ -85,7 +85,7 @@ class WorkerPool:
         """Copy a frame into a free slot and send it to the least busy worker; False if none is free."""
         with self.lock:
             worker = self.free_worker()
-            slot = self.ring.acquire(0) if worker is not None else None
+            slot = self.ring.acquire() if worker is not None else None
             if slot is None:  # a worker died between the wait and now
                 return False
             views = self.ring.views(slot)

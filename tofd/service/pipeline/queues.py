@@ -50,7 +50,8 @@ class StageQueue(Generic[T]):
             if not self._cond.wait_for(lambda: self._items, timeout):
                 return None
             item = self._items.popleft()
-            self._cond.notify_all()
+            if len(self._items) == self.maxsize - 1:  # it was full: a lossless put may be waiting for room
+                self._cond.notify_all()
             return item
 
     def drain(self) -> list[T]:

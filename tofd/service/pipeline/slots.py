@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import secrets
-import threading
 from multiprocessing import shared_memory
 from pathlib import Path
 
@@ -59,7 +58,8 @@ class SlotRing:
     """`n_slots` frame slots of `shape` (rows, columns) in shared memory.
 
     The creating process owns the block (`create`, then `close(unlink=True)`); workers `attach` by name.
-    Free-slot bookkeeping (`acquire`/`release`) lives in the creating process only.
+    Free-slot bookkeeping (`acquire`/`release`) lives in the creating process only, and its caller serialises
+    it (tofd.service.pipeline.pool.WorkerPool holds its lock around every call).
     """
 
     def __init__(self, shm: shared_memory.SharedMemory, n_slots: int, shape: tuple[int, int], owner: bool):
@@ -71,7 +71,6 @@ class SlotRing:
             for k in range(n_slots)
         ]
         self._free = list(range(n_slots))
-        self._cond = threading.Condition()
 
     @classmethod
     def create(cls, n_slots: int, shape: tuple[int, int]) -> SlotRing:
@@ -94,24 +93,14 @@ class SlotRing:
         """The arrays of one slot, by field name (writable views into shared memory)."""
         return self._views[slot]
 
-    def acquire(self, timeout: float | None = None) -> int | None:
-        """A free slot index, waiting up to `timeout` seconds; None if none became free."""
-        with self._cond:
-            if not self._cond.wait_for(lambda: self._free, timeout):
-                return None
-            return self._free.pop()
+    def acquire(self) -> int | None:
+        """A free slot index, or None if every slot is in use."""
+        return self._free.pop() if self._free else None
 
     def release(self, slot: int) -> None:
-        with self._cond:
-            if slot in self._free:
-                raise RuntimeError(f"slot {slot} released twice")
-            self._free.append(slot)
-            self._cond.notify()
-
-    @property
-    def free(self) -> int:
-        with self._cond:
-            return len(self._free)
+        if slot in self._free:
+            raise RuntimeError(f"slot {slot} released twice")
+        self._free.append(slot)
 
     def close(self) -> None:
         """Drop the views and detach; the owner also unlinks the block."""
