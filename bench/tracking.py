@@ -15,7 +15,6 @@ import dataclasses
 import time
 from pathlib import Path
 
-import numpy as np
 from report import add_model_arguments, shown_path, write_json
 
 from tofd.algorithm.detector import NoseDetector, load_model
@@ -32,11 +31,8 @@ def replay_track(path: Path, max_px: float) -> dict:
     acc = accuracy_from_results(path, max_px)
     if acc is None or acc.track_error_px is None:
         raise SystemExit(f"tracking: {path}: no ground truth or no track in the results (replay with a model)")
-    out = {"frames": len(acc.error_px)}
-    for key, error in (("detection", acc.error_px), ("track", acc.track_error_px)):
-        out[f"{key}_found"] = int(np.count_nonzero(error <= max_px))
-        out[f"{key}_wrong"] = int(np.count_nonzero(error > max_px))
-    return out
+    return {"frames": len(acc.error_px), "detection_found": acc.found, "detection_wrong": acc.wrong,
+            "track_found": acc.track_found, "track_wrong": acc.track_wrong}
 
 
 ABOUT = ("Rendered head-motion sequences (0.35-0.70 m sweep, yaw +-30, pitch +-10 deg, 20 fps) of the held-out "

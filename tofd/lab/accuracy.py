@@ -40,8 +40,17 @@ class Accuracy:
         return int(np.count_nonzero(self.error_px <= self.radius_px))
 
     @property
+    def wrong(self) -> int:
+        """Frames with a nose reported farther than radius_px from the truth."""
+        return int(np.count_nonzero(self.error_px > self.radius_px))
+
+    @property
     def track_found(self) -> int | None:
         return None if self.track_error_px is None else int(np.count_nonzero(self.track_error_px <= self.radius_px))
+
+    @property
+    def track_wrong(self) -> int | None:
+        return None if self.track_error_px is None else int(np.count_nonzero(self.track_error_px > self.radius_px))
 
     def line(self) -> str:
         """`nose found N of M within R px; median error E px, max E px` (errors over frames with a detection), then
