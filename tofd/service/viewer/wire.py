@@ -42,10 +42,10 @@ def decode(blob: bytes, intrinsics: Intrinsics) -> FrameResult:
     (n,) = struct.unpack_from("<I", blob)
     h = json.loads(blob[4:4 + n])
     shape, offset, planes = tuple(h["shape"]), 4 + n, {}
+    count = shape[0] * shape[1]
     for name, dtype in PLANES:
-        size = int(np.prod(shape)) * np.dtype(dtype).itemsize
-        planes[name] = np.frombuffer(blob, dtype, int(np.prod(shape)), offset).reshape(shape)
-        offset += size
+        planes[name] = np.frombuffer(blob, dtype, count, offset).reshape(shape)
+        offset += count * np.dtype(dtype).itemsize
     frame = Frame(planes["range_m"], planes["amplitude"], h["frame_counter"], h["timestamp_us"],
                   host_monotonic_s=h["host_monotonic_s"], host_wall_s=0.0, intrinsics=intrinsics)
     return FrameResult(seq=h["seq"], frame=frame, mask=planes["mask"],
