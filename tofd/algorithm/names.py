@@ -5,7 +5,13 @@ from __future__ import annotations
 FAMILIES = ("range_fft", "range_nfft", "amp_fft", "amp_nfft")
 """Groups of maps computed together: each family is one filter pass giving <family>_eps0 and <family>_eps2."""
 
-MAP_NAMES = tuple(f"{fam}_{eps}" for fam in FAMILIES for eps in ("eps0", "eps2"))
+
+def family_maps(families: tuple[str, ...]) -> tuple[str, ...]:
+    """The map names of the given families, in their order."""
+    return tuple(f"{fam}_{eps}" for fam in families for eps in ("eps0", "eps2"))
+
+
+MAP_NAMES = family_maps(FAMILIES)
 """Every feature map a frame can have: (H, W) float32 eccentricities, NaN outside the foreground."""
 
 VARIANTS: dict[str, tuple[str, ...]] = {
@@ -19,7 +25,7 @@ VARIANTS: dict[str, tuple[str, ...]] = {
 VIEWED_FAMILIES = ("range_fft", "range_nfft")
 """Families the live pipeline always computes, for the viewer."""
 
-VIEWED_MAPS = tuple(f"{fam}_{eps}" for fam in VIEWED_FAMILIES for eps in ("eps0", "eps2"))
+VIEWED_MAPS = family_maps(VIEWED_FAMILIES)
 """The feature maps the viewer shows."""
 
 

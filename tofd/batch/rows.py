@@ -60,9 +60,9 @@ def frame_row(r: FrameResult) -> dict:
     row["nfft_residual"] = finite_or_none(r.nfft_residual)
     row["mask_digest"] = array_digest(r.mask)
     for name in MAP_NAMES:
-        m = r.features[name]
-        finite = np.isfinite(m)
-        computed = bool(finite.any())
+        m = r.features.get(name)  # absent: a family the run did not compute
+        finite = np.isfinite(m) if m is not None else None
+        computed = finite is not None and bool(finite.any())
         row[f"digest_{name}"] = array_digest(m) if computed else None
         row[f"mean_{name}"] = float(np.mean(m[finite], dtype=np.float64)) if computed else None
     for stage in TIMED:

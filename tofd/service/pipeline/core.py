@@ -30,6 +30,7 @@ from drivers.frame import COUNTER_LIMIT, Frame, frame_problem
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
+from tofd.algorithm.names import family_maps
 from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config, config_table
 from tofd.service.pipeline import monitor
@@ -39,7 +40,7 @@ from tofd.service.pipeline.pool import WorkerPool
 from tofd.service.pipeline.queues import Policy, StageQueue
 from tofd.service.pipeline.reorder import Reorderer
 from tofd.service.pipeline.results import FrameResult
-from tofd.service.pipeline.stages import frame_result
+from tofd.service.pipeline.stages import frame_result, pipeline_families
 from tofd.service.pipeline.stats import PipelineStats, TrackStats
 
 log = logging.getLogger(__name__)
@@ -93,6 +94,7 @@ class Pipeline:
                                max_failures=pc.max_worker_failures)
         self.workers = self.pool.workers
         self.order: Reorderer[FrameResult] = Reorderer(policy)
+        self.maps = family_maps(pipeline_families(cfg, model is not None))  # what the workers compute
         self.tracker = None if model is None else NoseTracker()  # updated in frame order (_to_sink)
         self.track_stats = None if model is None else TrackStats()
         self.inq: StageQueue[_Queued] = StageQueue(policy, 1 if policy == "latest" else pc.input_queue)
@@ -319,7 +321,7 @@ class Pipeline:
             self.pool.release(slot)
             self._drop(seq, "features", f"error: {msg['error']}")
             return
-        result = frame_result(seq, item.frame, self.pool.ring.views(slot), msg, arrival_s=item.origin_s,
+        result = frame_result(seq, item.frame, self.pool.ring.views(slot), msg, self.maps, arrival_s=item.origin_s,
                               gap_before=item.gap_before,
                               timings_ms={"capture": (item.admitted_s - item.origin_s) * 1e3,
                                           "queue": (item.sent_s - item.admitted_s) * 1e3})

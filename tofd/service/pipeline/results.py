@@ -23,7 +23,7 @@ class FrameResult:
     seq: int  # pipeline sequence number
     frame: Frame
     mask: np.ndarray  # (H, W) bool foreground
-    features: dict[str, np.ndarray]  # tofd.algorithm.names.MAP_NAMES -> (H, W) float32, NaN outside the foreground
+    features: dict[str, np.ndarray]  # the computed maps (names.MAP_NAMES) -> (H, W) float32, NaN outside the foreground
     nfft_iterations: int
     nfft_residual: float
     arrival_s: float  # time.monotonic() when the capture thread received the frame

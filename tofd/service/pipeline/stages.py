@@ -11,7 +11,7 @@ from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import Detection, NoseDetector, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
-from tofd.algorithm.names import FAMILIES, MAP_NAMES, VARIANTS, VIEWED_FAMILIES, families_for
+from tofd.algorithm.names import FAMILIES, VARIANTS, VIEWED_FAMILIES, families_for, family_maps
 from tofd.config import Config
 from tofd.service.pipeline.results import FrameResult
 
@@ -26,10 +26,11 @@ def pipeline_families(cfg: Config, detect: bool) -> tuple[str, ...]:
 class FeatureStage:
     """Segmentation, the features of pipeline_families, the detector on them; plans made once per worker. The
     maps are tofd.algorithm.extract.FeatureExtractor's, i.e. what the detector is trained on; maps of families not
-    computed are NaN in the slot."""
+    computed are left alone in the slot (`maps`: the names of those it computes)."""
 
     def __init__(self, cfg: Config, intrinsics: Intrinsics, model: NoseModel | None):
         families = pipeline_families(cfg, model is not None)
+        self.maps = family_maps(families)
         self._extractor = FeatureExtractor(intrinsics, cfg.features, cfg.segmentation, families)
         self._detector = None if model is None else NoseDetector(model, cfg.detector, cfg.features,
                                                                   cfg.segmentation, intrinsics)
@@ -38,8 +39,8 @@ class FeatureStage:
         """Read range_m/amplitude from `slot`, write mask and feature maps into it; timings in ms."""
         ff = self._extractor(slot["range_m"], slot["amplitude"])
         slot["mask"][...] = ff.mask
-        for name in MAP_NAMES:
-            slot[name][...] = ff.maps.get(name, np.nan)
+        for name in self.maps:
+            slot[name][...] = ff.maps[name]
         timings = ff.timings_ms
         reply = {"timings_ms": timings, "nfft_iterations": int(ff.nfft_iterations),
                  "nfft_residual": float(ff.nfft_residual)}
@@ -56,12 +57,13 @@ def detection_dict(det: Detection) -> dict:
     return {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score, "accepted": det.accepted}
 
 
-def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: dict, *, arrival_s: float = 0.0,
-                 gap_before: str = "", timings_ms: dict[str, float] | None = None) -> FrameResult:
-    """The FrameResult of `frame` from a FeatureStage reply and the slot it filled (maps copied out of the slot);
-    `timings_ms` are stages timed outside the worker, put before the worker's."""
+def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: dict, maps: tuple[str, ...], *,
+                 arrival_s: float = 0.0, gap_before: str = "",
+                 timings_ms: dict[str, float] | None = None) -> FrameResult:
+    """The FrameResult of `frame` from a FeatureStage reply and the slot it filled (the computed `maps`, copied out
+    of the slot); `timings_ms` are stages timed outside the worker, put before the worker's."""
     return FrameResult(
-        seq=seq, frame=frame, mask=views["mask"].copy(), features={name: views[name].copy() for name in MAP_NAMES},
+        seq=seq, frame=frame, mask=views["mask"].copy(), features={name: views[name].copy() for name in maps},
         nfft_iterations=reply["nfft_iterations"], nfft_residual=reply["nfft_residual"], arrival_s=arrival_s,
         gap_before=gap_before, detection=detection_from(reply),
         timings_ms={**(timings_ms or {}), **reply["timings_ms"]})
@@ -72,7 +74,7 @@ def process_frame(stage: FeatureStage, frame: Frame, slot: dict[str, np.ndarray]
     shape): the pipeline workers' computation without shared memory, for batch re-processing."""
     slot["range_m"][...] = frame.range_m
     slot["amplitude"][...] = frame.amplitude
-    return frame_result(seq, frame, slot, stage.run(slot))
+    return frame_result(seq, frame, slot, stage.run(slot), stage.maps)
 
 
 def detection_from(message: dict) -> Detection | None:
