@@ -52,7 +52,7 @@ class FeatureConfig:
     tuning_frequency_per_m: float = 35.0  # rho0: peak of the radial tuning A(rho), cycles/m
     lowpass_sigma_per_m: float = 50.0  # Gaussian low-pass width, cycles/m (anti-aliasing for the NFFT grid)
     fft_padding_px: int = 16  # FFT path: background margin per side against wrap-around, pixels
-    grid_size: int = 80  # NFFT path: N, frequency grid N x N (even)
+    grid_size: int = 72  # NFFT path: N, frequency grid N x N (even)
     damping: float = 0.01  # NFFT path: lambda = damping * points per unit area, (A^H A + lambda I) f = A^H z
     cg_tolerance: float = 1e-4  # NFFT path: stop CG at this relative band-weighted residual
     cg_max_iterations: int = 100  # NFFT path: CG iteration cap
