@@ -56,7 +56,7 @@ def tracked_results(detections: list[Detection]) -> list[FrameResult]:
 
 
 def test_track_counts_acquisition_replacement_and_loss():
-    cfg = TrackerConfig()
+    cfg = TrackerConfig(report_coast_s=2.5 * DT)
     tracker, stats = NoseTracker(cfg), TrackStats()
     assert stats.snapshot() == {"status": "none", "confidence": 0.0, "detected_frames": 0, "tracked_frames": 0,
                                 "acquired": 0, "lost": 0}
@@ -69,8 +69,8 @@ def test_track_counts_acquisition_replacement_and_loss():
     assert snap["acquired"] == 3 and snap["lost"] == 1
     assert snap["detected_frames"] == 6 + cfg.confirm_hits + 4
     assert snap["status"] == "tracking" and 0.5 < snap["confidence"] < 1.0
-    coasting = int(cfg.lost_after_s / DT)  # misses during which the lost track is still reported
-    assert snap["tracked_frames"] == (6 - 2) + cfg.confirm_hits + coasting + (4 - 2)
+    # 2 misses reported (report_coast_s), then the track coasts unreported until lost: one loss, not one per coast
+    assert snap["tracked_frames"] == (6 - 2) + cfg.confirm_hits + 2 + (4 - 2)
 
 
 def test_a_loss_is_counted_when_a_new_track_starts_in_the_same_frame():
@@ -82,7 +82,7 @@ def test_a_loss_is_counted_when_a_new_track_starts_in_the_same_frame():
     for k, d in enumerate(script):
         states.append(tracker.update(d, k * DT))
         stats.record(d, states[-1])
-    assert states[-2].reported and states[-1].status == "tentative" and states[-1].reacquired
+    assert states[-2].status == "coasting" and states[-1].status == "tentative" and states[-1].reacquired
     assert stats.snapshot()["lost"] == 1 and stats.snapshot()["acquired"] == 1
 
 
@@ -162,7 +162,7 @@ def test_metrics_report_the_track_of_a_live_run(tmp_path):
         pipeline.close()
         server.close()
     assert metric_values(text, "tofd_track_status") == {'{status="none"}': 0.0, '{status="tentative"}': 0.0,
-                                                        '{status="tracking"}': 1.0}
+                                                        '{status="coasting"}': 0.0, '{status="tracking"}': 1.0}
     assert metric_values(text, "tofd_track_acquired_total")[""] == 1
     assert metric_values(text, "tofd_track_lost_total")[""] == 0
     detected = metric_values(text, "tofd_nose_detected_frames_total")[""]

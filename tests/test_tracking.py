@@ -45,7 +45,7 @@ def test_coasts_through_misses_on_the_predicted_path() -> None:
     speed = 0.2
     run(tracker, [det(speed * i * DT) for i in range(30)])
     coasting = [tracker.update(MISS, (30 + k) * DT) for k in range(5)]
-    assert all(s.reported and not s.associated for s in coasting)
+    assert all(s.confirmed and not s.associated for s in coasting)  # reported only for report_coast_s
     assert coasting[-1].nose_xyz_m[0] == pytest.approx(speed * 34 * DT, abs=2e-3)
     assert coasting[-1].confidence < coasting[0].confidence < 1.0
 
@@ -80,6 +80,18 @@ def test_lost_after_lost_after_s_then_restarts() -> None:
     assert states[-1].nose_xyz_m is None and states[-1].confidence == 0.0
     restart = tracker.update(det(0.3), 15 * DT)
     assert restart.status == "tentative" and restart.reacquired
+
+
+def test_a_confirmed_track_coasts_unreported_after_report_coast_s_and_resumes_on_a_hit() -> None:
+    cfg = TrackerConfig(report_coast_s=1.5 * DT, lost_after_s=10 * DT)
+    tracker = NoseTracker(cfg)
+    run(tracker, [det(0.0)] * 5)
+    states = [tracker.update(MISS, (5 + k) * DT) for k in range(4)]
+    assert [s.status for s in states] == ["tracking", "coasting", "coasting", "coasting"]
+    assert [s.reported for s in states] == [True, False, False, False]
+    assert all(s.confirmed and s.nose_xyz_m is not None for s in states)  # still predicted, for the gate
+    back = tracker.update(det(0.0), 9 * DT)
+    assert back.associated and back.status == "tracking" and not back.reacquired  # the same track, no re-acquisition
 
 
 def test_gate_grows_with_time_since_last_hit() -> None:

@@ -8,7 +8,9 @@ it starts a challenger, which replaces the track after `confirm_hits` mutually-g
 associated to the track in between (the head really moved there). Confidence rises by `confidence_gain` of its
 shortfall on each associated detection and decays as exp(-dt / confidence_tau_s) otherwise; the track is lost after
 `lost_after_s` without an associated detection. The reported nose is the predicted or corrected position while the
-track is confirmed.
+track is confirmed and its last associated detection is at most `report_coast_s` old (status "tracking"); after that
+the track coasts (status "coasting": still predicted and gated, nothing reported) until a detection is associated
+again or it is lost, because a prediction without recent support drifts off a moving head.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from typing import Literal, Protocol, get_args
 
 import numpy as np
 
-Status = Literal["none", "tentative", "tracking"]
+Status = Literal["none", "tentative", "coasting", "tracking"]
 STATUSES: tuple[Status, ...] = get_args(Status)
 
 
@@ -44,6 +46,8 @@ class TrackerConfig:
     max_speed_m_per_s: float = 1.5  # velocity estimates are clipped to this speed
     confirm_hits: int = 3  # associated detections before a new track (or a challenger) is reported
     lost_after_s: float = 0.5  # seconds without an associated detection before the track is dropped
+    report_coast_s: float = 0.1  # seconds after its last associated detection a confirmed track still reports its
+    # nose (cross-validated on the training subjects' head-motion sequences; see the module docstring)
     confidence_gain: float = 0.5  # share of (1 - confidence) gained per associated detection
     confidence_tau_s: float = 0.25  # seconds: e-folding time of the confidence while no detection is associated
 
@@ -54,6 +58,8 @@ class TrackerConfig:
         for key in ("alpha", "beta", "confidence_gain"):
             if not 0 < getattr(self, key) <= 1:
                 raise ValueError(f"{key}: {getattr(self, key)} is not in (0, 1]")
+        if self.report_coast_s < 0:
+            raise ValueError(f"report_coast_s: {self.report_coast_s} must be >= 0")
         if self.gate_growth_m_per_s < 0:
             raise ValueError(f"gate_growth_m_per_s: {self.gate_growth_m_per_s} must be >= 0")
         if self.confirm_hits < 1:
@@ -64,7 +70,8 @@ class TrackerConfig:
 class TrackState:
     """The track after one frame's update."""
 
-    status: Status  # none: no track; tentative: fewer than confirm_hits hits; tracking: confirmed
+    status: Status  # none: no track; tentative: fewer than confirm_hits hits; tracking: confirmed and reported;
+    # coasting: confirmed, no associated detection for more than report_coast_s, not reported
     nose_xyz_m: tuple[float, float, float] | None  # filtered position (camera frame, metres); None without a track
     velocity_m_per_s: tuple[float, float, float] | None
     confidence: float  # 0..1
@@ -73,8 +80,13 @@ class TrackState:
 
     @property
     def reported(self) -> bool:
-        """The track's position is reported as the nose (a confirmed track)."""
+        """The track's position is reported as the nose (a confirmed track with recent support)."""
         return self.status == "tracking"
+
+    @property
+    def confirmed(self) -> bool:
+        """A confirmed track, reported or coasting."""
+        return self.status in ("tracking", "coasting")
 
 
 @dataclass(slots=True)
@@ -153,7 +165,9 @@ class NoseTracker:
     def _state(self, track: _Track | None, associated: bool, reacquired: bool) -> TrackState:
         if track is None:
             return TrackState("none", None, None, 0.0, False, False)
-        status: Status = "tracking" if track.hits >= self.config.confirm_hits else "tentative"
+        status: Status = "tentative"
+        if track.hits >= self.config.confirm_hits:
+            status = "tracking" if track.last_s - track.last_hit_s <= self.config.report_coast_s else "coasting"
         return TrackState(status, _triple(track.position), _triple(track.velocity), round(track.confidence, 6),
                           associated, reacquired)
 

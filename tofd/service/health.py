@@ -117,7 +117,7 @@ def _track_metrics(track: dict) -> Iterator[Metric]:
     one = _unlabelled
     yield one(CounterMetricFamily, "tofd_nose_detected_frames", "Frames with an accepted nose detection.",
               track["detected_frames"])
-    yield one(CounterMetricFamily, "tofd_nose_tracked_frames", "Frames with a confirmed nose track.",
+    yield one(CounterMetricFamily, "tofd_nose_tracked_frames", "Frames with a reported nose track.",
               track["tracked_frames"])
     yield one(CounterMetricFamily, "tofd_track_acquired", "Confirmed nose tracks begun (new or replacing one).",
               track["acquired"])

@@ -56,9 +56,9 @@ class PipelineStats:
 
 class TrackStats:
     """The nose track as /metrics and the run summary report it: its latest state, frames with an accepted
-    detection and with a confirmed track, and how often a confirmed track began (acquired: a new track confirmed, or
-    a challenger replacing the track) or was lost (dropped without a confirmed successor, a new tentative track
-    started in the same frame included)."""
+    detection and with a reported track nose, and how often a confirmed track began (acquired: a new track
+    confirmed, or a challenger replacing the track) or was lost (dropped without a confirmed successor, a new
+    tentative track started in the same frame included); coasting does not end a track."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -68,11 +68,11 @@ class TrackStats:
     def record(self, detection: Detection | None, state: TrackState) -> None:
         """Count one frame's detection and the track after it (frames in pipeline order)."""
         with self._lock:
-            before = self._last is not None and self._last.reported
+            before = self._last is not None and self._last.confirmed
             self._counts["detected_frames"] += detection is not None and detection.accepted
             self._counts["tracked_frames"] += state.reported
-            self._counts["acquired"] += state.reported and (not before or state.reacquired)
-            self._counts["lost"] += before and not state.reported  # hits never fall: only a loss unconfirms
+            self._counts["acquired"] += state.confirmed and (not before or state.reacquired)
+            self._counts["lost"] += before and not state.confirmed  # hits never fall: only a loss unconfirms
             self._last = state
 
     def snapshot(self) -> dict:
