@@ -47,7 +47,7 @@ class TrackerConfig:
     confirm_hits: int = 3  # associated detections before a new track (or a challenger) is reported
     lost_after_s: float = 0.5  # seconds without an associated detection before the track is dropped
     report_coast_s: float = 0.1  # seconds after its last associated detection a confirmed track still reports its
-    # nose (cross-validated on the training subjects' head-motion sequences; see the module docstring)
+    # nose (chosen on the training subjects' head-motion sequences: bench/tune_tracker.py)
     confidence_gain: float = 0.5  # share of (1 - confidence) gained per associated detection
     confidence_tau_s: float = 0.25  # seconds: e-folding time of the confidence while no detection is associated
 

@@ -50,26 +50,49 @@ def _rates(points: list[tuple[float, float, float] | None], truth: np.ndarray, r
     return float(np.mean(hit)), float(np.mean(wrong))
 
 
-def evaluate_sequence(detector: NoseDetector, subject: str, frames: int, fps: float = 20.0, sweep_s: float = 6.0,
-                      seed: int = 0, model: SensorModel | None = None, radius_m: float = 0.015,
-                      tracker: TrackerConfig | None = None) -> SequenceResult:
-    """Render `frames` frames of SUBJECT moving (module docstring) at fps, detect in each, track, score both."""
+@dataclass(frozen=True, slots=True)
+class DetectedSequence:
+    """A rendered sequence's per-frame detections and ground truth (the input of the track)."""
+
+    subject: str
+    times_s: np.ndarray  # (F,) seconds
+    detections: list  # (F,) tofd.algorithm.detector.Detection
+    truth_m: np.ndarray  # (F, 3) true nose tip, camera frame, metres
+
+
+def detect_sequence(detector: NoseDetector, subject: str, frames: int, fps: float = 20.0, sweep_s: float = 6.0,
+                    seed: int = 0, model: SensorModel | None = None) -> DetectedSequence:
+    """Render `frames` frames of SUBJECT moving (module docstring) at fps and detect the nose in each."""
     if subject not in SUBJECTS:
         raise ValueError(f"unknown subject {subject!r} (known: {', '.join(SUBJECTS)})")
     mesh = make_subject(SUBJECTS[subject])
     rng = np.random.default_rng(seed)
     times = np.arange(frames) / fps
-    track = NoseTracker(tracker)
-    detected, tracked, truth, reacquired = [], [], [], 0
-    for t, pose in zip(times, head_motion(times, sweep_s, detector.intrinsics), strict=True):
+    detections, truth = [], []
+    for pose in head_motion(times, sweep_s, detector.intrinsics):
         r = render_face(mesh, pose, detector.intrinsics, rng, model)
-        det = detector.detect_frame(r.range_m, r.amplitude)
+        detections.append(detector.detect_frame(r.range_m, r.amplitude))
+        truth.append(r.nose_xyz_m)
+    return DetectedSequence(subject, times, detections, np.asarray(truth))
+
+
+def score_sequence(seq: DetectedSequence, radius_m: float = 0.015, tracker: TrackerConfig | None = None
+                   ) -> SequenceResult:
+    """Found / wrong shares of the per-frame detections and of a track (tracker config) run over them."""
+    track = NoseTracker(tracker)
+    detected, tracked, reacquired = [], [], 0
+    for t, det in zip(seq.times_s, seq.detections, strict=True):
         state = track.update(det, float(t))
         detected.append(det.nose_xyz_m if det.accepted else None)
         tracked.append(state.nose_xyz_m if state.reported else None)
-        truth.append(r.nose_xyz_m)
         reacquired += state.reacquired
-    truth_arr = np.asarray(truth)
-    d_found, d_wrong = _rates(detected, truth_arr, radius_m)
-    t_found, t_wrong = _rates(tracked, truth_arr, radius_m)
-    return SequenceResult(subject, frames, d_found, d_wrong, t_found, t_wrong, reacquired)
+    d_found, d_wrong = _rates(detected, seq.truth_m, radius_m)
+    t_found, t_wrong = _rates(tracked, seq.truth_m, radius_m)
+    return SequenceResult(seq.subject, len(seq.times_s), d_found, d_wrong, t_found, t_wrong, reacquired)
+
+
+def evaluate_sequence(detector: NoseDetector, subject: str, frames: int, fps: float = 20.0, sweep_s: float = 6.0,
+                      seed: int = 0, model: SensorModel | None = None, radius_m: float = 0.015,
+                      tracker: TrackerConfig | None = None) -> SequenceResult:
+    """detect_sequence, then score_sequence."""
+    return score_sequence(detect_sequence(detector, subject, frames, fps, sweep_s, seed, model), radius_m, tracker)
