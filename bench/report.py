@@ -1,10 +1,15 @@
-"""Shared tail of the benchmarks: write the results as JSON and say where."""
+"""Shared parts of the benchmarks: model and sequence arguments, and the JSON they write (and say where)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from tofd.algorithm.detector import NoseDetector
+    from tofd.config import Config
 
 
 def write_json(path: str | Path, results: dict) -> Path:
@@ -26,3 +31,26 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """--model (default: the shipped config/nose_model.json) and --config (default config/tofd.toml)."""
     parser.add_argument("--model", default=str(Path(__file__).parents[1] / "config" / "nose_model.json"))
     parser.add_argument("--config", default=None, help="config file (default config/tofd.toml)")
+
+
+def add_sequence_arguments(parser: argparse.ArgumentParser) -> None:
+    """--model, --config, --frames and --conditions of the head-motion sequence benches (tofd.lab.sequences)."""
+    add_model_arguments(parser)
+    parser.add_argument("--frames", type=int, default=240, help="frames per sequence (20 fps)")
+    parser.add_argument("--conditions", default="train_sensor,noise_x2,dark_face",
+                        help="comma-separated sensor conditions (tofd.lab.conditions) or 'all'")
+
+
+def sequence_detector(args: argparse.Namespace, prog: str) -> tuple[tuple[str, ...], Config, NoseDetector]:
+    """The parsed --conditions (SystemExit naming `prog` if one is unknown), the config and its detector."""
+    from tofd.algorithm.detector import NoseDetector, load_model  # here: the other benches need none of it
+    from tofd.config import load_config
+    from tofd.lab.conditions import parse_conditions
+
+    try:
+        conditions = parse_conditions(args.conditions)
+    except ValueError as exc:
+        raise SystemExit(f"{prog}: --conditions: {exc}") from None
+    cfg = load_config(args.config)
+    return conditions, cfg, NoseDetector(load_model(args.model), cfg.detector, cfg.features, cfg.segmentation,
+                                    cfg.intrinsics)

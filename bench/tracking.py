@@ -15,12 +15,10 @@ import dataclasses
 import time
 from pathlib import Path
 
-from report import add_model_arguments, shown_path, write_json
+from report import add_sequence_arguments, sequence_detector, shown_path, write_json
 
-from tofd.algorithm.detector import NoseDetector, load_model
-from tofd.config import load_config
 from tofd.lab.accuracy import accuracy_from_results
-from tofd.lab.conditions import CONDITIONS, parse_conditions
+from tofd.lab.conditions import CONDITIONS
 from tofd.lab.faces import HOLDOUT_SUBJECTS
 from tofd.lab.sequences import evaluate_sequence
 
@@ -42,21 +40,13 @@ ABOUT = ("Rendered head-motion sequences (0.35-0.70 m sweep, yaw +-30, pitch +-1
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_model_arguments(parser)
-    parser.add_argument("--frames", type=int, default=240, help="frames per sequence (20 fps)")
-    parser.add_argument("--conditions", default="train_sensor,noise_x2,dark_face")
+    add_sequence_arguments(parser)
     parser.add_argument("--replay-results", default=None, metavar="JSONL")
     parser.add_argument("--replay-px", type=float, default=5.0)
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "tracking.json"))
     args = parser.parse_args()
-    try:
-        conditions = parse_conditions(args.conditions)
-    except ValueError as exc:
-        raise SystemExit(f"tracking: --conditions: {exc}") from None
-
     start = time.monotonic()
-    cfg = load_config(args.config)
-    detector = NoseDetector(load_model(args.model), cfg.detector, cfg.features, cfg.segmentation, cfg.intrinsics)
+    conditions, cfg, detector = sequence_detector(args, "tracking")
     rows = []
     print(f"{'condition':<16}{'subject':<16}{'found / wrong %: per frame':>28}{'tracked':>16}{'reacq.':>8}")
     for ci, name in enumerate(conditions):

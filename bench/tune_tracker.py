@@ -16,12 +16,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from report import add_model_arguments, shown_path, write_json
+from report import add_sequence_arguments, sequence_detector, shown_path, write_json
 
-from tofd.algorithm.detector import NoseDetector, load_model
 from tofd.algorithm.tracking import TrackerConfig
-from tofd.config import load_config
-from tofd.lab.conditions import CONDITIONS, parse_conditions
+from tofd.lab.conditions import CONDITIONS
 from tofd.lab.faces import CV_SUBJECTS
 from tofd.lab.sequences import detect_sequence, score_sequence
 
@@ -30,20 +28,12 @@ COAST_S = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5)
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_model_arguments(parser)
-    parser.add_argument("--frames", type=int, default=240, help="frames per sequence (20 fps)")
-    parser.add_argument("--conditions", default="train_sensor,noise_x2,dark_face")
+    add_sequence_arguments(parser)
     parser.add_argument("--seed", type=int, default=500)
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "tune_tracker.json"))
     args = parser.parse_args()
-    try:
-        conditions = parse_conditions(args.conditions)
-    except ValueError as exc:
-        raise SystemExit(f"tune_tracker: --conditions: {exc}") from None
-
     start = time.monotonic()
-    cfg = load_config(args.config)
-    detector = NoseDetector(load_model(args.model), cfg.detector, cfg.features, cfg.segmentation, cfg.intrinsics)
+    conditions, _, detector = sequence_detector(args, "tune_tracker")
     sequences = {name: [detect_sequence(detector, subject, args.frames, seed=args.seed + 10 * si + ci,
                                         model=CONDITIONS[name]) for si, subject in enumerate(CV_SUBJECTS)]
                  for ci, name in enumerate(conditions)}
