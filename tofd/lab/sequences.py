@@ -14,7 +14,7 @@ import numpy as np
 
 from drivers.emulator.render import Pose, SensorModel, render_face
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.detector import NoseDetector
+from tofd.algorithm.detector import Detection, NoseDetector
 from tofd.algorithm.tracking import NoseTracker, TrackerConfig
 from tofd.lab.faces import SUBJECTS, make_subject
 
@@ -56,7 +56,7 @@ class DetectedSequence:
 
     subject: str
     times_s: np.ndarray  # (F,) seconds
-    detections: list  # (F,) tofd.algorithm.detector.Detection
+    detections: list[Detection]  # (F,)
     truth_m: np.ndarray  # (F, 3) true nose tip, camera frame, metres
 
 
