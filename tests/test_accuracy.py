@@ -8,9 +8,9 @@ from tofd.lab.accuracy import accuracy_from_records
 
 
 def record(counter: int, nose: list[float] | None, truth: list[float], track: list[float] | None) -> dict:
-    """A results record as the pipeline writes it; track None: the track is not confirmed (no pixel reported)."""
+    """A results record as the pipeline writes it; track None: a confirmed track that reports no pixel (coasting)."""
     return {"frame_counter": counter, "nose_px": nose, "ground_truth_px": truth, "score": 0.1,
-            "track": {"status": "confirmed" if track else "tentative", "nose_px": track}}
+            "track": {"status": "tracking" if track else "coasting", "nose_px": track}}
 
 
 def test_found_wrong_and_missing_frames_are_counted_apart():
