@@ -108,15 +108,15 @@ def tree(pid: int) -> list[int]:
 
 
 def workers_of(pid: int) -> list[int]:
-    """The feature worker processes of a tofd process: its children that map the shared-memory slot ring
-    (the viewer and the resource tracker do not), by pid."""
+    """The feature worker processes of a tofd process: its children that map the workers' shared-memory slot
+    ring (the viewer maps its own, the resource tracker none), by pid."""
     out = []
     for kid in sorted(children_of(pid)):
         try:
             maps = Path(f"/proc/{kid}/maps").read_text()
         except OSError:
             continue
-        if f"/dev/shm/tofd_{pid}_" in maps:
+        if f"/dev/shm/tofd_{pid}_workers_" in maps:
             out.append(kid)
     return out
 

@@ -7,7 +7,7 @@ from rerun.chunk import RrdReader
 
 from tofd.service.viewer import blueprint as bp
 
-PER_FRAME = [bp.RANGE, bp.RANGE_RADIAL, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(),
+PER_FRAME = [bp.RANGE, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(),
              f"{bp.TIMINGS}/nfft", f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]
 
 
@@ -48,9 +48,10 @@ def check_rrd(path, counters, results_by_counter=None):
     assert np.all(np.diff(device_time) > 0)
     if results_by_counter:
         c = counters[-1]
-        range_m = image_at(tables[bp.RANGE_RADIAL][1], "DepthImage", len(counters) - 1)
-        expected = np.nan_to_num(results_by_counter[c].frame.range_m, nan=0.0)
-        np.testing.assert_array_equal(range_m, expected)
+        depth = image_at(tables[bp.RANGE][1], "DepthImage", len(counters) - 1)
+        frame = results_by_counter[c].frame
+        ray_z = frame.intrinsics.unit_rays().astype(np.float32)[..., 2]
+        np.testing.assert_array_equal(depth, np.nan_to_num(frame.range_m, nan=0.0) * ray_z)  # z-depth of the range
         amplitude = image_at(tables[bp.AMPLITUDE][1], "Image", len(counters) - 1)
         assert amplitude.dtype == np.uint16
         np.testing.assert_array_equal(amplitude, np.rint(results_by_counter[c].frame.amplitude))

@@ -151,7 +151,7 @@ def test_a_bag_of_another_frame_size_goes_through_the_whole_pipeline(tmp_path):
     rows = results(tmp_path / "r" / "pmd.results.jsonl")
     assert len(rows) == 3 and all(math.dist(r["nose_px"], t) <= 5 for r, t in zip(rows, truth, strict=True))
     tables = check_rrd(tmp_path / "r" / "pmd.rrd", [0, 1, 2])
-    assert image_at(tables[bp.RANGE_RADIAL][1], "DepthImage", 2).shape == (h, w)
+    assert image_at(tables[bp.RANGE][1], "DepthImage", 2).shape == (h, w)
 
 
 def bad_bag(tmp_path: Path, clip_frames: list[Frame], change: str) -> Path:

@@ -24,6 +24,7 @@ from tofd.service.health import HealthServer, ServiceMetrics
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline
 from tofd.service.pipeline.results import FrameResult, result_record, track_from, track_px
+from tofd.service.pipeline.slots import SlotRing
 from tofd.service.pipeline.stats import TrackStats
 from tofd.service.viewer import RerunLogger, RerunTarget, wire
 from tofd.service.viewer import blueprint as bp
@@ -109,9 +110,15 @@ def test_batch_rows_leave_the_track_out():
 
 
 def test_wire_format_carries_the_track():
-    for r in tracked_results([hit(0.0)] * 3 + [MISS] * 30):
-        back = wire.decode(wire.encode(r), INTRINSICS)
-        assert back.track == r.track and back.detection == r.detection
+    ring = SlotRing.create(2, INTRINSICS.shape, wire.PLANES)
+    try:
+        for i, r in enumerate(tracked_results([hit(0.0)] * 3 + [MISS] * 30)):
+            back = wire.read(wire.write(r, i % 2, ring.views(i % 2)), ring, INTRINSICS)
+            assert back.track == r.track and back.detection == r.detection
+            assert np.array_equal(back.frame.range_m, r.frame.range_m, equal_nan=True)
+            assert np.array_equal(back.mask, r.mask) and back.features.keys() <= r.features.keys()
+    finally:
+        ring.close()
     assert track_from(None) is None
 
 

@@ -1,5 +1,6 @@
 """A ring of frame slots in one shared-memory block: the parent writes range/amplitude, a worker writes the
-mask and feature maps back. Only slot indices cross the process boundary, never arrays."""
+mask and feature maps back (SLOT_FIELDS; the viewer hand-off uses its own fields). Only slot indices cross the
+process boundary, never arrays."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ SLOT_FIELDS: tuple[tuple[str, type], ...] = (
     *((name, np.float32) for name in MAP_NAMES),  # outputs: feature maps, NaN outside the foreground
 )
 
-SHM_PREFIX = "tofd_"  # /dev/shm/tofd_<pid of the owner>_<random>
+SHM_PREFIX = "tofd_"  # /dev/shm/tofd_<pid of the owner>_<use>_<random>
 SHM_DIR = Path("/dev/shm")
 
 
@@ -40,10 +41,13 @@ def remove_stale_segments() -> list[str]:
     return removed
 
 
-def _layout(shape: tuple[int, int]) -> tuple[dict[str, tuple[int, type]], int]:
+Fields = tuple[tuple[str, type], ...]
+
+
+def _layout(shape: tuple[int, int], fields: Fields) -> tuple[dict[str, tuple[int, type]], int]:
     """Byte offset of each field within a slot (64-byte aligned) and the slot size in bytes."""
     offsets, offset = {}, 0
-    for name, dtype in SLOT_FIELDS:
+    for name, dtype in fields:
         offsets[name] = (offset, dtype)
         offset += -(-shape[0] * shape[1] * np.dtype(dtype).itemsize // 64) * 64
     return offsets, offset
@@ -55,16 +59,17 @@ def local_slot(shape: tuple[int, int]) -> dict[str, np.ndarray]:
 
 
 class SlotRing:
-    """`n_slots` frame slots of `shape` (rows, columns) in shared memory.
+    """`n_slots` frame slots of `shape` (rows, columns) in shared memory, each holding `fields` (name, dtype).
 
     The creating process owns the block (`create`, then `close(unlink=True)`); workers `attach` by name.
     Free-slot bookkeeping (`acquire`/`release`) lives in the creating process only, and its caller serialises
     it (tofd.service.pipeline.pool.WorkerPool holds its lock around every call).
     """
 
-    def __init__(self, shm: shared_memory.SharedMemory, n_slots: int, shape: tuple[int, int], owner: bool):
+    def __init__(self, shm: shared_memory.SharedMemory, n_slots: int, shape: tuple[int, int], owner: bool,
+                 fields: Fields = SLOT_FIELDS):
         self.shm, self.n_slots, self.shape, self._owner = shm, n_slots, tuple(shape), owner
-        offsets, slot_bytes = _layout(self.shape)
+        offsets, slot_bytes = _layout(self.shape, fields)
         self._views = [
             {name: np.ndarray(self.shape, dtype, shm.buf, k * slot_bytes + off)
              for name, (off, dtype) in offsets.items()}
@@ -73,17 +78,19 @@ class SlotRing:
         self._free = list(range(n_slots))
 
     @classmethod
-    def create(cls, n_slots: int, shape: tuple[int, int]) -> SlotRing:
+    def create(cls, n_slots: int, shape: tuple[int, int], fields: Fields = SLOT_FIELDS,
+               use: str = "workers") -> SlotRing:
+        """A new block named for its owner's pid and its `use`."""
         if n_slots < 1:
             raise ValueError(f"n_slots: must be >= 1, got {n_slots}")
         remove_stale_segments()
-        size = n_slots * _layout(tuple(shape))[1]
-        name = f"{SHM_PREFIX}{os.getpid()}_{secrets.token_hex(4)}"
-        return cls(shared_memory.SharedMemory(name=name, create=True, size=size), n_slots, shape, owner=True)
+        size = n_slots * _layout(tuple(shape), fields)[1]
+        name = f"{SHM_PREFIX}{os.getpid()}_{use}_{secrets.token_hex(4)}"
+        return cls(shared_memory.SharedMemory(name=name, create=True, size=size), n_slots, shape, True, fields)
 
     @classmethod
-    def attach(cls, name: str, n_slots: int, shape: tuple[int, int]) -> SlotRing:
-        return cls(shared_memory.SharedMemory(name=name), n_slots, shape, owner=False)
+    def attach(cls, name: str, n_slots: int, shape: tuple[int, int], fields: Fields = SLOT_FIELDS) -> SlotRing:
+        return cls(shared_memory.SharedMemory(name=name), n_slots, shape, False, fields)
 
     @property
     def name(self) -> str:

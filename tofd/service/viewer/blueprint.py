@@ -9,7 +9,6 @@ from tofd.algorithm.names import VIEWED_MAPS
 CAMERA = "/world/camera"  # Pinhole (intrinsics); x right, y down, z forward, metres
 IMAGE = f"{CAMERA}/image"  # the camera's image plane: 2-D views of range, amplitude, mask line up with 3-D
 RANGE = f"{IMAGE}/depth"  # DepthImage: z-depth (planar, along the optical axis), metres: projects correctly in 3-D
-RANGE_RADIAL = "/sensor/range"  # DepthImage: the camera's radial range, metres (outside the Pinhole: 2-D only)
 AMPLITUDE = f"{IMAGE}/amplitude"  # Image: amplitude, sensor units, uint16
 MASK = f"{IMAGE}/mask"  # SegmentationImage: 0 background, 1 foreground
 NOSE_2D = f"{IMAGE}/nose"  # Points2D: detected nose tip, pixels
@@ -34,8 +33,7 @@ def build_blueprint() -> rrb.Blueprint:
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(image_view("depth z [m]", RANGE), image_view("amplitude", AMPLITUDE),
-                         image_view("foreground mask", MASK),
-                         rrb.Spatial2DView(name="radial range [m]", origin=RANGE_RADIAL)),
+                         image_view("foreground mask", MASK)),
             rrb.Grid(*(rrb.Spatial2DView(name=f"{path.split('/')[2].upper()} {path.split('/')[3]}", origin=path)
                        for path in FEATURES.values()), grid_columns=2),
             rrb.Vertical(

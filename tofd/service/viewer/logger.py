@@ -1,7 +1,7 @@
 """Logs FrameResults to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
 
-Per frame (~0.6 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right),
-the radial range outside it, amplitude (uint16), mask, four feature maps, the foreground cloud (~3000 points),
+Per frame (~0.6 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right;
+the camera's radial range is it over each ray's z), amplitude (uint16), mask, four feature maps, the foreground cloud (~3000 points),
 the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of TRACK_BOX_M about its pixel,
 labelled with its confidence, and its 3-D point) and the track's confidence, one scalar per stage timing.
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
@@ -55,22 +55,24 @@ def _viridis() -> np.ndarray:
 
 
 def colour_by(values: np.ndarray) -> np.ndarray:
-    """(N, 3) uint8 viridis colours of log10(values), scaled to their 2nd-98th percentile."""
+    """(N, 3) uint8 viridis colours of log10(values), scaled to their 2nd-98th percentile (nearest rank)."""
     lut = _viridis()
     logv = np.log10(np.maximum(values, 1e-30))
-    finite = np.isfinite(values)
-    if not finite.any():
+    finite = np.isfinite(logv)
+    kept = logv[finite]
+    if not kept.size:
         return np.zeros((len(values), 3), np.uint8)
-    lo, hi = np.percentile(logv[finite], [2, 98])
-    idx = np.clip((logv - lo) / max(hi - lo, 1e-12) * 255, 0, 255)
+    ranks = [round(0.02 * (kept.size - 1)), round(0.98 * (kept.size - 1))]
+    lo, hi = np.partition(kept, ranks)[ranks]
+    idx = np.clip((logv - lo) * (255 / max(hi - lo, 1e-12)), 0, 255)
     return lut[np.where(finite, idx, 0).astype(np.intp)]
 
 
 def fill_planes(out: dict[str, np.ndarray], r: FrameResult, ray_z: np.ndarray) -> None:
     """Write one frame's images into `out` (entity -> (H, W) row of the batch's buffer): z-depth (radial range
-    times ray_z) and radial range in metres, amplitude as uint16 sensor units, mask, feature maps; NaN -> 0."""
-    radial = np.fmax(r.frame.range_m, 0.0, out=out[bp.RANGE_RADIAL])  # fmax drops NaN; ranges are >= 0
-    np.multiply(radial, ray_z, out=out[bp.RANGE])
+    times ray_z) in metres, amplitude as uint16 sensor units, mask, feature maps; NaN -> 0."""
+    depth = np.fmax(r.frame.range_m, 0.0, out=out[bp.RANGE])  # fmax drops NaN; ranges are >= 0
+    np.multiply(depth, ray_z, out=depth)
     np.clip(np.rint(np.fmax(r.frame.amplitude, 0.0)), 0, 65535, out=out[bp.AMPLITUDE], casting="unsafe")
     out[bp.MASK][...] = r.mask
     for name, path in bp.FEATURES.items():
@@ -171,7 +173,6 @@ class RerunLogger:
         # a DepthImage is Rerun's colour-mapped scalar image; the eccentricities are not depths (0 = background)
         feature_style = rr.DepthImage.from_fields(colormap="viridis")
         self._images = {bp.RANGE: ImageEntity(rr.DepthImage, np.float32, range_style),
-                        bp.RANGE_RADIAL: ImageEntity(rr.DepthImage, np.float32, range_style),
                         bp.AMPLITUDE: ImageEntity(rr.Image, np.uint16, color_model="L"),
                         bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8),
                         **{path: ImageEntity(rr.DepthImage, np.float32, feature_style)

@@ -2,12 +2,14 @@
 
 Rerun's log and flush calls block for as long as a connected receiver does not read (see
 /work/shared/design/rerun_notes.md), and the SDK offers no "drop instead of block". So the RecordingStream
-lives in a child process (which also keeps its CPU off the feature workers' GIL): the parent encodes each
-delivered frame (wire.py) into a queue of `queue_frames`, a sender thread writes it to the child's pipe.
-When the queue is full the frame is refused (the caller ledgers it as a viewer drop). close() asks the
-child to flush and exit and SIGKILLs it at the deadline: nothing in the parent ever waits on Rerun.
+lives in a child process (which also keeps its CPU off the feature workers' GIL): the parent copies each
+delivered frame into one of `queue_frames` shared-memory slots and sends its header (wire.py); the child logs
+it and frees the slot (a semaphore counts the free ones; the child takes frames in order, so the parent fills
+the slots round-robin). When no slot is free the frame is refused (the caller ledgers it as a viewer drop).
+close() asks the child to flush and exit and SIGKILLs it at the deadline: nothing in the parent ever waits on
+Rerun, and the pipe never fills (at most `queue_frames` small headers are in it).
 
-Protocol: parent -> child, one bytes message per frame (wire.py) or b"close"; child -> parent, JSON
+Protocol: parent -> child, one JSON header per frame (wire.py) or b"close"; child -> parent, JSON
 {"ready": web_url} or {"error": text} once at start, {"closed": {"frames": n, "errors": n}} at the end.
 """
 
@@ -20,12 +22,13 @@ import os
 import signal
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from multiprocessing.connection import Connection
+from multiprocessing.synchronize import Semaphore
 
 from tofd.config import Config
 from tofd.service.pipeline.results import FrameResult
+from tofd.service.pipeline.slots import SlotRing
 from tofd.service.viewer import wire
 
 log = logging.getLogger(__name__)
@@ -36,9 +39,10 @@ IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this lon
 
 
 def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, frames: Connection,
-                status: Connection) -> None:
-    """Entry point of the viewer process: log every frame it is sent until CLOSE or the pipe closes; what waits
-    in the logger's batch is sent when no frame came for IDLE_FLUSH_S, and at the end."""
+                status: Connection, slots: tuple[str, int], free: Semaphore) -> None:
+    """Entry point of the viewer process: log every frame it is sent until CLOSE or the pipe closes, freeing
+    its slot (`slots`: the ring's name and size) after; what waits in the logger's batch is sent when no frame
+    came for IDLE_FLUSH_S, and at the end."""
     from tofd.service.lifeline import die_with_parent
 
     die_with_parent(parent_pid)
@@ -49,6 +53,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, 
     from tofd.service.viewer.targets import RerunTarget
 
     cfg = config_from_dict(cfg_table)
+    ring = SlotRing.attach(slots[0], slots[1], cfg.intrinsics.shape, wire.PLANES)
     try:
         target = RerunTarget(cfg.rerun, sink)
         logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud, batch_frames)
@@ -75,13 +80,15 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, 
             if not frames.poll(IDLE_FLUSH_S):
                 logging_step("batch", logger.flush)
                 continue
-            blob = frames.recv_bytes()
+            header = frames.recv_bytes()
         except (EOFError, OSError):
             break
-        if blob == CLOSE:
+        if header == CLOSE:
             break
-        logged += logging_step("frame", lambda data: logger(wire.decode(data, cfg.intrinsics)), blob)
+        logged += logging_step("frame", logger, wire.read(header, ring, cfg.intrinsics))  # keeps no slot view
+        free.release()
     logging_step("batch", logger.flush)
+    ring.close()
     target.close(cfg.pipeline.shutdown_timeout_s)
     status.send_bytes(json.dumps({"closed": {"frames": logged, "errors": errors}}).encode())
 
@@ -96,32 +103,31 @@ class ViewerProcess:
         from tofd.service.viewer.targets import ViewerError
 
         ctx = mp.get_context("spawn")
+        self.queue_frames = queue_frames
+        self._ring = SlotRing.create(queue_frames, cfg.intrinsics.shape, wire.PLANES, use="viewer")
+        self._free = ctx.Semaphore(queue_frames)  # slots the child has finished with
+        self._next = 0  # the slot the next frame goes to
         frames_r, self._frames = ctx.Pipe(duplex=False)
         self._status, status_w = ctx.Pipe(duplex=False)
         self.process = ctx.Process(target=viewer_main, name="tofd-viewer", daemon=True,
-                                   args=(config_table(cfg), sink, batch_frames, os.getpid(), frames_r, status_w))
+                                   args=(config_table(cfg), sink, batch_frames, os.getpid(), frames_r, status_w,
+                                         (self._ring.name, queue_frames), self._free))
         self.process.start()
         frames_r.close()
         status_w.close()
-        self.queue_frames = queue_frames
-        self._queue: deque[bytes] = deque()
-        self._cond = threading.Condition()
+        self._lock = threading.Lock()  # the pipe and `_closing`, between offer and close
         self._closing = False
-        self.stalled = False  # the queue was full at the last offer
+        self.stalled = False  # no slot was free at the last offer
         self.report: dict = {}
         msg = self._status_message(start_timeout_s, cancelled)
         if msg is None and cancelled():  # a stop signal while it started: nothing to flush, close() says so
-            self._kill()
-            self._frames.close()
-            self._status.close()
+            self._release()
             self.web_url, self.report = None, {"exit": "cancelled", "unsent": 0}
             return
         if msg is None or "error" in msg:
-            self._kill()
+            self._release()
             raise ViewerError((msg or {}).get("error") or f"the viewer process did not start in {start_timeout_s:g} s")
         self.web_url: str | None = msg["ready"]
-        self._sender = threading.Thread(target=self._send_loop, name="tofd-viewer-send", daemon=True)
-        self._sender.start()
 
     def _status_message(self, timeout_s: float, cancelled: Callable[[], bool] = lambda: False) -> dict | None:
         """The child's next status message within `timeout_s`; None if none came, the child died or
@@ -138,64 +144,54 @@ class ViewerProcess:
         return None
 
     def offer(self, result: FrameResult, block_s: float = 0.0) -> bool:
-        """Queue a frame for the viewer; False (refused) if the queue stays full for `block_s` seconds. Once
-        a frame was refused, later offers do not wait until the queue has room again."""
-        blob = wire.encode(result)
-        with self._cond:
-            wait_s = 0.0 if self.stalled else block_s
-            if not self._cond.wait_for(lambda: len(self._queue) < self.queue_frames or self._closing, wait_s):
+        """Hand a frame to the viewer; False (refused) if no slot frees up within `block_s` seconds or it is
+        closing. Once a frame was refused, later offers do not wait until a slot is free again."""
+        deadline = time.monotonic() + (0.0 if self.stalled else block_s)
+        while not self._free.acquire(timeout=max(0.0, min(POLL_S, deadline - time.monotonic()))):
+            if self._closing or time.monotonic() >= deadline:
                 self.stalled = True
                 return False
+        self.stalled = False
+        slot, self._next = self._next, (self._next + 1) % self.queue_frames
+        header = wire.write(result, slot, self._ring.views(slot))
+        with self._lock:
             if self._closing:
                 return False
-            self.stalled = False
-            self._queue.append(blob)
-            self._cond.notify_all()
-            return True
-
-    def _send_loop(self) -> None:
-        while True:
-            with self._cond:
-                self._cond.wait_for(lambda: self._queue or self._closing)
-                if not self._queue:
-                    blob = CLOSE
-                else:
-                    blob = self._queue.popleft()
-                    self._cond.notify_all()
             try:
-                self._frames.send_bytes(blob)  # blocks while the child is stuck in Rerun
+                self._frames.send_bytes(header)  # never blocks: at most queue_frames headers wait in the pipe
             except OSError:
-                return  # the child is gone (killed at the deadline)
-            if blob == CLOSE:
-                return
+                return False  # the child is gone
+        return True
 
     def close(self, timeout_s: float) -> dict:
-        """Send what is queued, let the child flush and exit; SIGKILL it after `timeout_s`. A summary:
+        """Let the child log what it was handed, flush and exit; SIGKILL it after `timeout_s`. A summary:
         {"exit": "clean" | "killed" | "cancelled" (stopped while starting), "frames": logged, "errors": frames
-        Rerun refused, "unsent": n}."""
+        Rerun refused, "unsent": frames handed over but not logged}."""
         if self.report:  # cancelled at start: the child is gone already
             return self.report
         deadline = time.monotonic() + timeout_s
-        with self._cond:
+        with self._lock:
             self._closing = True
-            self._cond.notify_all()
-        self._sender.join(max(0.0, deadline - time.monotonic()))
-        msg = self._status_message(max(0.0, deadline - time.monotonic())) if not self._sender.is_alive() else None
+            try:
+                self._frames.send_bytes(CLOSE)
+            except OSError:
+                pass  # the child is gone: no status message will come
+        msg = self._status_message(max(0.0, deadline - time.monotonic()))
         self.process.join(max(0.0, min(1.0, deadline - time.monotonic())))
-        with self._cond:
-            unsent = len(self._queue)
+        unsent = self.queue_frames - self._free.get_value()
         if msg is None or self.process.is_alive():
             log.warning("the viewer did not finish in %.1f s (a stalled receiver?); abandoning it", timeout_s)
-            self._kill()
             self.report = {"exit": "killed", "unsent": unsent}
         else:
             self.report = {"exit": "clean", **msg["closed"], "unsent": unsent}
-        self._sender.join(1.0)  # the child is gone: a blocked send has failed by now
-        self._frames.close()
-        self._status.close()
+        self._release()
         return self.report
 
-    def _kill(self) -> None:
+    def _release(self) -> None:
+        """Kill the child if it still runs; close the pipes and unlink the slots."""
         if self.process.is_alive():
             self.process.kill()
         self.process.join(1.0)
+        self._frames.close()
+        self._status.close()
+        self._ring.close()
