@@ -1,7 +1,8 @@
 """Logs FrameResults to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
 
-Per frame (~0.6 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right;
-the camera's radial range is it over each ray's z), amplitude (uint16), mask, four feature maps, the foreground cloud (~3000 points),
+Per frame (~0.5 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right;
+the camera's radial range is it over each ray's z), amplitude (uint16), mask, four feature maps, the foreground
+cloud (~3000 points),
 the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of TRACK_BOX_M about its pixel,
 labelled with its confidence, and its 3-D point) and the track's confidence, one scalar per stage timing.
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
@@ -68,15 +69,19 @@ def colour_by(values: np.ndarray) -> np.ndarray:
     return lut[np.where(finite, idx, 0).astype(np.intp)]
 
 
-def fill_planes(out: dict[str, np.ndarray], r: FrameResult, ray_z: np.ndarray) -> None:
+def fill_planes(out: dict[str, np.ndarray], r: FrameResult, ray_z: np.ndarray, zeros: np.ndarray) -> None:
     """Write one frame's images into `out` (entity -> (H, W) row of the batch's buffer): z-depth (radial range
-    times ray_z) in metres, amplitude as uint16 sensor units, mask, feature maps; NaN -> 0."""
-    depth = np.fmax(r.frame.range_m, 0.0, out=out[bp.RANGE])  # fmax drops NaN; ranges are >= 0
+    times ray_z) in metres, amplitude as uint16 sensor units, mask, feature maps; NaN -> 0.
+
+    zeros: (H, W) float32 zeros (numpy's fmax against an array is several times faster than against a scalar).
+    """
+    depth = np.fmax(r.frame.range_m, zeros, out=out[bp.RANGE])  # fmax drops NaN; ranges are >= 0
     np.multiply(depth, ray_z, out=depth)
-    np.clip(np.rint(np.fmax(r.frame.amplitude, 0.0)), 0, 65535, out=out[bp.AMPLITUDE], casting="unsafe")
+    amplitude = np.rint(np.fmax(r.frame.amplitude, zeros))
+    np.minimum(amplitude, 65535, out=out[bp.AMPLITUDE], casting="unsafe")
     out[bp.MASK][...] = r.mask
     for name, path in bp.FEATURES.items():
-        np.fmax(r.features[name], 0.0, out=out[path])  # eccentricities are >= 0; NaN outside the foreground
+        np.fmax(r.features[name], zeros, out=out[path])  # eccentricities are >= 0; NaN outside the foreground
 
 
 def blobs(images: np.ndarray) -> pa.ListArray:
@@ -169,6 +174,7 @@ class RerunLogger:
         self.intrinsics = intrinsics
         self._rays = intrinsics.unit_rays().astype(np.float32)
         self._ray_z = np.ascontiguousarray(self._rays[..., 2])  # z-depth = radial range * cos(angle to the axis)
+        self._zeros = np.zeros(intrinsics.shape, np.float32)
         range_style = rr.DepthImage.from_fields(meter=1.0, colormap="turbo")
         # a DepthImage is Rerun's colour-mapped scalar image; the eccentricities are not depths (0 = background)
         feature_style = rr.DepthImage.from_fields(colormap="viridis")
@@ -212,10 +218,11 @@ class RerunLogger:
             self.rec.set_time("device_time", duration=device_s)
             self.rec.log(bp.EVENTS, rr.TextLog(f"{r.gap_before} before frame {frame.frame_counter}",
                                                level=rr.TextLogLevel.WARN))
-        fill_planes({path: buffer[row] for path, buffer in shown.images.items()}, r, self._ray_z)
+        fill_planes({path: buffer[row] for path, buffer in shown.images.items()}, r, self._ray_z, self._zeros)
         if self.point_cloud:
-            shown.add(bp.FOREGROUND, row, positions=self._rays[r.mask] * frame.range_m[r.mask][:, None],
-                      colors=colour_by(r.features["range_nfft_eps0"][r.mask]))
+            at = np.flatnonzero(r.mask)  # a flat index takes rows far faster than a 2-D mask
+            shown.add(bp.FOREGROUND, row, positions=self._rays.reshape(-1, 3)[at] * frame.range_m.reshape(-1)[at, None],
+                      colors=colour_by(r.features["range_nfft_eps0"].reshape(-1)[at]))
         self._add_nose_and_track(r, row, shown.series_row[row])
         for stage, ms in r.timings_ms.items():
             if stage not in OWN_TIMINGS:
