@@ -188,6 +188,7 @@ class RerunLogger:
             width=width, height=height, color_model=image.color_model,
             channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(image.dtype)))]).as_arrow_array()
             for path, image in self._images.items()}
+        self._format_columns: dict[tuple[str, int], pa.Array] = {}
         self._shown, self._series = self._new_shown(), Batch()
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
         rec.log(bp.CAMERA, rr.Pinhole(focal_length=[intrinsics.fx, intrinsics.fy],
@@ -269,15 +270,21 @@ class RerunLogger:
         t0 = time.perf_counter()
         rows = range(len(b.frames))
         for path, image in self._images.items():
-            formats = self._formats[path].take(np.zeros(len(rows), np.intp))  # the one format, once per frame
             self._send(path, b, rows, image.archetype.columns(buffer=blobs(b.images[path][: len(rows)]),
-                                                              format=formats))
+                                                              format=self._formats_of(path, len(rows))))
         self._send_parts(b)
         share_ms = (time.perf_counter() - t0) * 1e3 / len(rows)
         now = time.monotonic()
         for i, at in enumerate(b.series_row):
             self._series.add(f"{bp.TIMINGS}/logging", at, scalars=[b.call_ms[i] + share_ms])
             self._series.add(f"{bp.TIMINGS}/latency", at, scalars=[(now - b.arrival_s[i]) * 1e3])
+
+    def _formats_of(self, path: str, frames: int) -> pa.Array:
+        """The entity's one image format, once per frame of a batch of `frames` (built once per length)."""
+        key = (path, frames)
+        if key not in self._format_columns:
+            self._format_columns[key] = self._formats[path].take(np.zeros(frames, np.intp))
+        return self._format_columns[key]
 
     def _new_shown(self) -> Shown:
         """An empty views' batch with fresh image buffers (Rerun keeps the sent ones: they are not copied)."""
