@@ -23,7 +23,8 @@ def _half_to_full(half: np.ndarray, n: int) -> np.ndarray:
 
 @pytest.mark.parametrize("n", [8, 16])
 def test_operator_equals_dense_damped_normal_matrix(n):
-    """(A^H A + lambda I) v through the pruned 2N circulant equals the dense NDFT matrix product."""
+    """(A^H A + lambda I) v through the pruned 2N circulant equals the dense NDFT matrix product (the FFTs are
+    scipy's pocketfft binding called directly: this pins its semantics)."""
     rng = np.random.default_rng(n)
     x, y = rng.uniform(-0.3, 0.4, 300), rng.uniform(-0.45, 0.2, 300)
     kernel = finufft.nufft2d1(2 * np.pi * y, 2 * np.pi * x, np.ones(x.size, complex), (2 * n, 2 * n), eps=1e-13,
@@ -44,6 +45,12 @@ def test_operator_equals_dense_damped_normal_matrix(n):
     normal = a.conj().T @ a + lam * np.eye(k.size**2)
     want = (normal @ _half_to_full(v[0], n).ravel()).reshape(n - 1, n - 1)
     np.testing.assert_allclose(got, want, atol=1e-9 * np.abs(want).max())
+    again = _half_to_full(system.apply(2 * v, np.empty_like(v))[0], n)  # buffers reused: nothing left over
+    np.testing.assert_allclose(again, 2 * want, atol=2e-9 * np.abs(want).max())
+    single = DampedNormalEquations(kernel, lam, n, np.float32, np.complex64)
+    for _ in range(2):
+        got32 = _half_to_full(single.apply(v.astype(np.complex64), np.empty(v.shape, np.complex64))[0], n)
+        np.testing.assert_allclose(got32, want, atol=1e-5 * np.abs(want).max())
     full = _half_to_full(v[0], n)
     inner = HermitianInner(np.full(v.shape[1:], 0.5), v.dtype)
     assert inner.dot(v[0], v[0]) == pytest.approx(np.vdot(full, full).real)
