@@ -85,8 +85,8 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, 
             break
         if header == CLOSE:
             break
-        logged += logging_step("frame", logger, wire.read(header, ring, cfg.intrinsics))  # keeps no slot view
-        free.release()
+        logged += logging_step("frame", lambda h: logger(wire.read(h, ring, cfg.intrinsics)), header)
+        free.release()  # the logger keeps no view of the slot
     logging_step("batch", logger.flush)
     ring.close()
     target.close(cfg.pipeline.shutdown_timeout_s)
