@@ -44,6 +44,7 @@ from tofd.service.pipeline import Pipeline
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.logger import frames_per_send
 from tofd.service.viewer.process import ViewerProcess
+from tofd.service.viewer.targets import file_footer
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -141,7 +142,8 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     rrd = tmp / f"{policy}-{time.monotonic_ns()}.rrd"
     if rerun:  # the daemon's viewer process, sending as it would to a connected viewer (live: frame by frame)
         sends = frames_per_send(replace(cfg.rerun, sink="connect"), policy)
-        viewer = ViewerProcess(replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd))), "save", sends)
+        viewer = ViewerProcess(replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd))), "save", sends,
+                               footer=file_footer(policy))
     pipeline: Pipeline
     warmup = max(1, (max_frames or 300) // 10)
     lat = Latencies(warmup, lambda: processes(pipeline, viewer))

@@ -1,5 +1,7 @@
 """Reading a tofd .rrd back with Rerun's own reader (rerun.chunk.RrdReader), shared by the sink and daemon tests."""
 
+import warnings
+
 import numpy as np
 import pyarrow as pa
 import rerun as rr
@@ -9,6 +11,14 @@ from tofd.service.viewer import blueprint as bp
 
 PER_FRAME = [bp.RANGE, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(),
              f"{bp.TIMINGS}/nfft", f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]
+
+
+def has_footer(path) -> bool:
+    """Whether an .rrd file ends with Rerun's footer (chunk index); the reader warns when it has none."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        RrdReader(path)
+    return not any("no footer" in str(w.message) for w in caught)
 
 
 def read_entities(path):

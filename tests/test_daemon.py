@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 from pipeline_sources import write_config
-from rrd_helpers import check_rrd
+from rrd_helpers import check_rrd, has_footer
 
 from drivers.recording.replay import read_recording_info
 from tofd.service.viewer import blueprint as bp
@@ -30,7 +30,8 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(str(notify))
     sock.settimeout(60)
-    env = {**os.environ, "NOTIFY_SOCKET": str(notify), "WATCHDOG_USEC": "400000", "RUST_LOG": "error"}
+    env = {key: value for key, value in os.environ.items() if key != "RUST_LOG"}
+    env.update(NOTIFY_SOCKET=str(notify), WATCHDOG_USEC="400000")
     rrd, summary_path = tmp_path / "live.rrd", tmp_path / "summary.json"
     proc = tofd("run", "--emulate", "--config", write_config(tmp_path), "--rerun", f"save:{rrd}", "--health-port", "0",
                 "--summary", summary_path, env=env)
@@ -57,6 +58,8 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     assert len(logged) + summary["viewer_dropped"] == summary["frames_out"] and logged == sorted(set(logged))
     assert summary["viewer"]["exit"] == "clean" and summary["shutdown"]["abandoned"] == []
     assert set(logged).isdisjoint(d["frame_counter"] for d in summary["drops"])
+    # no footer: the SDK would hold its chunk index in memory for as long as a live run lasts (and says nothing)
+    assert not has_footer(rrd) and "footer" not in err
 
 
 def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
@@ -75,6 +78,7 @@ def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     summary = json.loads((tmp_path / f"{stem}.summary.json").read_text())
     assert summary["frames_out"] == n and summary["frames_dropped"] == 0 and summary["consistent"]
     tables = check_rrd(tmp_path / f"{stem}.rrd", counters)
+    assert has_footer(tmp_path / f"{stem}.rrd")  # a replay ends: its file keeps the index for random access
     nose = tables[bp.NOSE_2D][1]
     logged = dict(zip(nose.column("frame").to_pylist(), nose.column("Points2D:positions").to_pylist(), strict=True))
     for x in accepted:  # the detected nose pixel is what the viewer shows

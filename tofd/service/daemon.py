@@ -100,12 +100,13 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
         try:
             from tofd.service.viewer.logger import frames_per_send  # these import the Rerun SDK: only when serving
             from tofd.service.viewer.process import ViewerProcess
+            from tofd.service.viewer.targets import file_footer
 
             model_file = read_model_file(cfg)
             identity = run_identity(cfg, model_file.identity)
             if cfg.rerun.sink != "none":
                 viewer = ViewerProcess(cfg, cfg.rerun.sink, frames_per_send(cfg.rerun, policy),
-                                       cancelled=lambda: bool(stop))
+                                       cancelled=lambda: bool(stop), footer=file_footer(policy))
             metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
             model = service_model(cfg, model_file)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe), model=model,

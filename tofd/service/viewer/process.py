@@ -22,7 +22,8 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
 
@@ -30,6 +31,7 @@ from tofd.config import Config
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.slots import SlotRing
 from tofd.service.viewer import wire
+from tofd.service.viewer.targets import QUIET_NO_FOOTER
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +40,7 @@ POLL_S = 0.1  # seconds between checks of a start's `cancelled`
 IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this long without a new frame
 
 
-def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, frames: Connection,
+def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, parent_pid: int, frames: Connection,
                 status: Connection, slots: tuple[str, int], free: Semaphore) -> None:
     """Entry point of the viewer process: log every frame it is sent until CLOSE or the pipe closes, freeing
     its slot (`slots`: the ring's name and size) after; what waits in the logger's batch is sent when no frame
@@ -55,7 +57,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, 
     cfg = config_from_dict(cfg_table)
     ring = SlotRing.attach(slots[0], slots[1], cfg.intrinsics.shape, wire.PLANES)
     try:
-        target = RerunTarget(cfg.rerun, sink)
+        target = RerunTarget(cfg.rerun, sink, footer=footer)
         logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud, batch_frames)
     except Exception as exc:  # reported to the parent as one line
         status.send_bytes(json.dumps({"error": str(exc)}).encode())
@@ -93,12 +95,24 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, parent_pid: int, 
     status.send_bytes(json.dumps({"closed": {"frames": logged, "errors": errors}}).encode())
 
 
+@contextmanager
+def child_environment(values: dict[str, str]) -> Iterator[None]:
+    """os.environ with `values` added while a child process starts (it copies the environment then)."""
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for key in values:
+            del os.environ[key]
+
+
 class ViewerProcess:
     """The parent's handle: start the child (raising ViewerError if its sink cannot start), `offer` frames,
-    `close` within a deadline. Use from one thread for offer and one for close."""
+    `close` within a deadline. Use from one thread for offer and one for close. `footer`: whether a "save" sink
+    writes Rerun's footer (targets.file_footer)."""
 
     def __init__(self, cfg: Config, sink: str, batch_frames: int = 1, queue_frames: int = 8,
-                 start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False):
+                 start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True):
         from tofd.service.pipeline.core import config_table
         from tofd.service.viewer.targets import ViewerError
 
@@ -110,9 +124,11 @@ class ViewerProcess:
         frames_r, self._frames = ctx.Pipe(duplex=False)
         self._status, status_w = ctx.Pipe(duplex=False)
         self.process = ctx.Process(target=viewer_main, name="tofd-viewer", daemon=True,
-                                   args=(config_table(cfg), sink, batch_frames, os.getpid(), frames_r, status_w,
-                                         (self._ring.name, queue_frames), self._free))
-        self.process.start()
+                                   args=(config_table(cfg), sink, batch_frames, footer, os.getpid(), frames_r,
+                                         status_w, (self._ring.name, queue_frames), self._free))
+        quiet = {} if footer or "RUST_LOG" in os.environ else {"RUST_LOG": QUIET_NO_FOOTER}
+        with child_environment(quiet):
+            self.process.start()
         frames_r.close()
         status_w.close()
         self._lock = threading.Lock()  # the pipe and `_closing`, between offer and close

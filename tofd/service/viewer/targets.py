@@ -27,6 +27,14 @@ APPLICATION_ID = "tofd"
 # A file sink batches large chunks (few seconds, up to 64 MiB of rows) so `rerun rrd stats` finds the .rrd
 # optimised; viewers keep the SDK's low-latency default.
 FILE_BATCHER = {"flush_tick": 5.0, "flush_num_bytes": 64 << 20, "flush_num_rows": 100_000}
+QUIET_NO_FOOTER = "warn,re_log_encoding::rrd::file_sink=error"  # RUST_LOG: no warning that a file has no footer
+
+
+def file_footer(policy: str) -> bool:
+    """Whether the .rrd file sink writes Rerun's footer (its chunk index, for fast random access): for lossless
+    runs (replays) only. The SDK keeps the index in memory until the file closes, so a live run's would grow for
+    as long as it runs; the viewer reads a file without it by scanning."""
+    return policy == "lossless"
 
 
 def apply_analytics_setting(enabled: bool) -> None:
@@ -66,11 +74,12 @@ def _client_host(bind: str) -> str:
 class RerunTarget:
     """A RecordingStream connected to the configured sink, and the viewer child process if we started one.
 
-    `sink`: "save" (cfg.path or `path`), "connect" (cfg.url), "web" or "spawn" (child viewer on cfg.bind).
+    `sink`: "save" (cfg.path or `path`; `footer`: see file_footer), "connect" (cfg.url), "web" or "spawn" (child
+    viewer on cfg.bind).
     """
 
     def __init__(self, cfg: RerunConfig, sink: str, path: str | None = None, url: str | None = None,
-                 recording_id: str | None = None, start_timeout_s: float = 20.0):
+                 recording_id: str | None = None, start_timeout_s: float = 20.0, footer: bool = True):
         self.cfg, self.sink = cfg, sink
         self.child: subprocess.Popen | None = None
         self.web_url: str | None = None
@@ -81,7 +90,7 @@ class RerunTarget:
         blueprint = build_blueprint()
         if sink == "save":
             Path(path or cfg.path).parent.mkdir(parents=True, exist_ok=True)
-            self.rec.save(path or cfg.path, default_blueprint=blueprint)
+            self.rec.save(path or cfg.path, default_blueprint=blueprint, write_footer=footer)
         elif sink == "connect":
             self.rec.connect_grpc(url or cfg.url, default_blueprint=blueprint)
         elif sink in ("web", "spawn"):
