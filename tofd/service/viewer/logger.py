@@ -2,9 +2,9 @@
 
 Per frame (~0.5 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right;
 the camera's radial range is it over each ray's z), amplitude (uint16), mask, four feature maps, the foreground
-cloud (~3000 points),
-the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of TRACK_BOX_M about its pixel,
-labelled with its confidence, and its 3-D point) and the track's confidence, one scalar per stage timing.
+cloud (~3000 points), the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of TRACK_BOX_M
+about its pixel, labelled with its confidence, and its 3-D point) and the track's confidence, one scalar per
+stage timing.
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
 
 Everything per frame goes out as columns (Rerun's send_columns), `batch_frames` frames per send: a log call
