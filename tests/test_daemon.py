@@ -25,6 +25,7 @@ def tofd(*args, **kwargs):
                             stderr=subprocess.PIPE, text=True, **kwargs)
 
 
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # a live run writes none, on purpose
 def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     notify = tmp_path / "notify.sock"
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
