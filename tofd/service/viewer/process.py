@@ -135,15 +135,16 @@ class ViewerProcess:
         self._closing = False
         self.stalled = False  # no slot was free at the last offer
         self.report: dict = {}
+        self.web_url: str | None = None  # the web viewer's address, for the "web" sink
         msg = self._status_message(start_timeout_s, cancelled)
         if msg is None and cancelled():  # a stop signal while it started: nothing to flush, close() says so
             self._release()
-            self.web_url, self.report = None, {"exit": "cancelled", "unsent": 0}
+            self.report = {"exit": "cancelled", "unsent": 0}
             return
         if msg is None or "error" in msg:
             self._release()
             raise ViewerError((msg or {}).get("error") or f"the viewer process did not start in {start_timeout_s:g} s")
-        self.web_url: str | None = msg["ready"]
+        self.web_url = msg["ready"]
 
     def _status_message(self, timeout_s: float, cancelled: Callable[[], bool] = lambda: False) -> dict | None:
         """The child's next status message within `timeout_s`; None if none came, the child died or
