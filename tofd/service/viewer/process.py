@@ -27,11 +27,13 @@ from contextlib import contextmanager
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
 
-from tofd.config import Config
+from tofd.config import Config, config_from_dict, config_table
+from tofd.service.lifeline import die_with_parent
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.slots import SlotRing
 from tofd.service.viewer import wire
-from tofd.service.viewer.targets import QUIET_NO_FOOTER
+from tofd.service.viewer.logger import RerunLogger
+from tofd.service.viewer.targets import QUIET_NO_FOOTER, RerunTarget, ViewerError
 
 log = logging.getLogger(__name__)
 
@@ -45,15 +47,9 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     """Entry point of the viewer process: log every frame it is sent until CLOSE or the pipe closes, freeing
     its slot (`slots`: the ring's name and size) after; what waits in the logger's batch is sent when no frame
     came for IDLE_FLUSH_S, and at the end."""
-    from tofd.service.lifeline import die_with_parent
-
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    from tofd.config import config_from_dict
-    from tofd.service.viewer.logger import RerunLogger
-    from tofd.service.viewer.targets import RerunTarget
-
     cfg = config_from_dict(cfg_table)
     ring = SlotRing.attach(slots[0], slots[1], cfg.intrinsics.shape, wire.PLANES)
     try:
@@ -113,9 +109,6 @@ class ViewerProcess:
 
     def __init__(self, cfg: Config, sink: str, batch_frames: int = 1, queue_frames: int = 8,
                  start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True):
-        from tofd.service.pipeline.core import config_table
-        from tofd.service.viewer.targets import ViewerError
-
         ctx = mp.get_context("spawn")
         self.queue_frames = queue_frames
         self._ring = SlotRing.create(queue_frames, cfg.intrinsics.shape, wire.PLANES, use="viewer")
