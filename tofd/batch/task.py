@@ -8,7 +8,6 @@ the partition's statistics (key b"tofd.partition", JSON) for --resume and the su
 
 from __future__ import annotations
 
-import ctypes
 import json
 import os
 import time
@@ -27,6 +26,7 @@ from drivers.intrinsics import Intrinsics
 from drivers.recording.index import FrameIndex, read_chunks
 from tofd.algorithm.detector import Candidates, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
+from tofd.algorithm.heap import keep_arrays_on_the_heap
 from tofd.algorithm.threads import use_one_thread
 from tofd.batch.plan import Partition
 from tofd.batch.rows import ROW_SCHEMA, eval_columns, frame_row
@@ -51,7 +51,7 @@ class PrepareWorker(WorkerPlugin):
 
 def prepare_process() -> None:
     """Make this process ready to run partitions (idempotent): one thread in numerical libraries
-    (tofd.algorithm.threads, the pipeline workers' rule) and keep_arrays_on_the_heap."""
+    (tofd.algorithm.threads) and frame arrays on the heap (tofd.algorithm.heap), the pipeline workers' rules."""
     global _prepared
     if not _prepared:
         use_one_thread()
@@ -60,21 +60,6 @@ def prepare_process() -> None:
 
 
 _prepared = False
-
-
-def keep_arrays_on_the_heap() -> None:
-    """Raise glibc's mmap threshold to 64 MiB in this process (no-op elsewhere than glibc). Dask's nanny sets
-    MALLOC_TRIM_THRESHOLD_ for its workers, which pins the threshold at 128 KiB: every (H, W) map buffer of a
-    frame is then mmap'd and unmapped again, page-faulting on each use, and the per-frame work runs ~2x slower."""
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt(_M_MMAP_THRESHOLD, 64 << 20)
-        libc.mallopt(_M_TRIM_THRESHOLD, 128 << 20)
-    except (OSError, AttributeError):
-        pass
-
-
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc mallopt parameters
 
 
 def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[Frame, float]]:

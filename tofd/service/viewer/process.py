@@ -27,6 +27,7 @@ from contextlib import contextmanager
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
 
+from tofd.algorithm.heap import keep_arrays_on_the_heap
 from tofd.config import Config, config_from_dict, config_table
 from tofd.service.lifeline import die_with_parent
 from tofd.service.pipeline.results import FrameResult
@@ -50,6 +51,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    keep_arrays_on_the_heap()
     cfg = config_from_dict(cfg_table)
     ring = SlotRing.attach(slots[0], slots[1], cfg.intrinsics.shape, wire.PLANES)
     try:
