@@ -2,8 +2,8 @@
 
 By default glibc returns the heap's free top above 128 KiB to the kernel and serves large allocations with fresh
 mmaps (from 128 KiB up where the threshold is pinned, as Dask's nanny does with MALLOC_TRIM_THRESHOLD_), so each
-frame's (H, W) arrays and temporaries page-fault again on first touch: copying a frame's maps out of shared
-memory took 10x the time of the copy itself. The settings keep that memory: RSS holds at the working set's high-water mark.
+frame's (H, W) arrays and temporaries page-fault again on first touch. The settings keep that memory: RSS
+holds at the working set's high-water mark.
 """
 
 from __future__ import annotations
