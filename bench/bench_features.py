@@ -31,6 +31,7 @@ from drivers.emulator.render import Pose, load_face, render_face
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import FFTFeatures, NFFTFeatures
 from tofd.algorithm.features import nfft as nfft_module
+from tofd.algorithm.heap import keep_arrays_on_the_heap
 from tofd.algorithm.segmentation import segment
 from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.lab import shapes as synthetic
@@ -79,7 +80,9 @@ def count_solve_cpu(totals: list[float]) -> None:
 
 def time_frames(cfg_dict: dict, repeats: int) -> list[dict]:
     """Per scene: FFT and NFFT range-feature times (ms, wall and CPU) over `repeats` frames, the NFFT's CG CPU
-    time, CG iterations and the eps0 error against the converged solution."""
+    time, CG iterations and the eps0 error against the converged solution; the heap set up as in the pipeline's
+    feature workers."""
+    keep_arrays_on_the_heap()
     cg_total = [0.0]
     count_solve_cpu(cg_total)
     intrinsics = Intrinsics()

@@ -23,8 +23,9 @@ from tofd.lab.conditions import parse_conditions
 from tofd.lab.robustness import MatrixSpec, condition_table, run_matrix, summarize
 
 ABOUT = ("Shipped model, held-out identities (never trained or tuned on) x sensor conditions training never saw "
-         "(tofd.lab.conditions) x nose distance, yaw +-30 deg, pitch +-15 deg; per cell EER and found/wrong at the "
-         "operating scale.")
+         "(tofd.lab.conditions) x nose distance, yaw +-30 deg, pitch +-15 deg; per cell EER, found/wrong at the "
+         "operating scale, and the misses by why: the nose scored best but beyond the scale, was outranked, or had "
+         "no candidate pixel.")
 
 
 def main() -> int:
@@ -59,6 +60,9 @@ def main() -> int:
         print(condition_table(cells, variant))
         print(f"{variant}: mean EER {100 * s['mean']['eer']:.1f} %, found {100 * s['mean']['found']:.1f} %, "
               f"wrong {100 * s['mean']['wrong']:.1f} %; cells meeting the goal {s['cells_meeting_goal']}/{s['cells']}")
+        print(f"  misses: the nose scored best but beyond the operating scale {100 * s['mean']['beyond_scale']:.1f} %,"
+              f" outranked {100 * s['mean']['outranked']:.1f} %, no candidate nose pixel "
+              f"{100 * s['mean']['no_candidate']:.1f} % of frames (mean over cells)")
         for key in ("worst_eer", "worst_found", "worst_wrong"):
             c = s[key]
             print(f"  {key}: {c['condition']} {c['subject']} {c['distance_m']:.2f} m: EER {100 * c['eer']:.1f} %, "

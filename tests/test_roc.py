@@ -70,3 +70,13 @@ def test_answers_follow_the_best_pixel_and_the_scale():
     b = answers_at(true_min, false_min, scale=1.5)  # only image 0's nose is inside
     assert b.found == pytest.approx(1 / 3) and b.wrong == 0.0
     assert answers_at(true_min, false_min, scale=10.0).found == pytest.approx(2 / 3)
+
+
+def test_misses_split_by_why():
+    # 0: found; 1: nose best, beyond the scale; 2: outranked; 3: no candidate nose pixel (inf); 4: nothing at all
+    true_min = np.array([1.0, 6.0, 4.0, np.inf, np.inf])
+    false_min = np.array([3.0, 8.0, 2.0, 1.0, np.inf])
+    a = answers_at(true_min, false_min, scale=5.0)
+    assert (a.found, a.beyond_scale, a.outranked, a.no_candidate) == pytest.approx((0.2, 0.2, 0.2, 0.4))
+    assert a.wrong == pytest.approx(0.4)  # images 2 and 3 accept another pixel
+    assert a.to_dict()["beyond_scale_rate"] == pytest.approx(0.2)

@@ -19,6 +19,7 @@ from tofd.lab.evaluation import evaluate_model, extract_samples
 from tofd.lab.faces import HOLDOUT_SUBJECTS, TEST_DISTANCES_M, render_frames
 
 MATRIX_VARIANTS = ("nfft_range", "fft_range")
+MEANS = ("eer", "found", "wrong", "beyond_scale", "outranked", "no_candidate")  # per-cell measures averaged
 
 
 @dataclass(frozen=True, slots=True)
@@ -33,6 +34,9 @@ class Cell:
     eer: float
     found: float  # the accepted pixel is within the true-nose radius
     wrong: float  # a pixel is accepted and it is not
+    beyond_scale: float  # misses (tofd.lab.roc.Answers): the nose scored best but outside the box's scale,
+    outranked: float  # another pixel scored better,
+    no_candidate: float  # or no nose pixel was a candidate
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,22 +66,24 @@ def run_matrix(model: NoseModel, spec: MatrixSpec, features: FeatureConfig, segm
                 r = results[variant]
                 for d, roc in sorted(r.per_distance.items()):
                     a = r.answers_per_distance[d]
-                    cells.append(Cell(variant, name, subject, d, roc.n_images, roc.eer, a.found, a.wrong))
+                    cells.append(Cell(variant, name, subject, d, roc.n_images, roc.eer, a.found, a.wrong,
+                                      a.beyond_scale, a.outranked, a.no_candidate))
             if progress is not None:
                 progress(f"{name} {subject}")
     return cells
 
 
 def summarize(cells: list[Cell]) -> dict[str, dict]:
-    """Per variant: mean EER / found / wrong over cells, and the worst cell of each (highest EER, lowest found,
-    highest wrong) as a dict."""
+    """Per variant: mean EER / found / wrong / the three kinds of miss over cells, and the worst cell of each of
+    EER, found and wrong (highest EER, lowest found, highest wrong) as a dict."""
     out: dict[str, dict] = {}
     for variant in dict.fromkeys(c.variant for c in cells):
         mine = [c for c in cells if c.variant == variant]
-        eer, found, wrong = (np.array([getattr(c, k) for c in mine]) for k in ("eer", "found", "wrong"))
+        means = {k: np.array([getattr(c, k) for c in mine]) for k in MEANS}
+        eer, found, wrong = means["eer"], means["found"], means["wrong"]
         out[variant] = {
             "cells": len(mine),
-            "mean": {"eer": float(eer.mean()), "found": float(found.mean()), "wrong": float(wrong.mean())},
+            "mean": {k: float(v.mean()) for k, v in means.items()},
             "worst_eer": asdict(mine[int(np.argmax(eer))]),
             "worst_found": asdict(mine[int(np.argmin(found))]),
             "worst_wrong": asdict(mine[int(np.argmax(wrong))]),

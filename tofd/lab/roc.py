@@ -99,21 +99,33 @@ def margin_scale(true_min: np.ndarray, false_min: np.ndarray, has_nose: np.ndarr
 @dataclass(frozen=True, slots=True)
 class Answers:
     """What the detector reports at one box scale: each image's best candidate pixel, accepted iff its box
-    distance <= scale (tofd.algorithm.detector.detect), as shares of the images."""
+    distance <= scale (tofd.algorithm.detector.detect), as shares of the images; the images where the nose is not
+    found split by why (found + beyond_scale + outranked + no_candidate = 1)."""
 
     scale: float
     found: float  # the accepted pixel is a true nose pixel
     wrong: float  # a pixel is accepted and it is not a true nose pixel
+    beyond_scale: float = 0.0  # a true nose pixel scores best, but outside the box at this scale
+    outranked: float = 0.0  # another candidate pixel scores better than every true nose pixel
+    no_candidate: float = 0.0  # no true nose pixel is a candidate (hidden, or rejected by the candidate tests)
 
     def to_dict(self) -> dict:
-        return {"scale": self.scale, "found_rate": self.found, "wrong_rate": self.wrong}
+        return {"scale": self.scale, "found_rate": self.found, "wrong_rate": self.wrong,
+                "beyond_scale_rate": self.beyond_scale, "outranked_rate": self.outranked,
+                "no_candidate_rate": self.no_candidate}
 
 
 def answers_at(true_min: np.ndarray, false_min: np.ndarray, scale: float) -> Answers:
     """Answers from per-image minimal box distances (roc_from_min_distances); a tie goes to the nose."""
     true_min, false_min = np.asarray(true_min, np.float64), np.asarray(false_min, np.float64)
     n = max(len(true_min), 1)
+    candidate = np.isfinite(true_min)
     nose_first = true_min <= false_min
     found = nose_first & (true_min <= scale)
     wrong = ~nose_first & (false_min <= scale)
-    return Answers(float(scale), float(found.sum() / n), float(wrong.sum() / n))
+
+    def share(images: np.ndarray) -> float:
+        return float(images.sum() / n)
+
+    return Answers(float(scale), share(found), share(wrong), share(candidate & nose_first & (true_min > scale)),
+                   share(candidate & ~nose_first), share(~candidate))
