@@ -22,7 +22,9 @@ def frames(rng, n_frames=200, n_pixels=40, n_true=1, informative_gap=0.02):
         feats[n_true:, 0] = np.where(rng.random(n_pixels - n_true) < 0.5, -1, 1) * rng.uniform(
             0.1 + informative_gap, 2.0, n_pixels - n_true)
         border = rng.uniform(0, 0.02, n_pixels).astype(np.float32)
-        out.append(FrameSamples(feats, tip, border, np.zeros(n_pixels, np.float32), np.zeros(n_pixels, np.float32)))
+        zeros = np.zeros(n_pixels, np.float32)
+        xyz = rng.uniform(-0.1, 0.1, (n_pixels, 3)).astype(np.float32)
+        out.append(FrameSamples(feats, tip, border, zeros, zeros, xyz))
     return out
 
 

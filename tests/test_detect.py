@@ -12,6 +12,7 @@ from tofd.algorithm.detector import (
     VARIANTS,
     Box,
     Candidates,
+    Margin,
     ModelError,
     ModelMismatch,
     NoseModel,
@@ -22,6 +23,7 @@ from tofd.algorithm.detector import (
     front_gap_m,
     learn_box,
     load_model,
+    rival_distance,
     save_model,
     stack_features,
 )
@@ -78,6 +80,33 @@ def test_detect_finds_the_pixel_in_the_box():
     det = detect(maps, range_m, intrinsics, box, scale=1.0)
     assert not det.accepted and det.nose_px is None and det.score == pytest.approx(2.0)
 
+
+
+def test_margin_accepts_a_clear_winner_beyond_the_scale_and_rejects_a_close_race():
+    h, w = 20, 40
+    intrinsics = Intrinsics(width=w, height=h, fx=50.0, fy=50.0, cx=19.5, cy=9.5)
+    range_m = np.full((h, w), 0.5)  # a pixel spans 1 cm: the rival radius (2 cm) is two pixels
+    box = Box(VARIANTS["nfft_range"], np.array([0.0, -3.0]), np.array([0.5, 0.5]))
+    maps = {n: np.full((h, w), 1e-3, np.float32) for n in VARIANTS["nfft_range"]}  # eps0 log10 -3: distance 6
+    maps["range_nfft_eps0"][10, 10] = 10**0.6  # distance 1.2: beyond scale 1, but 5x ahead of every rival
+    maps["range_nfft_eps0"][10, 11] = 10**0.65  # its neighbour is not a rival (1 cm away)
+    paper, margin = Margin(), Margin(ratio=0.5, scale_factor=1.5)
+    assert not detect(maps, range_m, intrinsics, box, 1.0).accepted
+    det = detect(maps, range_m, intrinsics, box, 1.0, margin=margin)
+    assert det.accepted and det.nose_px == (10, 10) and det.score == pytest.approx(1.2, rel=1e-5)
+    maps["range_nfft_eps0"][10, 30] = 10**0.9  # a rival 20 cm away at distance 1.8: 1.2 > 0.5 x 1.8
+    assert not detect(maps, range_m, intrinsics, box, 1.0, margin=margin).accepted
+    maps["range_nfft_eps0"][10, 10] = 10**0.48  # distance 0.96: inside the scale, but more than 0.5 x 1.8
+    assert detect(maps, range_m, intrinsics, box, 1.0).accepted
+    assert not detect(maps, range_m, intrinsics, box, 1.0, margin=margin).accepted
+    assert paper.accepts(0.96, 1.8, 1.0) and not margin.accepts(0.96, 1.8, 1.0) and margin.accepts(1.4, np.inf, 1.0)
+
+
+def test_rival_distance_skips_the_best_pixels_neighbourhood():
+    xyz = np.array([[0.0, 0.0, 0.5], [0.01, 0.0, 0.5], [0.0, 0.019, 0.5], [0.03, 0.0, 0.5], [0.0, 0.0, 0.6]])
+    distance = np.array([0.1, 0.2, 0.3, 0.9, 0.7])
+    assert rival_distance(distance, xyz, 0) == pytest.approx(0.7)  # pixels 1, 2 lie within 2 cm of pixel 0
+    assert rival_distance(distance[:3], xyz[:3], 0) == np.inf
 
 def test_border_distance_is_physical_and_scale_invariant():
     intrinsics = Intrinsics()

@@ -101,7 +101,7 @@ def test_operating_scale_makes_no_training_error_when_one_exists(tiny):
     separable = [name for name, vm in model.variants.items() if vm.train_eer == 0]
     assert separable  # six frames: the boxes separate them (measured: all four variants)
     for name in separable:  # strictly inside the zero-error interval, not on its lower end
-        true_min, false_min = min_distances(s_train, name, model.variant(name).box, 0.015)
+        true_min, false_min, _ = min_distances(s_train, name, model.variant(name).box, 0.015)
         assert np.max(true_min) < model.variant(name).operating_scale < np.min(false_min)
 
 

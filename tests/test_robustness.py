@@ -31,13 +31,13 @@ def test_matrix_cells_and_worst_cell():
     assert len(cells) == 2 * 2 * 2  # conditions x distances x variants
     assert {(c.condition, c.distance_m) for c in cells} == {(n, d) for n in spec.conditions for d in (0.4, 0.6)}
     assert all(c.frames == 3 and 0 <= c.found + c.wrong <= 1 and 0 <= c.eer <= 1 for c in cells)
-    assert all(c.found + c.beyond_scale + c.outranked + c.no_candidate == pytest.approx(1.0) for c in cells)
+    assert all(c.found + c.rejected + c.outranked + c.no_candidate == pytest.approx(1.0) for c in cells)
     summary = summarize(cells)
     nfft = [c for c in cells if c.variant == "nfft_range"]
     assert summary["nfft_range"]["worst_eer"]["eer"] == max(c.eer for c in nfft)
     assert summary["nfft_range"]["worst_found"]["found"] == min(c.found for c in nfft)
     assert summary["nfft_range"]["mean"]["found"] == pytest.approx(np.mean([c.found for c in nfft]))
-    assert summary["nfft_range"]["mean"]["beyond_scale"] == pytest.approx(np.mean([c.beyond_scale for c in nfft]))
+    assert summary["nfft_range"]["mean"]["rejected"] == pytest.approx(np.mean([c.rejected for c in nfft]))
     assert "no_wall" in condition_table(cells, "nfft_range")
 
 

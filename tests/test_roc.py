@@ -77,6 +77,21 @@ def test_misses_split_by_why():
     true_min = np.array([1.0, 6.0, 4.0, np.inf, np.inf])
     false_min = np.array([3.0, 8.0, 2.0, 1.0, np.inf])
     a = answers_at(true_min, false_min, scale=5.0)
-    assert (a.found, a.beyond_scale, a.outranked, a.no_candidate) == pytest.approx((0.2, 0.2, 0.2, 0.4))
+    assert (a.found, a.rejected, a.outranked, a.no_candidate) == pytest.approx((0.2, 0.2, 0.2, 0.4))
     assert a.wrong == pytest.approx(0.4)  # images 2 and 3 accept another pixel
-    assert a.to_dict()["beyond_scale_rate"] == pytest.approx(0.2)
+    assert a.to_dict()["rejected_rate"] == pytest.approx(0.2)
+
+
+def test_margin_test_reports_clear_winners_only():
+    from tofd.algorithm.detector import Margin
+
+    # 0: nose best at 1.2 (beyond scale 1), rival 3.0; 1: nose best at 0.8, rival 1.0 (too close);
+    # 2: another pixel best at 1.1, rival 4.0 (a clear, wrong winner); 3: no candidate at all
+    true_min, false_min = np.array([1.2, 0.8, 2.0, np.inf]), np.array([3.0, 1.0, 1.1, np.inf])
+    rival = np.array([3.0, 1.0, 4.0, np.inf])
+    paper = answers_at(true_min, false_min, 1.0)
+    assert (paper.found, paper.wrong, paper.rejected) == pytest.approx((0.25, 0.0, 0.25))
+    a = answers_at(true_min, false_min, 1.0, rival, Margin(ratio=0.5, scale_factor=1.5))
+    assert (a.found, a.wrong, a.rejected, a.outranked, a.no_candidate) == pytest.approx((0.25, 0.25, 0.25, 0.25, 0.25))
+    with pytest.raises(ValueError, match="rival"):
+        answers_at(true_min, false_min, 1.0, None, Margin(ratio=0.5))

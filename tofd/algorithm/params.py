@@ -87,6 +87,9 @@ class DetectorConfig:
     # nose (0 = no front test; tofd/algorithm/detector.py)
     front_noise_factor: float = 0.0  # the front test allows front_depth_m + this x the pixel's local range noise
     # sigma (estimated from the frame; tofd/algorithm/detector/candidates.py); 0 = fixed allowance
+    margin_ratio: float = 0.6  # the best pixel is reported only if its box distance is at most this times that of
+    # the best pixel 2 cm or more away from it (tofd/algorithm/detector/acceptance.py); 0 = no margin test
+    margin_scale_factor: float = 1.5  # with the margin test on, the box scale is the operating scale times this
 
     def validate(self) -> None:
         if self.variant not in VARIANTS:
@@ -99,3 +102,7 @@ class DetectorConfig:
             raise ValueError(f"front_depth_m: {self.front_depth_m} must be >= 0 (0 = no front test)")
         if not self.front_noise_factor >= 0:
             raise ValueError(f"front_noise_factor: {self.front_noise_factor} must be >= 0 (0 = fixed allowance)")
+        if not 0 <= self.margin_ratio < 1:
+            raise ValueError(f"margin_ratio: {self.margin_ratio} is not in [0, 1) (0 = no margin test)")
+        if not self.margin_scale_factor >= 1:
+            raise ValueError(f"margin_scale_factor: {self.margin_scale_factor} must be >= 1")

@@ -28,7 +28,7 @@ ROW_SCHEMA = pa.schema(
     + [(f"mean_{name}", pa.float64()) for name in MAP_NAMES]
     + [(f"t_{stage}_ms", pa.float64()) for stage in TIMED]
     + [("eval_has_nose", pa.bool_()), ("eval_distance_m", pa.float64())]
-    + [(f"eval_{kind}_min_{variant}", pa.float64()) for variant in VARIANTS for kind in ("true", "false")]
+    + [(f"eval_{kind}_{variant}", pa.float64()) for variant in VARIANTS for kind in ("true_min", "false_min", "rival")]
 )
 """Columns of a batch results file; digest_* / mean_* are null for maps not computed (all NaN); eval_* are null
 for frames without ground truth (eval_columns)."""
@@ -75,8 +75,8 @@ def eval_columns(minima: ImageMinima, distance_m: float) -> dict:
     tofd.lab.evaluation.variant_results needs of it; variants the model lacks are null."""
     row: dict = {"eval_has_nose": bool(minima.has_nose[0]), "eval_distance_m": distance_m}
     for variant in VARIANTS:
-        for kind, mins in (("true", minima.true_min), ("false", minima.false_min)):
-            row[f"eval_{kind}_min_{variant}"] = float(mins[variant][0]) if variant in mins else None
+        for kind, mins in (("true_min", minima.true_min), ("false_min", minima.false_min), ("rival", minima.rival)):
+            row[f"eval_{kind}_{variant}"] = float(mins[variant][0]) if variant in mins else None
     return row
 
 
@@ -90,7 +90,8 @@ def minima_from_rows(rows: list[dict], variants: list[str]) -> tuple[ImageMinima
 
     return (ImageMinima(np.array([r["eval_has_nose"] for r in kept], dtype=bool),
                         {v: column(f"eval_true_min_{v}") for v in variants},
-                        {v: column(f"eval_false_min_{v}") for v in variants}),
+                        {v: column(f"eval_false_min_{v}") for v in variants},
+                        {v: column(f"eval_rival_{v}") for v in variants}),
             column("eval_distance_m"))
 
 

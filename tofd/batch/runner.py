@@ -23,12 +23,12 @@ import numpy as np
 import pyarrow.parquet as pq
 from distributed import Client, LocalCluster, as_completed
 
-from tofd.algorithm.detector import NoseModel
+from tofd.algorithm.detector import Margin, NoseModel
 from tofd.algorithm.threads import THREAD_ENV
 from tofd.batch.plan import InputPlan, Partition, expand_inputs, plan_inputs, run_digests
 from tofd.batch.rows import TIMED, minima_from_rows, rows_digest
 from tofd.batch.task import PrepareWorker, partition_stats, run_partition
-from tofd.config import Config, config_table
+from tofd.config import Config, config_from_dict, config_table
 from tofd.lab.accuracy import accuracy_from_records
 from tofd.lab.evaluation import variant_results
 from tofd.lab.report import answers_table, eer_table, results_to_dict
@@ -116,7 +116,8 @@ def run_plan(client: Client, inputs: list[InputPlan], job: dict, out: str, diges
     _remove_partial_files(parts)
     summary = _summary(inputs, done, failed, digests, out, wall_s, time.perf_counter() - t_submit,
                        setup_s, n_workers=len(client.scheduler_info().get("workers", {})), dashboard=dashboard,
-                       model=None if job["model"] is None else NoseModel.from_dict(job["model"]))
+                       model=None if job["model"] is None else NoseModel.from_dict(job["model"]),
+                       margin=Margin.from_config(config_from_dict(job["config"]).detector))
     fs, path = fsspec.core.url_to_fs(out)
     fs.makedirs(path, exist_ok=True)
     with fs.open(f"{path}/{SUMMARY_NAME}", "w") as fh:
@@ -155,7 +156,7 @@ def _percentiles(values: list[float]) -> dict[str, float]:
 
 def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, str], digests: dict[str, str],
              out: str, wall_s: float, run_s: float, setup_s: float, n_workers: int, dashboard: str | None,
-             model: NoseModel | None) -> dict:
+             model: NoseModel | None, margin: Margin) -> dict:
     dropped: Counter = Counter()
     per_input = []
     all_rows: list[dict] = []
@@ -213,20 +214,20 @@ def _summary(inputs: list[InputPlan], done: dict[str, dict], failed: dict[str, s
         "digests": digests,
         "results_digest": rows_digest(all_rows),
         "evaluation": None if accuracy is None else accuracy.to_dict(),
-        "variant_evaluation": variant_evaluation(all_rows, model),
+        "variant_evaluation": variant_evaluation(all_rows, model, margin),
     }
 
 
-def variant_evaluation(rows: list[dict], model: NoseModel | None) -> dict | None:
+def variant_evaluation(rows: list[dict], model: NoseModel | None, margin: Margin) -> dict | None:
     """`tofd evaluate`'s results of the model's variants over the rows with eval_* columns (frames with ground
-    truth): frames, its EER and answers tables as text, and per variant the EERs and answers overall and per
-    distance bin (without the ROC points); None without a model or such rows."""
+    truth; answers with the detector's `margin` test): frames, its EER and answers tables as text, and per variant
+    the EERs and answers overall and per distance bin (without the ROC points); None without a model or such rows."""
     if model is None:
         return None
     minima, distance_m = minima_from_rows(rows, list(model.variants))
     if not len(distance_m):
         return None
-    results = variant_results(model, minima, distance_m)
+    results = variant_results(model, minima, distance_m, margin)
     return {"frames": len(distance_m), "table": f"{eer_table(results)}\n{answers_table(results)}",
             "results": results_to_dict(results, points=False)}
 

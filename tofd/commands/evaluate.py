@@ -2,9 +2,9 @@
 
 Without --train/--test it renders the default split (train: three subjects at 0.60 m; test: a fourth subject
 at 0.35-0.70 m; --train-subjects / --test-subjects render others). With --model it skips training and
-evaluates that model. Prints the EER table (overall and per distance) and what the pipeline would report at the
-model's operating scale (nose found / wrong pixel accepted), and writes DIR/evaluation.json, DIR/roc.png and
-DIR/model.json.
+evaluates that model. Prints the EER table (overall and per distance) and what the pipeline would report (the
+model's operating scale and the config's margin test: nose found / wrong pixel accepted), and writes
+DIR/evaluation.json, DIR/roc.png and DIR/model.json.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     import time
 
-    from tofd.algorithm.detector import Candidates, load_model, save_model
+    from tofd.algorithm.detector import Candidates, Margin, load_model, save_model
     from tofd.config import load_config
     from tofd.lab.data_args import check_data_arguments, dataset_for, samples_for
     from tofd.lab.evaluation import evaluate_model, train_model
@@ -58,7 +58,7 @@ def main(args: argparse.Namespace) -> int:
     samples = samples_for(test, cfg, args, "test", timing)
     sweep = time.monotonic()
     candidates = Candidates.from_config(cfg.detector, cfg.segmentation)
-    results = evaluate_model(model, samples, test.distance_m, radius_m, candidates)
+    results = evaluate_model(model, samples, test.distance_m, radius_m, candidates, Margin.from_config(cfg.detector))
     timing["roc_sweep_s"] = round(time.monotonic() - sweep, 3)
     timing["total_s"] = round(time.monotonic() - start, 3)
 

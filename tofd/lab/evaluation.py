@@ -25,15 +25,18 @@ import numpy as np
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import (
     ALL_FOREGROUND,
+    PAPER_RULE,
     VARIANTS,
     Box,
     Candidates,
+    Margin,
     NoseModel,
     VariantModel,
     border_distance_m,
     depth_noise_m,
     front_gap_m,
     learn_box,
+    rival_distance,
     to_log_features,
 )
 from tofd.algorithm.extract import FeatureExtractor
@@ -67,6 +70,7 @@ class FrameSamples:
     border_m: np.ndarray  # (P,) float32 distance to the mask border, metres (tofd.algorithm.detector.border_distance_m)
     front_gap: np.ndarray  # (P,) float32 metres behind the front-most pixel nearby (detector.front_gap_m)
     noise_m: np.ndarray  # (P,) float32 local range noise sigma, metres (detector.depth_noise_m)
+    xyz_m: np.ndarray  # (P, 3) float32 camera-frame point of the range, metres (the detector's rival distance)
     nfft_iterations: int = 0
 
 
@@ -80,7 +84,8 @@ def frame_samples(extractor: FeatureExtractor, range_m: np.ndarray, amplitude: n
     border = border_distance_m(ff.mask, range_m, extractor.intrinsics)[ff.mask]
     front = front_gap_m(ff.mask, range_m, extractor.intrinsics, ff.rotation[2])[ff.mask]
     noise = depth_noise_m(ff.mask, range_m, extractor.intrinsics, ff.rotation[2])[ff.mask]
-    return FrameSamples(to_log_features(feats).astype(np.float32), tip, border, front, noise, ff.nfft_iterations)
+    xyz = extractor.intrinsics.backproject(range_m)[ff.mask].astype(np.float32)
+    return FrameSamples(to_log_features(feats).astype(np.float32), tip, border, front, noise, xyz, ff.nfft_iterations)
 
 
 _worker_extractor: FeatureExtractor | None = None
@@ -142,12 +147,24 @@ class PixelTable:
         self.frame = np.repeat(np.arange(len(samples)), [int(k.sum()) for k in keep])
         self.true = np.concatenate([s.tip_distance_m[k] <= radius_m for s, k in zip(samples, keep, strict=True)]
                                    or [np.empty(0, bool)])
+        self.xyz = np.concatenate([s.xyz_m[k] for s, k in zip(samples, keep, strict=True)]
+                                  or [np.empty((0, 3), np.float32)])
 
     def min_distances(self, distance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per frame: smallest of `distance` (one per row) over its true nose pixels and over its others (inf:
         none)."""
         return (self._frame_min(distance[self.true], self.frame[self.true]),
                 self._frame_min(distance[~self.true], self.frame[~self.true]))
+
+    def rivals(self, distance: np.ndarray) -> np.ndarray:
+        """Per frame: the smallest of `distance` over the pixels farther than the detector's rival radius from the
+        frame's best pixel (tofd.algorithm.detector.rival_distance; inf: none)."""
+        out = np.full(self.n_frames, np.inf)
+        bounds = np.flatnonzero(np.r_[True, self.frame[1:] != self.frame[:-1], True]) if len(self.frame) else []
+        for start, stop in itertools.pairwise(bounds):
+            d = distance[start:stop]
+            out[self.frame[start]] = rival_distance(d, self.xyz[start:stop], int(np.argmin(d)))
+        return out
 
     def _frame_min(self, values: np.ndarray, frame: np.ndarray) -> np.ndarray:
         out = np.full(self.n_frames, np.inf)
@@ -158,11 +175,12 @@ class PixelTable:
 
 
 def min_distances(samples: list[FrameSamples], variant: str, box: Box, radius_m: float,
-                  candidates: Candidates = ALL_FOREGROUND) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame: smallest box distance of its true nose pixels and of its other foreground pixels (inf: none);
-    pixels that are not candidates count as inf (never classified nose)."""
+                  candidates: Candidates = ALL_FOREGROUND) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: smallest box distance of its true nose pixels and of its other foreground pixels, and that of
+    the best pixel's rival (inf: none); pixels that are not candidates count as inf (never classified nose)."""
     table = PixelTable(samples, variant, radius_m, candidates)
-    return table.min_distances(box.distance(table.features))
+    distance = box.distance(table.features)
+    return (*table.min_distances(distance), table.rivals(distance))
 
 
 WIDTH_MULTIPLIERS = (0.5, 0.7, 1.0, 1.4, 2.0, 3.0, 10.0)
@@ -258,36 +276,40 @@ class ImageMinima:
     has_nose: np.ndarray  # (F,) bool
     true_min: dict[str, np.ndarray]  # variant -> (F,) float64, inf: no such pixel
     false_min: dict[str, np.ndarray]  # variant -> (F,) float64, inf: no such pixel
+    rival: dict[str, np.ndarray]  # variant -> (F,) float64: the best pixel's rival (acceptance.rival_distance)
 
 
 def image_minima(model: NoseModel, samples: list[FrameSamples], radius_m: float = NOSE_RADIUS_M,
                  candidates: Candidates = ALL_FOREGROUND) -> ImageMinima:
     """ImageMinima of the frames' samples for every variant of the model (true nose: within radius_m of the tip)."""
-    pairs = {name: min_distances(samples, name, vm.box, radius_m, candidates) for name, vm in model.variants.items()}
-    return ImageMinima(_has_nose(samples, radius_m), {n: p[0] for n, p in pairs.items()},
-                       {n: p[1] for n, p in pairs.items()})
+    mins = {name: min_distances(samples, name, vm.box, radius_m, candidates) for name, vm in model.variants.items()}
+    return ImageMinima(_has_nose(samples, radius_m), {n: m[0] for n, m in mins.items()},
+                       {n: m[1] for n, m in mins.items()}, {n: m[2] for n, m in mins.items()})
 
 
-def variant_results(model: NoseModel, minima: ImageMinima, distance_m: np.ndarray) -> dict[str, VariantResult]:
-    """ROC curves and answers of every variant of the model from the images' minima, overall and per distance bin
-    (distance_m: (F,) nose distance of each image, metres)."""
+def variant_results(model: NoseModel, minima: ImageMinima, distance_m: np.ndarray,
+                    margin: Margin = PAPER_RULE) -> dict[str, VariantResult]:
+    """ROC curves and answers (with the acceptance rule's `margin`) of every variant of the model from the images'
+    minima, overall and per distance bin (distance_m: (F,) nose distance of each image, metres)."""
     bins = distance_bins(distance_m)
     has_nose = minima.has_nose
     results = {}
     for name, vm in model.variants.items():
-        tmin, fmin = minima.true_min[name], minima.false_min[name]
+        tmin, fmin, rival = minima.true_min[name], minima.false_min[name], minima.rival[name]
         res = VariantResult(name, roc_from_min_distances(tmin, fmin, has_nose),
-                            answers_at(tmin, fmin, vm.operating_scale))
+                            answers_at(tmin, fmin, vm.operating_scale, rival, margin))
         for b in np.unique(bins):
             sel = bins == b
             res.per_distance[float(b)] = roc_from_min_distances(tmin[sel], fmin[sel], has_nose[sel])
-            res.answers_per_distance[float(b)] = answers_at(tmin[sel], fmin[sel], vm.operating_scale)
+            res.answers_per_distance[float(b)] = answers_at(tmin[sel], fmin[sel], vm.operating_scale, rival[sel],
+                                                            margin)
         results[name] = res
     return results
 
 
 def evaluate_model(model: NoseModel, samples: list[FrameSamples], distance_m: np.ndarray,
-                   radius_m: float = NOSE_RADIUS_M,
-                   candidates: Candidates = ALL_FOREGROUND) -> dict[str, VariantResult]:
-    """ROC curves of every variant of the model on test samples, overall and per distance bin."""
-    return variant_results(model, image_minima(model, samples, radius_m, candidates), distance_m)
+                   radius_m: float = NOSE_RADIUS_M, candidates: Candidates = ALL_FOREGROUND,
+                   margin: Margin = PAPER_RULE) -> dict[str, VariantResult]:
+    """ROC curves and answers (acceptance rule: the scale and `margin`) of every variant of the model on test
+    samples, overall and per distance bin."""
+    return variant_results(model, image_minima(model, samples, radius_m, candidates), distance_m, margin)

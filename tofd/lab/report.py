@@ -38,13 +38,13 @@ def eer_table(results: dict[str, VariantResult]) -> str:
 
 
 def answers_table(results: dict[str, VariantResult]) -> str:
-    """Per variant, in percent of the frames: nose found / wrong pixel accepted at the model's operating scale."""
+    """Per variant, in percent of the frames: nose found / wrong pixel reported by the detector's acceptance rule."""
     def cell(r: VariantResult, d: float | None) -> str:
         a = r.answers if d is None else r.answers_per_distance[d]
         return f"{100 * a.found:.1f}/{100 * a.wrong:.1f}"
 
     return _distance_table("what the pipeline reports, % of frames: nose found / a wrong pixel accepted (the best "
-                           "candidate pixel, at the model's operating scale)", results, cell)
+                           "candidate pixel, by the operating scale and the margin test)", results, cell)
 
 
 def results_to_dict(results: dict[str, VariantResult], points: bool = True) -> dict:

@@ -1,8 +1,9 @@
 """The robustness matrix: a trained model on held-out identities under sensor conditions training never saw.
 
 Cell = (condition, subject, nose distance). Per cell and variant: the per-image EER and what the pipeline
-reports at the model's operating scale (found / wrong, tofd.lab.roc.answers_at). The summary gives, per
-variant, the worst cell of each measure beside the mean over cells: one bad cell is the failure a user meets.
+reports with the model's operating scale and the detector's margin test (found / wrong, tofd.lab.roc.answers_at).
+The summary gives, per variant, the worst cell of each measure beside the mean over cells: one bad cell is the
+failure a user meets.
 """
 
 from __future__ import annotations
@@ -12,14 +13,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from tofd.algorithm.detector import Candidates, NoseModel
+from tofd.algorithm.detector import PAPER_RULE, Candidates, Margin, NoseModel
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
 from tofd.lab.conditions import CONDITIONS
 from tofd.lab.evaluation import evaluate_model, extract_samples
 from tofd.lab.faces import HOLDOUT_SUBJECTS, TEST_DISTANCES_M, render_frames
 
 MATRIX_VARIANTS = ("nfft_range", "fft_range")
-MEANS = ("eer", "found", "wrong", "beyond_scale", "outranked", "no_candidate")  # per-cell measures averaged
+MEANS = ("eer", "found", "wrong", "rejected", "outranked", "no_candidate")  # per-cell measures averaged
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,7 +35,7 @@ class Cell:
     eer: float
     found: float  # the accepted pixel is within the true-nose radius
     wrong: float  # a pixel is accepted and it is not
-    beyond_scale: float  # misses (tofd.lab.roc.Answers): the nose scored best but outside the box's scale,
+    rejected: float  # misses (tofd.lab.roc.Answers): the nose scored best but was not reported,
     outranked: float  # another pixel scored better,
     no_candidate: float  # or no nose pixel was a candidate
 
@@ -51,7 +52,7 @@ class MatrixSpec:
 
 
 def run_matrix(model: NoseModel, spec: MatrixSpec, features: FeatureConfig, segmentation: SegmentationConfig,
-               candidates: Candidates, radius_m: float = 0.015, workers: int = 2,
+               candidates: Candidates, margin: Margin = PAPER_RULE, radius_m: float = 0.015, workers: int = 2,
                variants: tuple[str, ...] = MATRIX_VARIANTS,
                progress: Callable[[str], None] | None = None) -> list[Cell]:
     """Every cell of the matrix for every variant (rendered per condition and subject, then split by distance)."""
@@ -61,13 +62,13 @@ def run_matrix(model: NoseModel, spec: MatrixSpec, features: FeatureConfig, segm
             ds = render_frames((subject,), spec.distances_m, spec.frames * len(spec.distances_m),
                                spec.seed + 100 * ci + si, model=CONDITIONS[name])
             samples = extract_samples(ds, features, segmentation, workers)
-            results = evaluate_model(model, samples, ds.distance_m, radius_m, candidates)
+            results = evaluate_model(model, samples, ds.distance_m, radius_m, candidates, margin)
             for variant in variants:
                 r = results[variant]
                 for d, roc in sorted(r.per_distance.items()):
                     a = r.answers_per_distance[d]
                     cells.append(Cell(variant, name, subject, d, roc.n_images, roc.eer, a.found, a.wrong,
-                                      a.beyond_scale, a.outranked, a.no_candidate))
+                                      a.rejected, a.outranked, a.no_candidate))
             if progress is not None:
                 progress(f"{name} {subject}")
     return cells

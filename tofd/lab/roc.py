@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tofd.algorithm.detector.acceptance import PAPER_RULE, Margin
+
 
 @dataclass(frozen=True, slots=True)
 class RocCurve:
@@ -98,34 +100,38 @@ def margin_scale(true_min: np.ndarray, false_min: np.ndarray, has_nose: np.ndarr
 
 @dataclass(frozen=True, slots=True)
 class Answers:
-    """What the detector reports at one box scale: each image's best candidate pixel, accepted iff its box
-    distance <= scale (tofd.algorithm.detector.detect), as shares of the images; the images where the nose is not
-    found split by why (found + beyond_scale + outranked + no_candidate = 1)."""
+    """What the detector reports: each image's best candidate pixel, reported or not by the acceptance rule
+    (tofd.algorithm.detector.acceptance), as shares of the images; the images where the nose is not found split by
+    why (found + rejected + outranked + no_candidate = 1)."""
 
     scale: float
-    found: float  # the accepted pixel is a true nose pixel
-    wrong: float  # a pixel is accepted and it is not a true nose pixel
-    beyond_scale: float = 0.0  # a true nose pixel scores best, but outside the box at this scale
+    found: float  # the reported pixel is a true nose pixel
+    wrong: float  # a pixel is reported and it is not a true nose pixel
+    rejected: float = 0.0  # a true nose pixel scores best but is not reported (beyond the scale, or the margin)
     outranked: float = 0.0  # another candidate pixel scores better than every true nose pixel
     no_candidate: float = 0.0  # no true nose pixel is a candidate (hidden, or rejected by the candidate tests)
 
     def to_dict(self) -> dict:
         return {"scale": self.scale, "found_rate": self.found, "wrong_rate": self.wrong,
-                "beyond_scale_rate": self.beyond_scale, "outranked_rate": self.outranked,
+                "rejected_rate": self.rejected, "outranked_rate": self.outranked,
                 "no_candidate_rate": self.no_candidate}
 
 
-def answers_at(true_min: np.ndarray, false_min: np.ndarray, scale: float) -> Answers:
-    """Answers from per-image minimal box distances (roc_from_min_distances); a tie goes to the nose."""
+def answers_at(true_min: np.ndarray, false_min: np.ndarray, scale: float, rival: np.ndarray | None = None,
+               margin: Margin = PAPER_RULE) -> Answers:
+    """Answers from per-image minimal box distances (roc_from_min_distances; a tie goes to the nose) and, for the
+    margin test, the box distance of each image's best pixel's rival (inf: none)."""
     true_min, false_min = np.asarray(true_min, np.float64), np.asarray(false_min, np.float64)
+    if margin.ratio > 0 and rival is None:
+        raise ValueError("the margin test needs each image's rival distance")
     n = max(len(true_min), 1)
     candidate = np.isfinite(true_min)
     nose_first = true_min <= false_min
-    found = nose_first & (true_min <= scale)
-    wrong = ~nose_first & (false_min <= scale)
+    best = np.minimum(true_min, false_min)
+    reported = margin.accepts(best, np.inf if rival is None else rival, scale) & np.isfinite(best)
 
     def share(images: np.ndarray) -> float:
         return float(images.sum() / n)
 
-    return Answers(float(scale), share(found), share(wrong), share(candidate & nose_first & (true_min > scale)),
-                   share(candidate & ~nose_first), share(~candidate))
+    return Answers(float(scale), share(nose_first & reported), share(~nose_first & reported),
+                   share(candidate & nose_first & ~reported), share(candidate & ~nose_first), share(~candidate))

@@ -1,9 +1,10 @@
 """The paper's nose detector: a pixel is the nose tip iff its log10 feature vector lies in an axis-aligned box.
 
 box.py: the box and its distance; model_file.py: the JSON model; candidates.py: which pixels may be the tip;
-detect.py: one frame's detection.
+acceptance.py: whether the best of them is reported; detect.py: one frame's detection.
 """
 
+from tofd.algorithm.detector.acceptance import PAPER_RULE, Margin, rival_distance
 from tofd.algorithm.detector.box import Box, learn_box, stack_features, to_log_features
 from tofd.algorithm.detector.candidates import (
     ALL_FOREGROUND,
@@ -24,6 +25,7 @@ from tofd.algorithm.detector.model_file import (
 )
 from tofd.algorithm.names import VARIANTS
 
-__all__ = ["ALL_FOREGROUND", "VARIANTS", "Box", "Candidates", "Detection", "ModelError", "ModelMismatch",
-           "NoseDetector", "NoseModel", "VariantModel", "border_distance_m", "depth_noise_m", "detect", "front_gap_m",
-           "learn_box", "load_model", "parse_model", "save_model", "stack_features", "to_log_features"]
+__all__ = ["ALL_FOREGROUND", "PAPER_RULE", "VARIANTS", "Box", "Candidates", "Detection", "Margin", "ModelError",
+           "ModelMismatch", "NoseDetector", "NoseModel", "VariantModel", "border_distance_m", "depth_noise_m", "detect",
+           "front_gap_m", "learn_box", "load_model", "parse_model", "rival_distance", "save_model", "stack_features",
+           "to_log_features"]

@@ -1,4 +1,5 @@
-"""Nose detection in one frame: the candidate pixel of smallest box distance, accepted iff within the scale."""
+"""Nose detection in one frame: the candidate pixel of smallest box distance, reported if the acceptance rule
+(acceptance.py: within the box scale, and with the margin test well ahead of any rival) holds."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.intrinsics import Intrinsics
+from tofd.algorithm.detector.acceptance import PAPER_RULE, Margin, rival_distance
 from tofd.algorithm.detector.box import Box, require_maps, stack_features
 from tofd.algorithm.detector.candidates import ALL_FOREGROUND, Candidates
 from tofd.algorithm.detector.model_file import NoseModel
@@ -22,17 +24,18 @@ class Detection:
     nose_px: tuple[int, int] | None  # (u, v) = (column, row) of the accepted pixel, None if none accepted
     nose_xyz_m: tuple[float, float, float] | None  # camera frame, metres
     score: float  # box distance of the best foreground pixel (lower is better; inf if no foreground)
-    accepted: bool  # score <= scale
+    accepted: bool  # the acceptance rule holds (acceptance.Margin.accepts)
 
 
 def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrinsics, box: Box,
-           scale: float, candidates: Candidates = ALL_FOREGROUND, direction: np.ndarray | None = None) -> Detection:
+           scale: float, candidates: Candidates = ALL_FOREGROUND, direction: np.ndarray | None = None,
+           margin: Margin = PAPER_RULE) -> Detection:
     """Detect the nose in one frame from its feature maps ((H, W), NaN outside the foreground).
 
     range_m: (H, W) radial range in metres, for the 3-D point of the detected pixel and the candidate tests.
     candidates: which foreground pixels (where all the box's features are finite) may be the nose (module
     docstring); direction: the face's viewing direction for the front test (segmentation.Foreground.rotation
-    row 2). Only candidate pixels are scored (a few thousand of 25k).
+    row 2). Only candidate pixels are scored (a few thousand of 25k). margin: the acceptance rule beyond the scale.
     """
     require_maps(maps, box.features)
     foreground = np.logical_and.reduce([np.isfinite(maps[n]) for n in box.features])
@@ -42,11 +45,12 @@ def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrins
     dist = box.distance(stack_features({n: maps[n][rows, cols] for n in box.features}, box.features))
     best = int(np.argmin(dist))
     score = float(dist[best])
-    if not score <= scale:
+    points = intrinsics.unit_rays()[rows, cols] * np.asarray(range_m, dtype=np.float64)[rows, cols, None]
+    rival = rival_distance(dist, points, best) if margin.ratio > 0 else np.inf
+    if not margin.accepts(score, rival, scale):
         return Detection(None, None, score, False)
-    row, col = int(rows[best]), int(cols[best])
-    xyz = intrinsics.unit_rays()[row, col] * float(range_m[row, col])
-    return Detection((col, row), (float(xyz[0]), float(xyz[1]), float(xyz[2])), score, True)
+    x, y, z = (float(c) for c in points[best])
+    return Detection((int(cols[best]), int(rows[best])), (x, y, z), score, True)
 
 
 class NoseDetector:
@@ -63,6 +67,7 @@ class NoseDetector:
         self.model, self.box, self.intrinsics = model, vm.box, intrinsics
         self.scale = detector.box_scale if detector.box_scale > 0 else vm.operating_scale
         self.candidates = Candidates.from_config(detector, segmentation)
+        self.margin = Margin.from_config(detector)
         self.families = families_for(self.box.features)
         self._features, self._segmentation = features, segmentation
         self._extractor: FeatureExtractor | None = None
@@ -71,7 +76,7 @@ class NoseDetector:
                     direction: np.ndarray | None = None) -> Detection:
         """Detection from named feature maps (tofd.algorithm.names), the frame's (H, W) range in metres and the
         face's viewing direction (FrameFeatures.rotation[2]; None: the camera's z axis)."""
-        return detect(maps, range_m, self.intrinsics, self.box, self.scale, self.candidates, direction)
+        return detect(maps, range_m, self.intrinsics, self.box, self.scale, self.candidates, direction, self.margin)
 
     def detect_frame(self, range_m: np.ndarray, amplitude: np.ndarray) -> Detection:
         """Segment, compute this variant's features, detect."""
