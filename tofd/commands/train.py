@@ -7,7 +7,7 @@ feature to minimise the training per-image EER; its operating scale is the middl
 the training frames' zero-error scales, else their equal-error scale.
 
 The shipped config/nose_model.json is trained on all five identities that are neither the evaluation's test
-subject nor held out (README, Detector): tofd train --train-subjects lps,mp,mp_broad,mp_chin,lps_flat
+subject nor held out (tofd.lab.faces): tofd train --train-subjects lps,mp,mp_broad,mp_chin,lps_flat
 --train-frames 200 --out config/nose_model.json
 """
 
