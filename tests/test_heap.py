@@ -34,7 +34,7 @@ def _mmapped(mode: str) -> dict:
     return json.loads(out.stdout)
 
 
-@pytest.mark.skipif(platform.system() != "Linux" or not platform.libc_ver()[0] == "glibc", reason="glibc only")
+@pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="glibc only")
 def test_frame_arrays_come_from_the_heap_not_fresh_mappings():
     default, kept = _mmapped("default"), _mmapped("keep")
     assert default["mmapped_bytes"] >= default["size"]  # glibc's default: its own mapping, faulted in anew

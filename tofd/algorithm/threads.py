@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import os
 
+from tofd.algorithm.heap import keep_arrays_on_the_heap
+
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -21,3 +23,10 @@ def use_one_thread() -> None:
     import cv2
 
     cv2.setNumThreads(1)
+
+
+def prepare_compute_process() -> None:
+    """Set up a process that computes every frame's features (pipeline worker, batch task): one thread
+    (use_one_thread) and frame arrays kept on the heap (tofd.algorithm.heap)."""
+    use_one_thread()
+    keep_arrays_on_the_heap()

@@ -26,8 +26,7 @@ from drivers.intrinsics import Intrinsics
 from drivers.recording.index import FrameIndex, read_chunks
 from tofd.algorithm.detector import Candidates, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
-from tofd.algorithm.heap import keep_arrays_on_the_heap
-from tofd.algorithm.threads import use_one_thread
+from tofd.algorithm.threads import prepare_compute_process
 from tofd.batch.plan import Partition
 from tofd.batch.rows import ROW_SCHEMA, eval_columns, frame_row
 from tofd.config import Config, config_from_dict
@@ -50,12 +49,11 @@ class PrepareWorker(WorkerPlugin):
 
 
 def prepare_process() -> None:
-    """Make this process ready to run partitions (idempotent): one thread in numerical libraries
-    (tofd.algorithm.threads) and frame arrays on the heap (tofd.algorithm.heap), the pipeline workers' rules."""
+    """Make this process ready to run partitions (idempotent): tofd.algorithm.threads.prepare_compute_process, as
+    the pipeline workers."""
     global _prepared
     if not _prepared:
-        use_one_thread()
-        keep_arrays_on_the_heap()
+        prepare_compute_process()
         _prepared = True
 
 

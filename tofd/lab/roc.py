@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tofd.algorithm.detector.acceptance import PAPER_RULE, Margin
+from tofd.algorithm.detector import PAPER_RULE, Margin
 
 
 @dataclass(frozen=True, slots=True)

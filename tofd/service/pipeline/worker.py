@@ -31,14 +31,12 @@ def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     from tofd.algorithm.detector import NoseModel
-    from tofd.algorithm.heap import keep_arrays_on_the_heap
-    from tofd.algorithm.threads import use_one_thread
+    from tofd.algorithm.threads import prepare_compute_process
     from tofd.config import config_from_dict
     from tofd.service.pipeline.slots import SlotRing
     from tofd.service.pipeline.stages import FeatureStage
 
-    use_one_thread()
-    keep_arrays_on_the_heap()
+    prepare_compute_process()
     spec = json.loads(spec_json)
     ring = SlotRing.attach(spec["shm"], spec["n_slots"], tuple(spec["shape"]))
     model = None if spec["model"] is None else NoseModel.from_dict(spec["model"])
