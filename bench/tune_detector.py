@@ -44,6 +44,8 @@ GRIDS = {
     "nfft_grid": {"grid_size": [64, 72, 80], "quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001]},
     "band": {"tuning_frequency_per_m": [20.0, 25.0, 30.0, 35.0], "lowpass_sigma_per_m": [30.0, 40.0, 50.0, 70.0],
              "quantile": [0.05], "border_margin_m": [0.006]},
+    "band_noise": {"tuning_frequency_per_m": [25.0, 30.0, 35.0], "grid_size": [64, 72], "lowpass_sigma_per_m": [50.0],
+                   "quantile": [0.05], "border_margin_m": [0.006], "front_depth_m": [0.001]},  # with --condition
     "band2": {"tuning_frequency_per_m": [35.0, 40.0, 45.0], "lowpass_sigma_per_m": [50.0, 70.0],
               "quantile": [0.05], "border_margin_m": [0.006]},
     "box": {"quantile": [0.02, 0.05, 0.1], "positive_radius_m": [0.003, 0.005, 0.008],

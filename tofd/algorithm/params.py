@@ -49,14 +49,14 @@ class FeatureConfig:
     """Generalized-eccentricity features (FFT and NFFT paths, tofd.algorithm.features); frequencies in cycles/metre."""
 
     equivalence_range_m: float = 0.5  # e: the NFFT features equal the FFT features of an object at e
-    tuning_frequency_per_m: float = 35.0  # rho0: peak of the radial tuning A(rho), cycles/m
+    tuning_frequency_per_m: float = 30.0  # rho0: peak of the radial tuning A(rho), cycles/m
     lowpass_sigma_per_m: float = 50.0  # Gaussian low-pass width, cycles/m (anti-aliasing for the NFFT grid)
     fft_padding_px: int = 16  # FFT path: background margin per side against wrap-around, pixels
-    grid_size: int = 72  # NFFT path: N, frequency grid N x N (even)
+    grid_size: int = 64  # NFFT path: N, frequency grid N x N (even)
     damping: float = 0.01  # NFFT path: lambda = damping * points per unit area, (A^H A + lambda I) f = A^H z
-    cg_tolerance: float = 1e-4  # NFFT path: stop CG at this relative band-weighted residual
+    cg_tolerance: float = 7e-5  # NFFT path: stop CG at this relative band-weighted residual
     cg_max_iterations: int = 100  # NFFT path: CG iteration cap
-    nufft_eps: float = 1e-6  # NFFT path: finufft requested relative precision
+    nufft_eps: float = 1e-4  # NFFT path: finufft requested relative precision
     cg_precision: Literal["single", "double"] = "single"  # NFFT path: float width of NUFFTs and CG
 
     def validate(self) -> None:
@@ -87,9 +87,9 @@ class DetectorConfig:
     # nose (0 = no front test; tofd/algorithm/detector.py)
     front_noise_factor: float = 0.0  # the front test allows front_depth_m + this x the pixel's local range noise
     # sigma (estimated from the frame; tofd/algorithm/detector/candidates.py); 0 = fixed allowance
-    margin_ratio: float = 0.6  # the best pixel is reported only if its box distance is at most this times that of
+    margin_ratio: float = 0.7  # the best pixel is reported only if its box distance is at most this times that of
     # the best pixel 2 cm or more away from it (tofd/algorithm/detector/acceptance.py); 0 = no margin test
-    margin_scale_factor: float = 1.5  # with the margin test on, the box scale is the operating scale times this
+    margin_scale_factor: float = 2.0  # with the margin test on, the box scale is the operating scale times this
 
     def validate(self) -> None:
         if self.variant not in VARIANTS:
