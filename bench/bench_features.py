@@ -35,6 +35,7 @@ from tofd.algorithm.heap import keep_arrays_on_the_heap
 from tofd.algorithm.segmentation import segment
 from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.lab import shapes as synthetic
+from tofd.lab import sphere_experiment
 
 DISTANCES_M = (0.35, 0.5, 0.7)
 GOAL_RATIO = 4.0  # NFFT / FFT range-feature CPU time per frame (issue 19)
@@ -165,12 +166,17 @@ def main() -> int:
     print(f"worst NFFT/FFT CPU ratio (1 thread) {worst:.1f} (goal <= {GOAL_RATIO:.0f}: "
           f"{'met' if worst <= GOAL_RATIO else 'not met'}); "
           f"worst eps0 error {max(r['eps0_error_pct'] for r in single):.2f} % (goal <= 1 %)")
+    sphere = sphere_experiment.summary(sphere_experiment.run(Intrinsics(), FeatureConfig(**cfg)),
+                                       cfg["equivalence_range_m"])
+    print(f"sphere experiment (tofd experiment sphere): NFFT eps0 spread {100 * sphere['nfft_eps0_spread']:.2f} % "
+          f"over {sphere_experiment.DISTANCES_M[0]:g}-{sphere_experiment.DISTANCES_M[-1]:g} m (goal <= 2 %)")
     print(f"2 processes: {throughput_ms:.2f} ms wall per frame (FFT + NFFT range features), "
           f"{1e3 / throughput_ms:.0f} frames/s")
     write_json(args.out, {"machine": platform.platform(), "cpu_count": mp.cpu_count(), "repeats": args.repeats,
                           "feature_config": cfg, "face_depth_margin_m": FACE_DEPTH_M,
                           "rows": single + dual, "two_process_wall_ms_per_frame": throughput_ms,
-                          "worst_nfft_over_fft_cpu": worst, "goal_nfft_over_fft": GOAL_RATIO})
+                          "worst_nfft_over_fft_cpu": worst, "goal_nfft_over_fft": GOAL_RATIO,
+                          "sphere_nfft_eps0_spread_pct": 100 * sphere["nfft_eps0_spread"]})
     return 0
 
 
