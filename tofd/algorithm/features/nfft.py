@@ -23,8 +23,8 @@ Solver (normal_equations.py). One finufft type-1 per frame gives K_m = sum_j exp
 Hermitian, so the two separate: real_pair_spectra); A^H A is Toeplitz with kernel K, so every CG iteration is a
 circulant convolution (one pruned real FFT pair of size 2N) on the half spectrum (kx >= 0; the unpaired
 Nyquist row and column held at zero keep unknowns and fields Hermitian/real). CG stops on the residual
-weighted by A(rho) (cg_tolerance; at the default 1e-4 eps0 is within 1 % of the converged value wherever it
-is at least a tenth of its peak: bench/bench_features.py). A forward type-2 NUFFT (n_trans=2) evaluates
+weighted by A(rho) (cg_tolerance; the default keeps eps0 within 1 % of the converged value wherever it is
+at least a tenth of its peak: bench/bench_features.py). A forward type-2 NUFFT (n_trans=2) evaluates
 c0 + i c2 and s2. finufft plans are made once (nthreads=1) and only get new points per frame.
 
 Amplitude (`features(..., amplitude=...)`): the amplitude at the same points, normalised like the FFT path's,
