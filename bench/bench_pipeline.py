@@ -11,7 +11,8 @@ receive) -> sink done; viewer latency is capture -> handed to Rerun in the viewe
 second; "RSS growth" compares the mean of the last fifth of the run with the mean of the second fifth
 (after warm-up). CPU per frame of each process (utime + stime from /proc, after the first tenth of the
 frames) gives the compute bound of lossless replay: workers / mean worker CPU time per frame (and, for
-comparison, the CPU bound counting the main process too: cores / CPU per frame of every process); the bench
+comparison, the CPU bound counting the main process too: cores / CPU per frame of every process), and the
+main process's share is split by pipeline thread (capture, dispatch, collect, sink); the bench
 reports replay without Rerun against it and replay with Rerun against replay without, both as steady
 throughput (frames per second over those same frames after the first tenth), each the median over
 --replay-pairs pairs of runs back to back (one run varies by 10 % on a shared machine). Prints tables and
@@ -34,7 +35,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from proc_stats import cpu_s, rss_mb
+from proc_stats import cpu_s, own_thread_cpu_s, rss_mb
 from report import write_json
 
 from drivers.emulator.backend import open_emulated_camera
@@ -51,6 +52,15 @@ ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
 
 
+THREAD_READ_FRAMES = 50  # the main process's pipeline threads' CPU is read every this many frames (they end)
+
+
+def thread_cpu_s() -> dict[str, float]:
+    """CPU seconds so far of each pipeline thread of this process (tofd-capture, -dispatch, -collect, -sink)."""
+    return {t.name.removeprefix("tofd-"): own_thread_cpu_s(t.native_id) for t in threading.enumerate()
+            if t.name.startswith("tofd-") and t.native_id is not None}
+
+
 class Latencies:
     """Sink keeping every delivered frame's end-to-end latency (ms); at the `warmup`-th frame it reads the CPU
     time of every process and the clock, so CPU per frame and steady throughput leave out start-up (imports,
@@ -61,6 +71,8 @@ class Latencies:
         self.warmup, self._pids = warmup, pids
         self.cpu_at_warmup: dict[str, float] = {}
         self.at_warmup_s = self.last_s = 0.0
+        self.threads_at_warmup: dict[str, float] = {}
+        self.threads_last: tuple[int, dict[str, float]] = (0, {})
 
     def __call__(self, r) -> None:
         self.last_s = time.monotonic()
@@ -68,6 +80,17 @@ class Latencies:
         if len(self.ms) == self.warmup:
             self.cpu_at_warmup = {name: cpu_s(pid) for name, pid in self._pids().items()}
             self.at_warmup_s = self.last_s
+            self.threads_at_warmup = thread_cpu_s()
+        elif (len(self.ms) - self.warmup) % THREAD_READ_FRAMES == 0:
+            self.threads_last = (len(self.ms), thread_cpu_s())
+
+    def main_threads_ms_per_frame(self) -> dict[str, float]:
+        """CPU ms per frame of each pipeline thread of the main process, from warm-up to its last reading."""
+        frames, last = self.threads_last[0] - self.warmup, self.threads_last[1]
+        if frames <= 0:
+            return {}
+        return {name: round((cpu - self.threads_at_warmup.get(name, 0.0)) * 1e3 / frames, 3)
+                for name, cpu in sorted(last.items())}
 
     def steady_fps(self) -> float | None:
         """Frames delivered per second after warm-up: the window CPU per frame is measured over."""
@@ -202,6 +225,7 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
         "rss_mb_every_10s": [round(x) for x in rss[::10]],
         "rss_parent_mb_every_10s": [round(x) for x in rss_parent[::10]],
         **usage,
+        "main_thread_cpu_ms_per_frame": lat.main_threads_ms_per_frame(),
     }
 
 
@@ -247,6 +271,8 @@ def print_tables(results: dict) -> None:
     print(f"{'mode':28} {'process':>8} {'CPU ms/frame':>12} {'RSS MB':>7}")
     for r in results["process_rows"]:
         print(f"{r['mode']:28} {r['process']:>8} {r['cpu_ms_per_frame']:12.2f} {r['rss_mb_max']:7.0f}")
+    for m in MODES:
+        print(f"{m:28} main process threads, CPU ms/frame: {results[m]['main_thread_cpu_ms_per_frame']}")
     r_off = results["replay_lossless_no_rerun"]
     print(f"replay with / without Rerun: {results['replay_with_over_without_rerun']} (goal >= 0.9; median of "
           f"{results['replay_with_over_without_rerun_each']}); "

@@ -21,8 +21,18 @@ def rss_mb(pid: int) -> float:
 
 def cpu_s(pid: int) -> float:
     """User + system CPU seconds used so far by one process (its threads included); 0 if it is gone."""
+    return _stat_cpu_s(Path(f"/proc/{pid}/stat"))
+
+
+def own_thread_cpu_s(tid: int) -> float:
+    """User + system CPU seconds used so far by one thread of this process (its native id); 0 if it is gone.
+    (/proc/TID/stat would give the whole process's.)"""
+    return _stat_cpu_s(Path(f"/proc/self/task/{tid}/stat"))
+
+
+def _stat_cpu_s(path: Path) -> float:
     try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
+        stat = path.read_text()
     except OSError:
         return 0.0
     fields = stat[stat.rindex(")") + 2:].split()  # after "pid (comm) ": state is field 3, utime 14, stime 15
