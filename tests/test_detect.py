@@ -81,7 +81,6 @@ def test_detect_finds_the_pixel_in_the_box():
     assert not det.accepted and det.nose_px is None and det.score == pytest.approx(2.0)
 
 
-
 def test_margin_accepts_a_clear_winner_beyond_the_scale_and_rejects_a_close_race():
     h, w = 20, 40
     intrinsics = Intrinsics(width=w, height=h, fx=50.0, fy=50.0, cx=19.5, cy=9.5)
@@ -107,6 +106,7 @@ def test_rival_distance_skips_the_best_pixels_neighbourhood():
     distance = np.array([0.1, 0.2, 0.3, 0.9, 0.7])
     assert rival_distance(distance, xyz, 0) == pytest.approx(0.7)  # pixels 1, 2 lie within 2 cm of pixel 0
     assert rival_distance(distance[:3], xyz[:3], 0) == np.inf
+
 
 def test_border_distance_is_physical_and_scale_invariant():
     intrinsics = Intrinsics()
