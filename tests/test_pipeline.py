@@ -105,6 +105,25 @@ def test_lossless_delivers_every_frame_in_order_with_the_in_process_features():
     assert not pipeline.running
 
 
+@pytest.mark.parametrize("kept", [(), ("range_nfft_eps0", "amp_nfft_eps0")])
+def test_results_carry_only_the_maps_asked_for(kept):
+    """result_maps: the maps results carry, of those computed (amp_nfft_eps0 is not computed here); the mask and
+    the rest of each result are as with every map."""
+    sink = Collect()
+    pipeline = Pipeline(CFG, "lossless", writers=(sink,), result_maps=kept)
+    pipeline.start(RenderedSource(4, n_distinct=2))
+    assert pipeline.wait(60)
+    pipeline.close()
+    reference = FeatureExtractor(CFG.intrinsics, CFG.features, CFG.segmentation, pipeline_families(CFG, False))
+    assert len(sink.results) == 4
+    for r in sink.results:
+        ref = reference(r.frame.range_m, r.frame.amplitude)
+        np.testing.assert_array_equal(r.mask, ref.mask)
+        assert set(r.features) == set(kept) & set(ref.maps)
+        for name, computed in r.features.items():
+            np.testing.assert_array_equal(computed, ref.maps[name], err_msg=name)
+
+
 def test_killed_worker_is_ledgered_restarted_and_the_run_finishes():
     source = RenderedSource(40, n_distinct=3)
     killed = []

@@ -136,8 +136,8 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     try:
         with source:
             result = serve(cfg, source, policy, live_source=False, writers=(writer,) + ((golden,) if golden else ()),
-                           max_frames=args.frames, progress=Progress("replay", total),
-                           summary_path=out / f"{stem}.summary.json")
+                           writers_read_maps=golden is not None, max_frames=args.frames,
+                           progress=Progress("replay", total), summary_path=out / f"{stem}.summary.json")
     except (DriverError, PipelineError, ViewerError, OSError) as exc:
         writer.discard()
         print(f"tofd replay: {exc}", file=sys.stderr)

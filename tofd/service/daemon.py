@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from drivers.source import FrameSource
+from tofd.algorithm.names import VIEWED_MAPS
 from tofd.config import Config, ConfigError, config_digest
 from tofd.progress import Progress
 from tofd.service.health import HealthServer, ServiceMetrics, sd_notify
@@ -90,9 +91,12 @@ def _close(shutdown: Shutdown, pipeline: Pipeline | None, health: HealthServer |
 
 
 def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool,
-          writers: tuple[Sink, ...] = (), max_frames: int | None = None, progress: Progress | None = None,
-          summary_path: Path | None = None) -> ServiceResult:
-    """Run `source` through the pipeline until it ends, `max_frames` were taken, or SIGTERM/SIGINT."""
+          writers: tuple[Sink, ...] = (), writers_read_maps: bool = False, max_frames: int | None = None,
+          progress: Progress | None = None, summary_path: Path | None = None) -> ServiceResult:
+    """Run `source` through the pipeline until it ends, `max_frames` were taken, or SIGTERM/SIGINT.
+
+    The results `writers` get carry the viewed feature maps while a viewer runs, every computed map with
+    `writers_read_maps`, else none (the mask and detection always)."""
     pc = cfg.pipeline
     health = pipeline = viewer = None
     run_s, started_s = 0.0, time.monotonic()
@@ -110,7 +114,8 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
             model = service_model(cfg, model_file)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe), model=model,
-                                live_source=live_source)
+                                live_source=live_source,
+                                result_maps=None if writers_read_maps else VIEWED_MAPS if viewer else ())
             health = _health(cfg, pipeline, metrics)
             pipeline.start(source, max_frames, cancelled=lambda: bool(stop))
             started_s = time.monotonic()

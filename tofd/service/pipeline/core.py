@@ -77,12 +77,16 @@ class Pipeline:
     `viewer`: an OfferingViewer, or a callable called inline on the sink thread after `writers`.
     `model`: the workers run the nose detector of cfg.detector with this model (None: no detection).
     `live_source`: the frames' host receive times are this process's monotonic clock (a camera), so latency
-    counts from there; else (replay) from the capture thread's arrival. Use: start(source), then wait() or stop().
+    counts from there; else (replay) from the capture thread's arrival.
+    `result_maps`: the feature maps results carry, of those the workers compute (None: all of them); copying maps
+    out of shared memory is a large part of this process's work, so runs whose sinks read none pass ().
+    Use: start(source), then wait() or stop().
     """
 
     def __init__(self, cfg: Config, policy: Policy, intrinsics: Intrinsics | None = None,
                  viewer: OfferingViewer | Sink | None = None, writers: tuple[Sink, ...] = (),
-                 model: NoseModel | None = None, live_source: bool = True):
+                 model: NoseModel | None = None, live_source: bool = True,
+                 result_maps: tuple[str, ...] | None = None):
         pc = cfg.pipeline
         self.cfg, self.policy, self.intrinsics = cfg, policy, intrinsics or cfg.intrinsics
         self.viewer, self.writers, self.live_source = viewer, writers, live_source
@@ -95,7 +99,8 @@ class Pipeline:
                                max_failures=pc.max_worker_failures)
         self.workers = self.pool.workers
         self.order: Reorderer[FrameResult] = Reorderer(policy)
-        self.maps = family_maps(pipeline_families(cfg, model is not None))  # what the workers compute
+        computed = family_maps(pipeline_families(cfg, model is not None))
+        self.maps = computed if result_maps is None else tuple(m for m in computed if m in result_maps)
         self.tracker = None if model is None else NoseTracker()  # updated in frame order (_to_sink)
         self.track_stats = None if model is None else TrackStats()
         self.inq: StageQueue[_Queued] = StageQueue(policy, 1 if policy == "latest" else pc.input_queue)
