@@ -119,11 +119,13 @@ class WorkerPool:
         with self.lock:
             conns = {w.results: w for w in self.workers if w.process is not None}
             sentinels = {w.sentinel: w for w in self.workers if w.process is not None}
-        for obj in wait_ready([*conns, *sentinels], timeout_s):
+        ready = wait_ready([*conns, *sentinels], timeout_s)
+        for obj in ready:
             if obj in conns:
                 self._receive(conns[obj], on_result)
-        for obj in wait_ready(list(sentinels), 0):
-            self._died(sentinels[obj], "worker_died", on_result, on_lost, restart)
+        for obj in ready:  # after its results: _died hands over what it still finished
+            if obj in sentinels:
+                self._died(sentinels[obj], "worker_died", on_result, on_lost, restart)
         for w in self.workers:
             if w.process is not None and w.inflight and w.oldest_task_age_s() > self.timeout_s:
                 log.warning("feature worker %d held a frame for more than %.1f s; killing it", w.index,
