@@ -10,6 +10,8 @@ file per plane) and read back. Prints a table and writes JSON.
 from __future__ import annotations
 
 import argparse
+import os
+import platform
 import statistics
 import tempfile
 import time
@@ -57,6 +59,8 @@ def bench(repeats: int) -> dict:
             rows["npy_read_fps"].append(n / (time.process_time() - t))
     med = {k: statistics.median(v) for k, v in rows.items()}
     return {
+        "title": "Recording and replay cost", "about": __doc__.split("\n\n")[0].replace("\n", " "),
+        "machine": platform.platform(), "cpu_count": os.cpu_count(),
         "frames": n, "repeats": repeats,
         "mcap_bytes_per_frame": size / n, "npy_bytes_per_frame": npy_size / n,
         "compression_vs_npy": npy_size / size,
