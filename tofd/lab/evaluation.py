@@ -219,7 +219,8 @@ def shape_box(box: Box, table: PixelTable, has_nose: np.ndarray) -> tuple[Box, R
     return Box(box.features, box.centre, box.half_width * mult), roc
 
 
-def _has_nose(samples: list[FrameSamples], radius_m: float) -> np.ndarray:
+def has_nose(samples: list[FrameSamples], radius_m: float) -> np.ndarray:
+    """(F,) bool: frames with a foreground pixel within radius_m of the nose tip (they count for detection)."""
     return np.array([bool(np.any(s.tip_distance_m <= radius_m)) for s in samples])
 
 
@@ -238,12 +239,12 @@ def train_model(samples: list[FrameSamples], features: FeatureConfig, segmentati
     positive = [s.log_features[(s.tip_distance_m <= positive_radius_m)
                                & candidates.keep(s.border_m, s.front_gap, s.noise_m)] for s in samples]
     pos = np.concatenate(positive) if positive else np.empty((0, len(MAP_NAMES)), np.float32)
-    has_nose = _has_nose(samples, radius_m)
+    with_nose = has_nose(samples, radius_m)
     out = {}
     for variant in variants:
         table = PixelTable(samples, variant, radius_m, candidates)
-        box, roc = shape_box(learn_box(pos[:, _columns(variant)], VARIANTS[variant], quantile), table, has_nose)
-        scale = margin_scale(*table.min_distances(box.distance(table.features)), has_nose, roc.eer_scale)
+        box, roc = shape_box(learn_box(pos[:, _columns(variant)], VARIANTS[variant], quantile), table, with_nose)
+        scale = margin_scale(*table.min_distances(box.distance(table.features)), with_nose, roc.eer_scale)
         out[variant] = VariantModel(variant, box, round(scale, 6), round(roc.eer, 6))
     info = {"frames": len(samples), "positive_pixels": int(len(pos)), **dataclasses.asdict(candidates),
             **(training or {})}
@@ -283,7 +284,7 @@ def image_minima(model: NoseModel, samples: list[FrameSamples], radius_m: float 
                  candidates: Candidates = ALL_FOREGROUND) -> ImageMinima:
     """ImageMinima of the frames' samples for every variant of the model (true nose: within radius_m of the tip)."""
     mins = {name: min_distances(samples, name, vm.box, radius_m, candidates) for name, vm in model.variants.items()}
-    return ImageMinima(_has_nose(samples, radius_m), {n: m[0] for n, m in mins.items()},
+    return ImageMinima(has_nose(samples, radius_m), {n: m[0] for n, m in mins.items()},
                        {n: m[1] for n, m in mins.items()}, {n: m[2] for n, m in mins.items()})
 
 
