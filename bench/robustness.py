@@ -5,7 +5,7 @@ trained or tuned on). Prints, per variant, a condition x distance table of the w
 worst cell overall; writes everything as JSON.
 
     .venv/bin/python bench/robustness.py [--model config/nose_model.json] [--frames 60] [--conditions all]
-                                         [--distances 0.6,0.65,0.7] [--seed 1000]
+                                         [--distances 0.6,0.65,0.7] [--variants nfft_range,fft_range] [--seed 1000]
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from pathlib import Path
 
 from report import add_model_arguments, shown_path, write_json
 
-from tofd.algorithm.detector import Candidates, Margin, load_model
+from tofd.algorithm.detector import VARIANTS, Candidates, Margin, load_model
 from tofd.config import load_config
 from tofd.lab.conditions import parse_conditions
-from tofd.lab.robustness import MatrixSpec, condition_table, run_matrix, summarize
+from tofd.lab.robustness import MATRIX_VARIANTS, MatrixSpec, condition_table, run_matrix, summarize
 
 ABOUT = ("Shipped model, held-out identities (never trained or tuned on) x sensor conditions training never saw "
          "(tofd.lab.conditions) x nose distance, yaw +-30 deg, pitch +-15 deg; per cell EER, found/wrong at the "
@@ -35,6 +35,8 @@ def main() -> int:
     parser.add_argument("--conditions", default="all", help="comma-separated names or 'all' (tofd.lab.conditions)")
     parser.add_argument("--distances", default=None, metavar="M,M,...",
                         help="nose distances in metres (default: the test distances, tofd.lab.faces)")
+    parser.add_argument("--variants", default=",".join(MATRIX_VARIANTS),
+                        help=f"comma-separated detector variants (of {', '.join(VARIANTS)})")
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "robustness.json"))
@@ -43,6 +45,9 @@ def main() -> int:
         spec = MatrixSpec(conditions=parse_conditions(args.conditions), frames=args.frames, seed=args.seed)
     except ValueError as exc:
         raise SystemExit(f"robustness: --conditions: {exc}") from None
+    variants = tuple(args.variants.split(","))
+    if unknown := [v for v in variants if v not in VARIANTS]:
+        raise SystemExit(f"robustness: --variants: unknown {', '.join(unknown)} (known: {', '.join(VARIANTS)})")
     if args.distances:
         try:
             spec = dataclasses.replace(spec, distances_m=tuple(float(d) for d in args.distances.split(",")))
@@ -54,7 +59,7 @@ def main() -> int:
     model = load_model(args.model)
     cells = run_matrix(model, spec, cfg.features, cfg.segmentation,
                        Candidates.from_config(cfg.detector, cfg.segmentation), Margin.from_config(cfg.detector),
-                       workers=args.workers,
+                       workers=args.workers, variants=variants,
                        progress=lambda what: print(f"  done {what} ({time.monotonic() - start:.0f} s)", flush=True))
     summary = summarize(cells)
     for variant, s in summary.items():
