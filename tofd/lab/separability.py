@@ -1,7 +1,7 @@
 """How far a variant's two features can separate the nose at all: optimistic bounds on the per-image EER.
 
-Both bounds fit a classifier to the very frames they score (no held-out data), so they can only flatter it; an EER
-above the goal here means that no detector on these features, trained on any data, meets the goal on such frames.
+Both bounds fit a classifier to the very frames they score (no held-out data), so they can only flatter the
+features; an EER above the goal here means that no detector on them, trained on any data, meets it on such frames.
 - best_box_eer: the paper's detector family, an axis-aligned box in log10 (eps0, eps2), centre and aspect searched
   (the ROC sweeps the size);
 - likelihood_ratio_eer: any per-pixel classifier, as the ratio of nose and other pixels among each pixel's nearest
