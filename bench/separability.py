@@ -21,7 +21,14 @@ from report import add_model_arguments, shown_path, write_json
 from tofd.algorithm.detector import Candidates, Margin, load_model
 from tofd.config import load_config
 from tofd.lab.conditions import CONDITIONS, parse_conditions
-from tofd.lab.evaluation import NOSE_RADIUS_M, PixelTable, evaluate_model, extract_samples, has_nose
+from tofd.lab.evaluation import (
+    NOSE_RADIUS_M,
+    PixelTable,
+    distance_bins,
+    evaluate_model,
+    extract_samples,
+    has_nose,
+)
 from tofd.lab.faces import HOLDOUT_SUBJECTS, TRAIN_SUBJECTS, render_frames
 from tofd.lab.separability import best_box_eer, likelihood_ratio_eer
 
@@ -61,7 +68,7 @@ def main() -> int:
         for si, subject in enumerate(subjects):
             ds = render_frames((subject,), distances, args.frames * len(distances), args.seed + 100 * ci + si,
                                model=CONDITIONS[condition])
-            bins = np.round(ds.distance_m / 0.05) * 0.05
+            bins = distance_bins(ds.distance_m)
             cells = {d: {"condition": condition, "subject": subject, "distance_m": d} for d in distances}
             for rho0 in rho0s:
                 features = dataclasses.replace(cfg.features, tuning_frequency_per_m=rho0)
