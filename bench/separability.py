@@ -5,7 +5,7 @@ per-image EER beside two optimistic bounds fitted to the cell's own frames (tofd
 the pixels' likelihood ratio, for NFFT and FFT range features at several tunings rho0 of the filter band (the model
 only at the config's rho0, which it was trained for). Prints a table and writes JSON.
 
-    .venv/bin/python bench/separability.py [--frames 60] [--rho0 20,25,30,40] [--distances 0.5,0.6,0.65,0.7]
+    .venv/bin/python bench/separability.py [--frames 120] [--rho0 20,25,30,40] [--distances 0.5,0.6,0.65,0.7]
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ ABOUT = ("Optimistic bounds on the per-image EER of range-only features: the bes
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_model_arguments(parser)
-    parser.add_argument("--frames", type=int, default=60, help="frames per cell")
+    parser.add_argument("--frames", type=int, default=120, help="frames per cell")
     parser.add_argument("--rho0", default="20,25,30,40", help="tunings of the filter band, cycles/m")
     parser.add_argument("--conditions", default="noise_x2,dark_face,train_sensor")
     parser.add_argument("--subjects", default=",".join((*HOLDOUT_SUBJECTS, TRAIN_SUBJECTS[0])))
