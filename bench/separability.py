@@ -30,10 +30,9 @@ from tofd.lab.evaluation import (
     has_nose,
 )
 from tofd.lab.faces import HOLDOUT_SUBJECTS, TRAIN_SUBJECTS, render_frames
+from tofd.lab.robustness import GOAL_EER, MATRIX_VARIANTS
 from tofd.lab.separability import best_box_eer, likelihood_ratio_eer
 
-GOAL_EER = 0.02  # issue 18: per-distance EER of NFFT range features in every cell
-VARIANTS = ("nfft_range", "fft_range")
 ABOUT = ("Optimistic bounds on the per-image EER of range-only features: the best box and the likelihood ratio, "
          "both fitted to the cell's own frames (tofd.lab.separability), at several rho0; beside them the shipped "
          "model's EER on the same frames. A bound above the goal: no detector on these features meets it there.")
@@ -54,7 +53,7 @@ def main() -> int:
     try:
         conditions = parse_conditions(args.conditions)
         rho0s = [float(r) for r in args.rho0.split(",")]
-        distances = tuple(float(d) for d in args.distances.split(","))
+        distances = tuple(float(d) for d in distance_bins([float(d) for d in args.distances.split(",")]))
     except ValueError as exc:
         raise SystemExit(f"separability: {exc}") from None
     subjects = tuple(args.subjects.split(","))
@@ -77,16 +76,16 @@ def main() -> int:
                 if rho0 == cfg.features.tuning_frequency_per_m:
                     results = evaluate_model(model, samples, ds.distance_m, NOSE_RADIUS_M, candidates,
                                              Margin.from_config(cfg.detector))
-                    model_eer = {v: {d: r.eer for d, r in results[v].per_distance.items()} for v in VARIANTS}
+                    model_eer = {v: {d: r.eer for d, r in results[v].per_distance.items()} for v in MATRIX_VARIANTS}
                 for d in distances:
-                    here = [s for s, b in zip(samples, bins, strict=True) if abs(b - d) < 1e-6]
+                    here = [s for s, b in zip(samples, bins, strict=True) if b == d]
                     with_nose = has_nose(here, NOSE_RADIUS_M)
-                    for v in VARIANTS:
+                    for v in MATRIX_VARIANTS:
                         table = PixelTable(here, v, NOSE_RADIUS_M, candidates)
                         cells[d][f"{v}_box_{rho0:g}"] = best_box_eer(table, with_nose)
                         cells[d][f"{v}_ratio_{rho0:g}"] = likelihood_ratio_eer(table, with_nose)
                         if model_eer:
-                            cells[d][f"{v}_model"] = next(e for k, e in model_eer[v].items() if abs(k - d) < 1e-6)
+                            cells[d][f"{v}_model"] = model_eer[v][d]
             rows.extend(cells.values())
             print(f"  done {condition} {subject} ({time.monotonic() - start:.0f} s)", flush=True)
 
