@@ -40,10 +40,9 @@ from report import write_json
 
 from drivers.emulator.backend import open_emulated_camera
 from drivers.recording.replay import ReplaySource
-from tofd.algorithm.names import VIEWED_MAPS
 from tofd.config import load_config
 from tofd.service.model import load_service_model
-from tofd.service.pipeline import Pipeline
+from tofd.service.pipeline import Pipeline, maps_read
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.logger import frames_per_send
 from tofd.service.viewer.process import ViewerProcess
@@ -176,7 +175,7 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     warmup = max(1, (max_frames or 300) // 10)
     lat = Latencies(warmup, lambda: processes(pipeline, viewer))
     pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(lat,), model=load_service_model(cfg), live_source=live,
-                        result_maps=VIEWED_MAPS if rerun else ())  # as the daemon's: maps only for a viewer
+                        result_maps=maps_read(rerun))  # as the daemon's
     rss, rss_parent, stop_sampling = [], [], threading.Event()
     rss_each: dict[str, list[float]] = {}
 

@@ -17,12 +17,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from drivers.source import FrameSource
-from tofd.algorithm.names import VIEWED_MAPS
 from tofd.config import Config, ConfigError, config_digest
 from tofd.progress import Progress
 from tofd.service.health import HealthServer, ServiceMetrics, sd_notify
 from tofd.service.model import ModelIdentity, read_model_file, service_model
-from tofd.service.pipeline.core import Pipeline, Sink
+from tofd.service.pipeline.core import Pipeline, Sink, maps_read
 from tofd.service.pipeline.queues import Policy
 from tofd.service.shutdown import Shutdown
 from tofd.service.signals import StopSignals
@@ -115,7 +114,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             model = service_model(cfg, model_file)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe), model=model,
                                 live_source=live_source,
-                                result_maps=None if writers_read_maps else VIEWED_MAPS if viewer else ())
+                                result_maps=maps_read(viewer is not None, writers_read_maps))
             health = _health(cfg, pipeline, metrics)
             pipeline.start(source, max_frames, cancelled=lambda: bool(stop))
             started_s = time.monotonic()

@@ -31,7 +31,7 @@ from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
 from tofd.algorithm.heap import keep_arrays_on_the_heap
-from tofd.algorithm.names import family_maps
+from tofd.algorithm.names import VIEWED_MAPS, family_maps
 from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config, config_table
 from tofd.service.pipeline import monitor
@@ -69,6 +69,12 @@ class _Queued:
     admitted_s: float  # monotonic: entered the pipeline
     sent_s: float = 0.0  # monotonic: handed to a worker
     gap_before: str = ""  # device gap kind just before this frame ("" = none)
+
+
+def maps_read(viewer: bool, writers_read_maps: bool = False) -> tuple[str, ...] | None:
+    """Pipeline's `result_maps` given who reads the results: every computed map (None) when writers read maps, the
+    viewed ones for a viewer, else none."""
+    return None if writers_read_maps else VIEWED_MAPS if viewer else ()
 
 
 class Pipeline:
