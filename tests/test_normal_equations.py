@@ -6,7 +6,7 @@ import pytest
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import NFFTFeatures
-from tofd.algorithm.features.normal_equations import DampedNormalEquations, HermitianInner, solve
+from tofd.algorithm.features.normal_equations import DampedNormalEquations, hermitian_norms, norm_weights, solve
 from tofd.config import FeatureConfig
 from tofd.lab import shapes as synthetic
 
@@ -23,8 +23,8 @@ def _half_to_full(half: np.ndarray, n: int) -> np.ndarray:
 
 @pytest.mark.parametrize("n", [8, 16])
 def test_operator_equals_dense_damped_normal_matrix(n):
-    """(A^H A + lambda I) v through the pruned 2N circulant equals the dense NDFT matrix product (the FFTs are
-    scipy's pocketfft binding called directly: this pins its semantics)."""
+    """A^H A v through the pruned 2N circulant equals the dense NDFT matrix product (the FFTs are scipy's pocketfft
+    binding called directly: this pins its semantics), and CG's Hermitian norms equal the full spectrum's."""
     rng = np.random.default_rng(n)
     x, y = rng.uniform(-0.3, 0.4, 300), rng.uniform(-0.45, 0.2, 300)
     kernel = finufft.nufft2d1(2 * np.pi * y, 2 * np.pi * x, np.ones(x.size, complex), (2 * n, 2 * n), eps=1e-13,
@@ -37,24 +37,27 @@ def test_operator_equals_dense_damped_normal_matrix(n):
         spec = np.fft.fft2(rng.standard_normal((n, n)))
         return np.concatenate((spec[:h, :h], spec[n - h + 1:, :h]))
 
+    def product(system: DampedNormalEquations, v: np.ndarray) -> np.ndarray:
+        embedded = system.embed(v)
+        return _half_to_full(system.compact(system.product(embedded, np.empty_like(embedded)))[0], n)
+
     v = half_of_real_field()[None]
-    got = _half_to_full(system.apply(v, np.empty_like(v))[0], n)
     k = np.arange(-h + 1, h)
     kx, ky = (g.ravel() for g in np.meshgrid(k, k))
     a = np.exp(2j * np.pi * (np.outer(x, kx) + np.outer(y, ky)))
     normal = a.conj().T @ a + lam * np.eye(k.size**2)
-    want = (normal @ _half_to_full(v[0], n).ravel()).reshape(n - 1, n - 1)
-    np.testing.assert_allclose(got, want, atol=1e-9 * np.abs(want).max())
-    again = _half_to_full(system.apply(2 * v, np.empty_like(v))[0], n)  # buffers reused: nothing left over
-    np.testing.assert_allclose(again, 2 * want, atol=2e-9 * np.abs(want).max())
+    want = ((normal - lam * np.eye(k.size**2)) @ _half_to_full(v[0], n).ravel()).reshape(n - 1, n - 1)
+    np.testing.assert_allclose(product(system, v), want, atol=1e-9 * np.abs(want).max())
+    # buffers reused: nothing left over
+    np.testing.assert_allclose(product(system, 2 * v), 2 * want, atol=2e-9 * np.abs(want).max())
     single = DampedNormalEquations(kernel, lam, n, np.float32, np.complex64)
     for _ in range(2):
-        got32 = _half_to_full(single.apply(v.astype(np.complex64), np.empty(v.shape, np.complex64))[0], n)
-        np.testing.assert_allclose(got32, want, atol=1e-5 * np.abs(want).max())
+        np.testing.assert_allclose(product(single, v.astype(np.complex64)), want, atol=1e-5 * np.abs(want).max())
     full = _half_to_full(v[0], n)
-    inner = HermitianInner(np.full(v.shape[1:], 0.5), v.dtype)
-    assert inner.dot(v[0], v[0]) == pytest.approx(np.vdot(full, full).real)
-    assert inner.band_norm2(v[0]) == pytest.approx(0.25 * np.vdot(full, full).real)
+    band = rng.uniform(0, 1, v.shape[1:])
+    plain, banded = hermitian_norms(v[0], norm_weights(band))
+    assert plain == pytest.approx(np.vdot(full, full).real)
+    assert banded == pytest.approx(np.sum(np.abs(_half_to_full(band * v[0], n)) ** 2))
 
     # two right-hand sides solved together: each equals its dense solution, each stops on its own residual
     rhs = np.stack((v[0], 1e3 * half_of_real_field()))

@@ -51,9 +51,10 @@ from tofd.algorithm.params import FeatureConfig
 SINGLE_NUFFT_EPS = 2e-5  # finufft's float32 precision floor at upsampfac 1.25 (below it narrows its kernel and warns)
 
 
-def _upsampfac(eps: float) -> float:
-    """finufft's small oversampling (much faster here) where it reaches the requested precision."""
-    return 1.25 if eps >= 1e-9 else 2.0
+def _upsampfac(nufft_type: int, eps: float) -> float:
+    """finufft's oversampling: type 1 (onto the 2N grid) is faster with the small 1.25 where it reaches the requested
+    precision, type 2 (from the N grid, whose FFT is small) with 2.0 and its narrower kernel."""
+    return 1.25 if nufft_type == 1 and eps >= 1e-9 else 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -108,7 +109,7 @@ class NFFTFeatures:
         self.intrinsics, self.cfg = intrinsics, cfg
         n = cfg.grid_size
         self._n, self._h = n, n // 2
-        self._rays = intrinsics.unit_rays()
+        self._ray_columns = np.ascontiguousarray(intrinsics.unit_rays().reshape(-1, 3).T)  # (3, H W): takes are fast
         self._square = unit_square_m(intrinsics, cfg.equivalence_range_m)
         k = sfft.fftfreq(n, 1.0 / n)  # integer modes in FFT order (finufft modeord=1)
         c0, c2, s2 = transfer_functions(k[None, :] / self._square[0], k[:, None] / self._square[1],
@@ -124,9 +125,9 @@ class NFFTFeatures:
         self._neg_rows = (-np.arange(n)) % n
         self._neg_cols_src = n - np.arange(n - self._h + 1, n)
         eps = max(cfg.nufft_eps, SINGLE_NUFFT_EPS) if single else cfg.nufft_eps
+        self._nufft_eps = eps
         # spread_sort=0: the points come in pixel order, local enough; finufft's bin sort costs more than it saves
-        self._plan_options = dict(eps=eps, modeord=1, nthreads=1, upsampfac=_upsampfac(eps), dtype=self._complex,
-                                  spread_sort=0)
+        self._plan_options = dict(eps=eps, modeord=1, nthreads=1, dtype=self._complex, spread_sort=0)
         self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
 
     def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
@@ -134,10 +135,11 @@ class NFFTFeatures:
         kernel and each right-hand side, two real sets per complex transform), type 2 back to the points
         (c0 + i c2 and s2 of each)."""
         if surfaces not in self._plans:
-            n, opts = self._n, self._plan_options
+            n, opts, eps = self._n, self._plan_options, self._nufft_eps
             pairs = (2 + surfaces) // 2
-            self._plans[surfaces] = (finufft.Plan(1, (2 * n, 2 * n), n_trans=pairs, isign=-1, **opts),
-                                     finufft.Plan(2, (n, n), n_trans=2 * surfaces, isign=1, **opts))
+            type1 = finufft.Plan(1, (2 * n, 2 * n), n_trans=pairs, isign=-1, upsampfac=_upsampfac(1, eps), **opts)
+            type2 = finufft.Plan(2, (n, n), n_trans=2 * surfaces, isign=1, upsampfac=_upsampfac(2, eps), **opts)
+            self._plans[surfaces] = (type1, type2)
         return self._plans[surfaces]
 
     def unit_square_points(self, range_m: np.ndarray, mask: np.ndarray,
@@ -147,17 +149,18 @@ class NFFTFeatures:
         rotation: camera -> face frame (tofd.algorithm.segmentation.Foreground), applied to the points first.
         """
         flat = np.flatnonzero(mask)
-        pts = self._rays.reshape(-1, 3)[flat] * range_m.reshape(-1)[flat, None].astype(np.float64)
+        pts = np.take(self._ray_columns, flat, axis=1)  # (3, M)
+        pts *= np.take(range_m.reshape(-1), flat)
         if rotation is not None:
-            pts = pts @ rotation.T
-        x = pts[:, 0] / self._square[0]
-        y = pts[:, 1] / self._square[1]
+            pts = rotation @ pts
+        x = pts[0] / self._square[0]
+        y = pts[1] / self._square[1]
         x -= x.mean()
         y -= y.mean()
         keep = (x >= -0.5) & (x < 0.5) & (y >= -0.5) & (y < 0.5)
         if not keep.all():
-            flat, x, y, pts = flat[keep], x[keep], y[keep], pts[keep]
-        z = pts[:, 2]
+            flat, x, y, pts = flat[keep], x[keep], y[keep], pts[:, keep]
+        z = pts[2]
         # points per unit area of the square: 1 / mean pixel footprint, (z/fx)(z/fy) m^2 over Lx Ly
         footprint = np.mean(z * z) / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
         return UnitSquarePoints(x, y, z - z.max() if z.size else z, flat,

@@ -1,34 +1,39 @@
 """The NFFT path's damped normal equations (A^H A + lambda I) f = A^H z, solved by conjugate gradients.
 
-Unknowns: the Fourier coefficients f_k of a real field on the N x N mode grid k in [-N/2, N/2)^2, stored as
+Unknowns: the Fourier coefficients f_k of a real field on the N x N mode grid k in [-N/2, N/2)^2. Callers see
 the compact half spectrum (N - 1, N/2) complex: rows ky = 0 .. N/2 - 1, -N/2 + 1 .. -1 (FFT order without the
-unpaired Nyquist row), columns kx = 0 .. N/2 - 1. The other half follows by Hermitian symmetry. Several
-right-hand sides on the same points (range and amplitude) are solved together, (V, N - 1, N/2): one batched
-FFT per step for all of them, each stopping on its own residual.
+unpaired Nyquist row), columns kx = 0 .. N/2 - 1; the other half follows by Hermitian symmetry. The solver
+keeps it embedded in the 2N x 2N grid's first N/2 columns, (2N, N/2) with zero rows ky = N/2 .. 3N/2 (embed,
+compact), so the FFTs read and write the CG vectors in place. Several right-hand sides on the same points (range
+and amplitude) are solved together, (V, ...): one batched FFT per step for all of them, each stopping on its own
+residual.
 
 Operator. A^H A is Toeplitz, (A^H A f)_k = sum_l K_{k-l} f_l with K_m = sum_j exp(-2 pi i m.x_j), so it is
 applied as a circulant convolution on the 2N x 2N grid: one real FFT pair of size 2N, pruned to the modes
-that hold data (the inverse transform along ky runs only over the N/2 columns kx = 0 .. N/2 - 1 that are
-nonzero, the forward one only over the N/2 columns that are kept), which saves a quarter of the work.
+that hold data (the transforms along ky run only over the N/2 columns kx = 0 .. N/2 - 1 that hold data),
+which saves a quarter of the work.
 
 Stopping. CG stops when the residual weighted by A(rho) (the filters' band) falls below the tolerance
 relative to the weighted right-hand side: smooth surfaces put most of A^H z at low frequencies that the
 filters ignore, and the plain residual stopped a sphere with eps0 off by 15 %.
 
+CG's vector updates, inner products and the damping term are one compiled loop per step (numba, cached on
+disk): as numpy and BLAS calls they cost a third of each step in call overhead.
+
 No preconditioner: the slow modes are band-limited ones straddling the patch border, which a preconditioner
 diagonal in space (T. Chan's optimal circulant, density compensation) cannot separate; both cost iterations.
-Smoothed and floored densities save iterations on spheres but not on faces for the same eps0 accuracy, and
-weights diagonal in frequency (following the band) slow CG down.
+Smoothed and floored densities save iterations on spheres but not on faces for the same eps0 accuracy, weights
+diagonal in frequency (following the band) slow CG down, and a coarse-grid solve as the starting point saves none.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.fft as sfft
 from scipy.fft._pocketfft import pypocketfft as pocketfft
-from scipy.linalg.blas import get_blas_funcs
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,107 +45,129 @@ class Solution:
     residual: float
 
 
-class PrunedRealFFT:
-    """Unnormalised real FFTs of size 2N x 2N between compact half spectra (V, N - 1, N/2) and (V, 2N, 2N)
-    real fields, into buffers kept per V.
+def norm_weights(band: np.ndarray) -> np.ndarray:
+    """(2, N - 1, N) weights on the real and imaginary parts of compact halves (N - 1, N/2) viewed as reals: row 0
+    gives |v|^2 and row 1 |band v|^2 over the full Hermitian spectrum (kx > 0 counts twice)."""
+    twice = np.full(band.shape, 2.0)
+    twice[:, 0] = 1.0
+    return np.repeat(np.stack((twice, twice * band.astype(np.float64) ** 2)), 2, axis=-1)
 
-    They call scipy's pocketfft binding (the engine behind scipy.fft) directly: it writes into given arrays and
-    skips scipy.fft's per-call dispatch, which at 2N = 144 costs a quarter of each CG step.
+
+def hermitian_norms(half: np.ndarray, weights: np.ndarray) -> tuple[float, float]:
+    """(|f|^2, |band f|^2) over the full Hermitian spectrum of a compact half (N - 1, N/2); weights from
+    norm_weights(band)."""
+    return _norms(half.view(np.finfo(half.dtype).dtype), weights, np.arange(len(half)))
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _norms(v: np.ndarray, weights: np.ndarray, rows: np.ndarray) -> tuple[float, float]:
+    """(|v|^2, |band v|^2) of a half spectrum viewed as reals (rows, N) whose rows `rows` hold the data."""
+    plain = banded = 0.0
+    for i in range(rows.size):
+        row = rows[i]
+        for j in range(v.shape[1]):
+            a = v[row, j] * v[row, j]
+            plain += weights[0, i, j] * a
+            banded += weights[1, i, j] * a
+    return plain, banded
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _cg_step(x: np.ndarray, r: np.ndarray, p: np.ndarray, q: np.ndarray, lam: float, weights: np.ndarray,
+             rows: np.ndarray, rr: float) -> tuple[float, float]:
+    """One CG step on embedded halves viewed as reals (2N, N), q = A^H A p on entry, rows: those holding data.
+
+    Adds lam p to q, updates x, r, p in place; returns (|r|^2, |band r|^2) of the new residual.
     """
-
-    def __init__(self, n: int, dtype: type[np.complexfloating]):
-        self.h, self.size, self.dtype = n // 2, 2 * n, dtype
-        self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
-
-    def _buffers_for(self, v: int) -> tuple[np.ndarray, ...]:
-        """For V fields: the inverse's (V, 2N, N + 1) spectra (zero beyond kx = N/2 - 1), the (V, 2N, 2N) fields,
-        the forward's spectra and its (V, 2N, N/2) columns."""
-        if v not in self._buffers:
-            size, real = self.size, np.finfo(self.dtype).dtype
-            spectra = (v, size, size // 2 + 1)
-            self._buffers[v] = (np.zeros(spectra, self.dtype), np.empty((v, size, size), real),
-                                np.empty(spectra, self.dtype), np.empty((v, size, self.h), self.dtype))
-        return self._buffers[v]
-
-    def to_space(self, half: np.ndarray) -> np.ndarray:
-        """(V, 2N, 2N) real fields whose spectra are `half`, zero elsewhere (a buffer, overwritten next call)."""
-        h, size = self.h, self.size
-        spectra, fields, _, _ = self._buffers_for(len(half))
-        columns = spectra[:, :, :h]
-        columns[:, :h] = half[:, :h]
-        columns[:, h:size - h + 1] = 0
-        columns[:, size - h + 1:] = half[:, h:]
-        pocketfft.c2c(columns, (1,), False, 0, columns, 1)  # along ky, only the columns that hold data
-        return pocketfft.c2r(spectra, (2,), size, False, 0, fields, 1)
-
-    def from_space(self, fields: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """out = the compact halves of the fields' spectra."""
-        h, size = self.h, self.size
-        _, _, spectra, columns = self._buffers_for(len(fields))
-        pocketfft.r2c(fields, (2,), True, 0, spectra, 1)
-        pocketfft.c2c(spectra[:, :, :h], (1,), True, 0, columns, 1)  # along ky, only the columns kept
-        out[:, :h] = columns[:, :h]
-        out[:, h:] = columns[:, size - h + 1:]
-        return out
-
-
-class HermitianInner:
-    """Re <a, b> of full Hermitian spectra from compact halves (N - 1, N/2): kx > 0 counts twice."""
-
-    def __init__(self, band: np.ndarray, dtype: np.dtype):
-        root = np.full(band.shape, np.sqrt(2.0), band.dtype)
-        root[:, 0] = 1.0
-        self._band_root = root * band  # |band_root * r|^2 = sum over the full spectrum of A(rho)^2 |r|^2
-        self._scratch = np.empty(band.shape, dtype)
-
-    def dot(self, a: np.ndarray, b: np.ndarray) -> float:
-        """Re <a, b>: BLAS dot products, no temporaries (the kx = 0 column counted once)."""
-        return 2.0 * float(np.vdot(a, b).real) - float(np.vdot(a[:, 0], b[:, 0]).real)
-
-    def band_norm2(self, r: np.ndarray) -> float:
-        """|A(rho) r|^2: the residual weighted by the filters' band."""
-        weighted = np.multiply(r, self._band_root, out=self._scratch)
-        return float(np.vdot(weighted, weighted).real)
+    pq = 0.0
+    for i in range(rows.size):
+        row = rows[i]
+        for j in range(p.shape[1]):
+            q[row, j] += lam * p[row, j]
+            pq += weights[0, i, j] * p[row, j] * q[row, j]
+    alpha = rr / pq
+    for i in range(rows.size):
+        row = rows[i]
+        for j in range(p.shape[1]):
+            x[row, j] += alpha * p[row, j]
+            r[row, j] -= alpha * q[row, j]
+    rr_new, banded = _norms(r, weights, rows)
+    beta = rr_new / rr
+    for i in range(rows.size):
+        row = rows[i]
+        for j in range(p.shape[1]):
+            p[row, j] = r[row, j] + beta * p[row, j]
+    return rr_new, banded
 
 
 class DampedNormalEquations:
-    """A^H A + lambda I for one frame's points, from K on the 2N x 2N grid (finufft type 1, modeord=1)."""
+    """A^H A + lambda I for one frame's points, from K on the 2N x 2N grid (finufft type 1, modeord=1).
+
+    The FFTs call scipy's pocketfft binding (the engine behind scipy.fft) directly: it writes into given arrays
+    and skips scipy.fft's per-call dispatch, which costs a quarter of each CG step at this size.
+    """
 
     def __init__(self, kernel: np.ndarray, lam: float, n: int, real: type[np.floating],
                  complex_: type[np.complexfloating]):
-        self.lam = lam
-        self._fft = PrunedRealFFT(n, complex_)
+        self.lam, self.n, self.dtype = lam, n, complex_
+        self._h, self._size = n // 2, 2 * n
+        self.data_rows = np.r_[: self._h, self._size - self._h + 1: self._size]  # of the embedded layout
         half = kernel[:, : n + 1].copy()
         half[n, :] = 0  # the unpaired -N row and column never enter (A^H A f)_k for |k| < N/2
         half[:, n] = 0
-        # the inverse transform's 1 / (2N)^2, which PrunedRealFFT leaves out, is folded in here
+        # the inverse transform's 1 / (2N)^2, which the pocketfft calls leave out, is folded in here
         self._circulant = sfft.irfft2(half, s=(2 * n, 2 * n), workers=1).astype(real, copy=False)
-        self._axpy = get_blas_funcs("axpy", dtype=complex_)
+        self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
 
-    def apply(self, v: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """out = (A^H A + lambda I) v for each of the V compact halves."""
-        grid = self._fft.to_space(v)
-        grid *= self._circulant
-        self._fft.from_space(grid, out)
-        self._axpy(v.reshape(-1), out.reshape(-1), a=self.lam)
+    def embed(self, half: np.ndarray) -> np.ndarray:
+        """(V, 2N, N/2) embedded copies of compact halves (V, N - 1, N/2)."""
+        h = self._h
+        out = np.zeros((len(half), self._size, h), self.dtype)
+        out[:, :h] = half[:, :h]
+        out[:, self._size - h + 1:] = half[:, h:]
         return out
+
+    def compact(self, embedded: np.ndarray) -> np.ndarray:
+        """(..., N - 1, N/2) compact halves of embedded (..., 2N, N/2) ones."""
+        h = self._h
+        return np.concatenate((embedded[..., :h, :], embedded[..., self._size - h + 1:, :]), axis=-2)
+
+    def _buffers_for(self, v: int) -> tuple[np.ndarray, ...]:
+        """For V fields: the inverse's (V, 2N, N + 1) spectra (zero beyond kx = N/2 - 1), the (V, 2N, 2N) fields
+        and the forward's spectra."""
+        if v not in self._buffers:
+            size, real = self._size, np.finfo(self.dtype).dtype
+            spectra = (v, size, size // 2 + 1)
+            self._buffers[v] = (np.zeros(spectra, self.dtype), np.empty((v, size, size), real),
+                                np.empty(spectra, self.dtype))
+        return self._buffers[v]
+
+    def product(self, v: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """out = A^H A v for embedded halves v (V, 2N, N/2) (out's rows without data: left over, not zero)."""
+        h, size = self._h, self._size
+        spectra, fields, forward = self._buffers_for(len(v))
+        pocketfft.c2c(v, (1,), False, 0, spectra[:, :, :h], 1)  # along ky, only the columns that hold data
+        pocketfft.c2r(spectra, (2,), size, False, 0, fields, 1)
+        fields *= self._circulant
+        pocketfft.r2c(fields, (2,), True, 0, forward, 1)
+        return pocketfft.c2c(forward[:, :, :h], (1,), True, 0, out, 1)  # along ky, only the columns kept
 
 
 def solve(system: DampedNormalEquations, rhs: np.ndarray, band: np.ndarray, tolerance: float,
           max_iterations: int) -> list[Solution]:
     """CG from 0 on each rhs (V, N - 1, N/2) until |band * r| <= tolerance |band * rhs| or max_iterations.
 
-    One batched operator product per step; the rest in place, per rhs, with BLAS calls and Python floats: the
-    vectors are small, so temporaries and broadcasting would cost as much as the arithmetic. A converged rhs
-    leaves the batch, so each answer is (to rounding) the one its own solve would give.
+    One batched operator product per step, then one compiled update per rhs. A converged rhs leaves the batch,
+    so each answer is (to rounding) the one its own solve would give.
     """
-    inner = HermitianInner(band, rhs.dtype)
-    axpy = get_blas_funcs("axpy", (rhs,))
+    weights, data_rows = norm_weights(band), system.data_rows
     rows = list(range(len(rhs)))
-    x, r = np.zeros_like(rhs), rhs.copy()
-    p, q = r.copy(), np.empty_like(r)
-    b_band2 = [inner.band_norm2(b) for b in rhs]
-    r_band2, rr = list(b_band2), [inner.dot(v, v) for v in r]
+    norms = [hermitian_norms(b, weights) for b in rhs]
+    r = system.embed(rhs)
+    x, p, q = np.zeros_like(r), r.copy(), np.empty_like(r)
+    real = [v.view(np.finfo(r.dtype).dtype) for v in (x, r, p, q)]  # (V, 2N, N): real and imaginary parts
+    rr, r_band2 = [n[0] for n in norms], [n[1] for n in norms]
+    b_band2 = list(r_band2)
     solutions: dict[int, Solution] = {}
     iterations = 0
     while True:
@@ -149,18 +176,14 @@ def solve(system: DampedNormalEquations, rhs: np.ndarray, band: np.ndarray, tole
         if len(keep) < len(rows):
             for j in sorted(set(range(len(rows))) - set(keep)):
                 residual = np.sqrt(r_band2[j] / b_band2[j]) if b_band2[j] > 0 else 0.0
-                solutions[rows[j]] = Solution(x[j], iterations, float(residual))
+                solutions[rows[j]] = Solution(system.compact(x[j]), iterations, float(residual))
             if not keep:
                 return [solutions[i] for i in range(len(rhs))]
             rows, x, r, p, q = [rows[j] for j in keep], x[keep], r[keep], p[keep], q[keep]
+            real = [v.view(np.finfo(r.dtype).dtype) for v in (x, r, p, q)]
             b_band2, r_band2, rr = ([v[j] for j in keep] for v in (b_band2, r_band2, rr))
-        system.apply(p, q)
+        system.product(p, q)
+        xs, rs, ps, qs = real
         for j in range(len(rows)):
-            alpha = rr[j] / inner.dot(p[j], q[j])
-            axpy(p[j].reshape(-1), x[j].reshape(-1), a=alpha)
-            axpy(q[j].reshape(-1), r[j].reshape(-1), a=-alpha)
-            rr_old, rr[j] = rr[j], inner.dot(r[j], r[j])
-            p[j] *= rr[j] / rr_old
-            p[j] += r[j]
-            r_band2[j] = inner.band_norm2(r[j])
+            rr[j], r_band2[j] = _cg_step(xs[j], rs[j], ps[j], qs[j], system.lam, weights, data_rows, rr[j])
         iterations += 1
