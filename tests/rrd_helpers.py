@@ -67,4 +67,11 @@ def check_rrd(path, counters, results_by_counter=None):
         np.testing.assert_array_equal(amplitude, np.rint(results_by_counter[c].frame.amplitude))
         cloud = tables[bp.FOREGROUND][1].column("Points3D:positions")[len(counters) - 1]
         assert len(cloud) == int(results_by_counter[c].mask.sum())
+        # coloured by NFFT eps0 on viridis: the smallest point value dark blue, the largest yellow
+        colours = tables[bp.FOREGROUND][1].column("Points3D:colors")[len(counters) - 1].values.to_numpy()
+        eps0 = results_by_counter[c].features["range_nfft_eps0"][results_by_counter[c].mask]
+        assert len(colours) == len(eps0)
+        rgb = [(int(colours[i]) >> 24, int(colours[i]) >> 16 & 0xFF, int(colours[i]) >> 8 & 0xFF)
+               for i in (np.nanargmin(eps0), np.nanargmax(eps0))]
+        assert rgb == [(68, 1, 84), (253, 231, 36)], rgb  # viridis at 0 and 1
     return tables

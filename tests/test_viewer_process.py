@@ -14,7 +14,7 @@ from test_track_reporting import MISS, hit, result
 
 from tofd.config import Config
 from tofd.service.viewer import blueprint as bp
-from tofd.service.viewer.process import ViewerProcess
+from tofd.service.viewer.process import VIEWER_NICE, ViewerProcess
 
 
 def viewer(tmp_path: Path, queue_frames: int = 8) -> tuple[ViewerProcess, Path]:
@@ -30,6 +30,7 @@ def shm_of(pid: int) -> list[str]:
 
 def test_frames_go_through_the_slots_in_order_with_their_planes(tmp_path):
     v, path = viewer(tmp_path, queue_frames=2)  # fewer slots than frames: each slot is reused
+    assert os.getpriority(os.PRIO_PROCESS, v.process.pid) == os.getpriority(os.PRIO_PROCESS, 0) + VIEWER_NICE
     frames = [result(k, hit(0.01 * k) if k % 3 else MISS, None) for k in range(12)]
     for k, r in enumerate(frames):
         r.frame.range_m[...] = 0.4 + 0.01 * k  # each frame's own plane

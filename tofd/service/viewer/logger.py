@@ -48,25 +48,27 @@ def frames_per_send(cfg: RerunConfig, policy: str) -> int:
 
 
 @cache
-def _viridis() -> np.ndarray:
-    """(256, 3) uint8 lookup table of the viridis colour map."""
+def viridis_rgba() -> np.ndarray:
+    """(256,) uint32 lookup table of the viridis colour map, packed 0xRRGGBBAA (Rerun's colour type)."""
     from matplotlib import colormaps
 
-    return (colormaps["viridis"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint8)
+    rgb = (colormaps["viridis"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint32)
+    return (rgb[:, 0] << 24) | (rgb[:, 1] << 16) | (rgb[:, 2] << 8) | 0xFF
 
 
 def colour_by(values: np.ndarray) -> np.ndarray:
-    """(N, 3) uint8 viridis colours of log10(values), scaled to their 2nd-98th percentile (nearest rank)."""
-    lut = _viridis()
+    """(N,) packed viridis colours (viridis_rgba) of log10(values), scaled to their 2nd-98th percentile (nearest
+    rank); non-finite values get the first colour."""
+    lut = viridis_rgba()
     logv = np.log10(np.maximum(values, 1e-30))
     finite = np.isfinite(logv)
     kept = logv[finite]
     if not kept.size:
-        return np.zeros((len(values), 3), np.uint8)
+        return np.full(len(values), lut[0])
     ranks = [round(0.02 * (kept.size - 1)), round(0.98 * (kept.size - 1))]
     lo, hi = np.partition(kept, ranks)[ranks]
     idx = np.clip((logv - lo) * (255 / max(hi - lo, 1e-12)), 0, 255)
-    return lut[np.where(finite, idx, 0).astype(np.intp)]
+    return np.take(lut, np.where(finite, idx, 0).astype(np.intp))
 
 
 def fill_planes(out: dict[str, np.ndarray], r: FrameResult, ray_z: np.ndarray, zeros: np.ndarray) -> None:
@@ -221,9 +223,10 @@ class RerunLogger:
                                                level=rr.TextLogLevel.WARN))
         fill_planes({path: buffer[row] for path, buffer in shown.images.items()}, r, self._ray_z, self._zeros)
         if self.point_cloud:
-            at = np.flatnonzero(r.mask)  # a flat index takes rows far faster than a 2-D mask
-            shown.add(bp.FOREGROUND, row, positions=self._rays.reshape(-1, 3)[at] * frame.range_m.reshape(-1)[at, None],
-                      colors=colour_by(r.features["range_nfft_eps0"].reshape(-1)[at]))
+            at = np.flatnonzero(r.mask)  # np.take of a flat index is far faster than a 2-D mask or fancy index
+            ranges = np.take(frame.range_m.reshape(-1), at)
+            shown.add(bp.FOREGROUND, row, positions=np.take(self._rays.reshape(-1, 3), at, axis=0) * ranges[:, None],
+                      colors=colour_by(np.take(r.features["range_nfft_eps0"].reshape(-1), at)))
         self._add_nose_and_track(r, row, shown.series_row[row])
         for stage, ms in r.timings_ms.items():
             if stage not in OWN_TIMINGS:

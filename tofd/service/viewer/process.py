@@ -2,12 +2,13 @@
 
 Rerun's log and flush calls block for as long as a connected receiver does not read (see
 /work/shared/design/rerun_notes.md), and the SDK offers no "drop instead of block". So the RecordingStream
-lives in a child process (which also keeps its CPU off the feature workers' GIL): the parent copies each
-delivered frame into one of `queue_frames` shared-memory slots and sends its header (wire.py); the child logs
-it and frees the slot (a semaphore counts the free ones; the child takes frames in order, so the parent fills
-the slots round-robin). When no slot is free the frame is refused (the caller ledgers it as a viewer drop).
-close() asks the child to flush and exit and SIGKILLs it at the deadline: nothing in the parent ever waits on
-Rerun, and the pipe never fills (at most `queue_frames` small headers are in it).
+lives in a child process (which also keeps its CPU off the feature workers' GIL, and runs at a lower priority
+than they do: VIEWER_NICE): the parent copies each delivered frame into one of `queue_frames` shared-memory
+slots and sends its header (wire.py); the child logs it and frees the slot (a semaphore counts the free ones;
+the child takes frames in order, so the parent fills the slots round-robin). When no slot is free the frame is
+refused (the caller ledgers it as a viewer drop). close() asks the child to flush and exit and SIGKILLs it at
+the deadline: nothing in the parent ever waits on Rerun, and the pipe never fills (at most `queue_frames` small
+headers are in it).
 
 Protocol: parent -> child, one JSON header per frame (wire.py) or b"close"; child -> parent, JSON
 {"ready": web_url} or {"error": text} once at start, {"closed": {"frames": n, "errors": n}} at the end.
@@ -41,6 +42,7 @@ log = logging.getLogger(__name__)
 CLOSE = b"close"
 POLL_S = 0.1  # seconds between checks of a start's `cancelled`
 IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this long without a new frame
+VIEWER_NICE = 10  # the viewer process's niceness: on busy cores the feature workers go first
 
 
 def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, parent_pid: int, frames: Connection,
@@ -52,6 +54,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     keep_arrays_on_the_heap()
+    os.nice(VIEWER_NICE)  # it waking up to log a frame would otherwise preempt a worker mid-frame
     cfg = config_from_dict(cfg_table)
     ring = SlotRing.attach(slots[0], slots[1], cfg.intrinsics.shape, wire.PLANES)
     try:
