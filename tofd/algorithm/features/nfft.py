@@ -44,7 +44,7 @@ import scipy.fft as sfft
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features.eccentricity import Eccentricities
 from tofd.algorithm.features.fft import check_frame
-from tofd.algorithm.features.normal_equations import DampedNormalEquations, solve
+from tofd.algorithm.features.normal_equations import DampedNormalEquations, load_kernels, solve
 from tofd.algorithm.features.transfer import transfer_functions, unit_square_m
 from tofd.algorithm.params import FeatureConfig
 
@@ -129,6 +129,7 @@ class NFFTFeatures:
         # spread_sort=0: the points come in pixel order, local enough; finufft's bin sort costs more than it saves
         self._plan_options = dict(eps=eps, modeord=1, nthreads=1, dtype=self._complex, spread_sort=0)
         self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
+        load_kernels(self._complex)
 
     def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
         """finufft plans (made once) for `surfaces` value sets on shared points: type 1 onto the 2N grid (the

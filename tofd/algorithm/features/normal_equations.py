@@ -17,8 +17,8 @@ Stopping. CG stops when the residual weighted by A(rho) (the filters' band) fall
 relative to the weighted right-hand side: smooth surfaces put most of A^H z at low frequencies that the
 filters ignore, and the plain residual stopped a sphere with eps0 off by 15 %.
 
-CG's vector updates, inner products and the damping term are one compiled loop per step (numba, cached on
-disk): as numpy and BLAS calls they cost a third of each step in call overhead.
+CG's vector updates, inner products and the damping term are one compiled loop per step (cg_kernels.py):
+as numpy and BLAS calls they cost a third of each step in call overhead.
 
 No preconditioner: the slow modes are band-limited ones straddling the patch border, which a preconditioner
 diagonal in space (T. Chan's optimal circulant, density compensation) cannot separate; both cost iterations.
@@ -28,9 +28,10 @@ diagonal in frequency (following the band) slow CG down, and a coarse-grid solve
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from types import ModuleType
 
-import numba
 import numpy as np
 import scipy.fft as sfft
 from scipy.fft._pocketfft import pypocketfft as pocketfft
@@ -53,55 +54,33 @@ def norm_weights(band: np.ndarray) -> np.ndarray:
     return np.repeat(np.stack((twice, twice * band.astype(np.float64) ** 2)), 2, axis=-1)
 
 
+@functools.cache
+def _kernels() -> ModuleType:
+    """The compiled loops (cg_kernels.py), imported on first use: only processes that solve load numba."""
+    from tofd.algorithm.features import cg_kernels
+
+    return cg_kernels
+
+
+def load_kernels(dtype: type[np.complexfloating]) -> None:
+    """Load the compiled loops for halves of complex `dtype` now (compiling them the first time on a machine), not
+    in the first solve: a live run's first frames would wait for it."""
+    real = np.finfo(dtype).dtype
+    v = np.zeros((1, 2), real)
+    weights, rows = norm_weights(np.ones((1, 1))), np.zeros(1, np.intp)
+    hermitian_norms(np.zeros((1, 1), dtype), weights)
+    _kernels().cg_step(v, v.copy(), v.copy(), v.copy(), 0.0, weights, rows, 1.0)
+
+
 def hermitian_norms(half: np.ndarray, weights: np.ndarray) -> tuple[float, float]:
     """(|f|^2, |band f|^2) over the full Hermitian spectrum of a compact half (N - 1, N/2); weights from
     norm_weights(band)."""
-    return _norms(half.view(np.finfo(half.dtype).dtype), weights, np.arange(len(half)))
-
-
-@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def _norms(v: np.ndarray, weights: np.ndarray, rows: np.ndarray) -> tuple[float, float]:
-    """(|v|^2, |band v|^2) of a half spectrum viewed as reals (rows, N) whose rows `rows` hold the data."""
-    plain = banded = 0.0
-    for i in range(rows.size):
-        row = rows[i]
-        for j in range(v.shape[1]):
-            a = v[row, j] * v[row, j]
-            plain += weights[0, i, j] * a
-            banded += weights[1, i, j] * a
-    return plain, banded
-
-
-@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def _cg_step(x: np.ndarray, r: np.ndarray, p: np.ndarray, q: np.ndarray, lam: float, weights: np.ndarray,
-             rows: np.ndarray, rr: float) -> tuple[float, float]:
-    """One CG step on embedded halves viewed as reals (2N, N), q = A^H A p on entry, rows: those holding data.
-
-    Adds lam p to q, updates x, r, p in place; returns (|r|^2, |band r|^2) of the new residual.
-    """
-    pq = 0.0
-    for i in range(rows.size):
-        row = rows[i]
-        for j in range(p.shape[1]):
-            q[row, j] += lam * p[row, j]
-            pq += weights[0, i, j] * p[row, j] * q[row, j]
-    alpha = rr / pq
-    for i in range(rows.size):
-        row = rows[i]
-        for j in range(p.shape[1]):
-            x[row, j] += alpha * p[row, j]
-            r[row, j] -= alpha * q[row, j]
-    rr_new, banded = _norms(r, weights, rows)
-    beta = rr_new / rr
-    for i in range(rows.size):
-        row = rows[i]
-        for j in range(p.shape[1]):
-            p[row, j] = r[row, j] + beta * p[row, j]
-    return rr_new, banded
+    return _kernels().norms(half.view(np.finfo(half.dtype).dtype), weights, np.arange(len(half)))
 
 
 class DampedNormalEquations:
-    """A^H A + lambda I for one frame's points, from K on the 2N x 2N grid (finufft type 1, modeord=1).
+    """A^H A (product) and lambda (added in CG's step) for one frame's points, from K on the 2N x 2N grid (finufft
+    type 1, modeord=1).
 
     The FFTs call scipy's pocketfft binding (the engine behind scipy.fft) directly: it writes into given arrays
     and skips scipy.fft's per-call dispatch, which costs a quarter of each CG step at this size.
@@ -153,6 +132,11 @@ class DampedNormalEquations:
         return pocketfft.c2c(forward[:, :, :h], (1,), True, 0, out, 1)  # along ky, only the columns kept
 
 
+def _as_reals(*arrays: np.ndarray) -> list[np.ndarray]:
+    """Views of complex (V, 2N, N/2) arrays as (V, 2N, N) reals (real and imaginary parts interleaved)."""
+    return [a.view(np.finfo(a.dtype).dtype) for a in arrays]
+
+
 def solve(system: DampedNormalEquations, rhs: np.ndarray, band: np.ndarray, tolerance: float,
           max_iterations: int) -> list[Solution]:
     """CG from 0 on each rhs (V, N - 1, N/2) until |band * r| <= tolerance |band * rhs| or max_iterations.
@@ -160,12 +144,12 @@ def solve(system: DampedNormalEquations, rhs: np.ndarray, band: np.ndarray, tole
     One batched operator product per step, then one compiled update per rhs. A converged rhs leaves the batch,
     so each answer is (to rounding) the one its own solve would give.
     """
-    weights, data_rows = norm_weights(band), system.data_rows
+    weights, data_rows, step = norm_weights(band), system.data_rows, _kernels().cg_step
     rows = list(range(len(rhs)))
     norms = [hermitian_norms(b, weights) for b in rhs]
     r = system.embed(rhs)
     x, p, q = np.zeros_like(r), r.copy(), np.empty_like(r)
-    real = [v.view(np.finfo(r.dtype).dtype) for v in (x, r, p, q)]  # (V, 2N, N): real and imaginary parts
+    real = _as_reals(x, r, p, q)
     rr, r_band2 = [n[0] for n in norms], [n[1] for n in norms]
     b_band2 = list(r_band2)
     solutions: dict[int, Solution] = {}
@@ -180,10 +164,10 @@ def solve(system: DampedNormalEquations, rhs: np.ndarray, band: np.ndarray, tole
             if not keep:
                 return [solutions[i] for i in range(len(rhs))]
             rows, x, r, p, q = [rows[j] for j in keep], x[keep], r[keep], p[keep], q[keep]
-            real = [v.view(np.finfo(r.dtype).dtype) for v in (x, r, p, q)]
+            real = _as_reals(x, r, p, q)
             b_band2, r_band2, rr = ([v[j] for j in keep] for v in (b_band2, r_band2, rr))
         system.product(p, q)
         xs, rs, ps, qs = real
         for j in range(len(rows)):
-            rr[j], r_band2[j] = _cg_step(xs[j], rs[j], ps[j], qs[j], system.lam, weights, data_rows, rr[j])
+            rr[j], r_band2[j] = step(xs[j], rs[j], ps[j], qs[j], system.lam, weights, data_rows, rr[j])
         iterations += 1
