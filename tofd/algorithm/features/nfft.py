@@ -90,7 +90,7 @@ def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int) -> np
     strengths.imag[: len(rows) // 2] = rows[1::2] / scale[1::2, None]
     spectra = type1.execute(strengths)
     pairs, size = len(spectra), spectra.shape[-1]
-    mirrored = spectra.reshape(pairs, -1)[:, _mirror_index(size, columns)].reshape(pairs, size, columns)
+    mirrored = np.take(spectra.reshape(pairs, -1), _mirror_index(size, columns), axis=1).reshape(pairs, size, columns)
     np.conjugate(mirrored, out=mirrored)  # G*_-m
     spectra = spectra[:, :, :columns]
     out = np.empty((2 * pairs, size, columns), spectra.dtype)

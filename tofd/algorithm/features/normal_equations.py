@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from types import ModuleType
 
 import numpy as np
-import scipy.fft as sfft
 from scipy.fft._pocketfft import pypocketfft as pocketfft
 
 
@@ -91,11 +90,11 @@ class DampedNormalEquations:
         self.lam, self.n, self.dtype = lam, n, complex_
         self._h, self._size = n // 2, 2 * n
         self.data_rows = np.r_[: self._h, self._size - self._h + 1: self._size]  # of the embedded layout
-        half = kernel[:, : n + 1].copy()
+        half = kernel[:, : n + 1].astype(complex_)  # a copy
         half[n, :] = 0  # the unpaired -N row and column never enter (A^H A f)_k for |k| < N/2
         half[:, n] = 0
-        # the inverse transform's 1 / (2N)^2, which the pocketfft calls leave out, is folded in here
-        self._circulant = sfft.irfft2(half, s=(2 * n, 2 * n), workers=1).astype(real, copy=False)
+        # the inverse transform's 1 / (2N)^2 (inorm=2), which product's transforms leave out, is folded in here
+        self._circulant = pocketfft.c2r(half, (0, 1), 2 * n, False, 2, np.empty((2 * n, 2 * n), real), 1)
         self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
 
     def embed(self, half: np.ndarray) -> np.ndarray:
