@@ -87,7 +87,7 @@ class DampedNormalEquations:
 
     def __init__(self, kernel: np.ndarray, lam: float, n: int, real: type[np.floating],
                  complex_: type[np.complexfloating]):
-        self.lam, self.n, self.dtype = lam, n, complex_
+        self.lam, self.dtype = lam, complex_
         self._h, self._size = n // 2, 2 * n
         self.data_rows = np.r_[: self._h, self._size - self._h + 1: self._size]  # of the embedded layout
         half = kernel[:, : n + 1].astype(complex_)  # a copy
