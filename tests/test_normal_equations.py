@@ -61,12 +61,12 @@ def test_operator_equals_dense_damped_normal_matrix(n):
 
     # two right-hand sides solved together: each equals its dense solution, each stops on its own residual
     rhs = np.stack((v[0], 1e3 * half_of_real_field()))
-    band = np.ones(v.shape[1:])
-    solved = solve(system, rhs, band, 1e-10, 1000)
+    weights = norm_weights(np.ones(v.shape[1:]))
+    solved = solve(system, rhs, weights, 1e-10, 1000)
     for s, b in zip(solved, rhs, strict=True):
         np.testing.assert_allclose(_half_to_full(s.f, n), np.linalg.solve(normal, _half_to_full(b, n).ravel()).reshape(
             n - 1, n - 1), rtol=1e-8, atol=1e-10 * np.abs(_half_to_full(s.f, n)).max())
-        alone = solve(system, b[None], band, 1e-10, 1000)[0]
+        alone = solve(system, b[None], weights, 1e-10, 1000)[0]
         assert s.residual <= 1e-10 and alone.residual <= 1e-10
         np.testing.assert_allclose(s.f, alone.f, rtol=1e-7, atol=1e-9 * np.abs(alone.f).max())
 

@@ -44,7 +44,7 @@ import scipy.fft as sfft
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features.eccentricity import Eccentricities
 from tofd.algorithm.features.fft import check_frame
-from tofd.algorithm.features.normal_equations import DampedNormalEquations, load_kernels, solve
+from tofd.algorithm.features.normal_equations import DampedNormalEquations, load_kernels, norm_weights, solve
 from tofd.algorithm.features.transfer import transfer_functions, unit_square_m
 from tofd.algorithm.params import FeatureConfig
 
@@ -116,18 +116,18 @@ class NFFTFeatures:
                                         cfg.tuning_frequency_per_m, cfg.lowpass_sigma_per_m)
         self._filters = np.stack([c0 + 1j * c2, s2 + 0j])  # (2, N, N) rows ky, columns kx
         # stopping weight: A(rho) (= |C0|) on the compact half spectrum, rows ky, columns kx = 0 .. N/2 - 1
-        self._band = np.concatenate((c0[: self._h, : self._h], c0[n - self._h + 1:, : self._h]))
+        band = np.concatenate((c0[: self._h, : self._h], c0[n - self._h + 1:, : self._h]))
         single = cfg.cg_precision == "single"
         self._real: type[np.floating] = np.float32 if single else np.float64
         self._complex: type[np.complexfloating] = np.complex64 if single else np.complex128
-        self._band = self._band.astype(self._real)
+        self._norm_weights = norm_weights(band.astype(self._real))  # CG's, made once rather than every frame
         self._filters = self._filters.astype(self._complex)
         self._neg_rows = (-np.arange(n)) % n
         self._neg_cols_src = n - np.arange(n - self._h + 1, n)
         eps = max(cfg.nufft_eps, SINGLE_NUFFT_EPS) if single else cfg.nufft_eps
         self._nufft_eps = eps
         # spread_sort=0: the points come in pixel order, local enough; finufft's bin sort costs more than it saves
-        self._plan_options = dict(eps=eps, modeord=1, nthreads=1, dtype=self._complex, spread_sort=0)
+        self._plan_options = dict(modeord=1, nthreads=1, dtype=self._complex, spread_sort=0)
         self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
         load_kernels(self._complex)
 
@@ -138,8 +138,10 @@ class NFFTFeatures:
         if surfaces not in self._plans:
             n, opts, eps = self._n, self._plan_options, self._nufft_eps
             pairs = (2 + surfaces) // 2
-            type1 = finufft.Plan(1, (2 * n, 2 * n), n_trans=pairs, isign=-1, upsampfac=_upsampfac(1, eps), **opts)
-            type2 = finufft.Plan(2, (n, n), n_trans=2 * surfaces, isign=1, upsampfac=_upsampfac(2, eps), **opts)
+            type1 = finufft.Plan(1, (2 * n, 2 * n), n_trans=pairs, isign=-1, eps=eps, upsampfac=_upsampfac(1, eps),
+                                 **opts)
+            type2 = finufft.Plan(2, (n, n), n_trans=2 * surfaces, isign=1, eps=eps, upsampfac=_upsampfac(2, eps),
+                                 **opts)
             self._plans[surfaces] = (type1, type2)
         return self._plans[surfaces]
 
@@ -220,7 +222,7 @@ class NFFTFeatures:
         system = DampedNormalEquations(kernel_and_rhs[0], lam, n, self._real, self._complex)
         grids = kernel_and_rhs[1:]
         rhs = np.concatenate((grids[:, :h, :h], grids[:, 2 * n - h + 1:, :h]), axis=1)
-        solved = solve(system, rhs, self._band, self.cfg.cg_tolerance, self.cfg.cg_max_iterations)
+        solved = solve(system, rhs, self._norm_weights, self.cfg.cg_tolerance, self.cfg.cg_max_iterations)
         type2.setpts(ty, tx)
         out = type2.execute(np.concatenate([self._filters * self._hermitian_full(s.f) for s in solved]))
         return [(out[2 * i].real, out[2 * i].imag, out[2 * i + 1].real, s.iterations, s.residual)

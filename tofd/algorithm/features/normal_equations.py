@@ -136,14 +136,15 @@ def _as_reals(*arrays: np.ndarray) -> list[np.ndarray]:
     return [a.view(np.finfo(a.dtype).dtype) for a in arrays]
 
 
-def solve(system: DampedNormalEquations, rhs: np.ndarray, band: np.ndarray, tolerance: float,
+def solve(system: DampedNormalEquations, rhs: np.ndarray, weights: np.ndarray, tolerance: float,
           max_iterations: int) -> list[Solution]:
-    """CG from 0 on each rhs (V, N - 1, N/2) until |band * r| <= tolerance |band * rhs| or max_iterations.
+    """CG from 0 on each rhs (V, N - 1, N/2) until |band * r| <= tolerance |band * rhs| or max_iterations
+    (weights: norm_weights(band)).
 
     One batched operator product per step, then one compiled update per rhs. A converged rhs leaves the batch,
     so each answer is (to rounding) the one its own solve would give.
     """
-    weights, data_rows, step = norm_weights(band), system.data_rows, _kernels().cg_step
+    data_rows, step = system.data_rows, _kernels().cg_step
     rows = list(range(len(rhs)))
     norms = [hermitian_norms(b, weights) for b in rhs]
     r = system.embed(rhs)
