@@ -44,8 +44,11 @@ class Box:
 
         +inf where a feature is NaN (not foreground / not computed).
         """
-        d = np.max(np.abs(x - self.centre) / self.half_width, axis=-1)
-        return np.where(np.isnan(d), np.inf, d)
+        d = np.abs(x[..., 0] - self.centre[0]) / self.half_width[0]
+        for k in range(1, x.shape[-1]):  # a column at a time: numpy's max over a short last axis is ~20x slower
+            np.maximum(d, np.abs(x[..., k] - self.centre[k]) / self.half_width[k], out=d)
+        d[np.isnan(d)] = np.inf
+        return d
 
     def to_dict(self) -> dict:
         return {
