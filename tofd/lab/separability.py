@@ -42,7 +42,7 @@ def best_box_eer(table: PixelTable, has_nose: np.ndarray) -> float:
     best = 1.0
     for d0, d2 in itertools.product(CENTRE_OFFSETS_LOG10, repeat=2):
         offset = np.abs(table.features - (median + (d0, d2)))
-        for aspect in ASPECTS:
+        for aspect in ASPECTS:  # Box.distance with half-widths (1, aspect), the offsets shared by the aspects
             distance = np.maximum(offset[:, 0], offset[:, 1] / aspect)
             best = min(best, roc_from_min_distances(*table.min_distances(distance), has_nose).eer)
     return best
