@@ -43,6 +43,17 @@ def image_at(table, archetype, row):
                                                                                               fmt["width"])
 
 
+def feature_map_at(table, row, shape):
+    """A feature entity's map at `row` as the viewer draws it: its crop placed at its translation in an (H, W)
+    image of zeros."""
+    crop = image_at(table, "DepthImage", row)
+    x, y, z = table.column("Transform3D:translation")[row].as_py()[0]
+    assert z == 0 and x == int(x) and y == int(y), (x, y, z)
+    full = np.zeros(shape, crop.dtype)
+    full[int(y): int(y) + crop.shape[0], int(x): int(x) + crop.shape[1]] = crop
+    return full
+
+
 def check_rrd(path, counters, results_by_counter=None):
     """Every entity logged per frame has one row for each delivered frame counter (None: the same rows as the
     range image); statics are there."""
@@ -74,4 +85,8 @@ def check_rrd(path, counters, results_by_counter=None):
         rgb = [(int(colours[i]) >> 24, int(colours[i]) >> 16 & 0xFF, int(colours[i]) >> 8 & 0xFF)
                for i in (np.nanargmin(eps0), np.nanargmax(eps0))]
         assert rgb == [(68, 1, 84), (253, 231, 36)], rgb  # viridis at 0 and 1
+        for name, entity in bp.FEATURES.items():  # each map, cropped to the foreground, is the whole map in place
+            shown = feature_map_at(tables[entity][1], len(counters) - 1, frame.range_m.shape)
+            np.testing.assert_array_equal(shown, np.nan_to_num(results_by_counter[c].features[name], nan=0.0))
+            assert image_at(tables[entity][1], "DepthImage", len(counters) - 1).size < 0.5 * shown.size
     return tables

@@ -63,6 +63,25 @@ def test_latest_queue_drops_oldest_and_lossless_blocks():
     assert lossless.put("c", abort) == ["c"]  # full and aborting: handed back, never lost silently
 
 
+def test_dispatch_waits_for_a_free_slot_not_just_a_free_worker():
+    """A worker counts as free as soon as its result arrives, but the result holds its slot until it is read:
+    wait_free must wait for the slot too, or the dispatcher spins on a submit that fails."""
+    from tofd.service.pipeline.pool import WorkerPool
+
+    pool = WorkerPool({}, 1, 1, (4, 4), cap=1, timeout_s=1.0, max_failures=1)  # workers are not started
+    try:
+        pool.workers[0].ready = True
+        never = threading.Event()
+        assert pool.wait_free(0.0, never)
+        slot = pool.ring.acquire()  # a result being read holds the only slot
+        assert not pool.wait_free(0.05, never)
+        assert not pool.submit(0, np.zeros((4, 4), np.float32), np.zeros((4, 4), np.float32))
+        threading.Timer(0.1, pool.release, (slot,)).start()
+        assert pool.wait_free(5.0, never)  # woken by release
+    finally:
+        pool.close()
+
+
 class Collect:
     """A sink that keeps what it is given."""
 

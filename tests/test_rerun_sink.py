@@ -19,7 +19,7 @@ def test_saved_rrd_holds_every_frame(tmp_path, batch_frames):
     """Sent frame by frame or 4 at a time (19 frames: the last batch is partial, sent when the sink ends)."""
     cfg = Config()
     path = tmp_path / "run.rrd"
-    target = RerunTarget(cfg.rerun, "save", path=str(path))
+    target = RerunTarget(cfg.rerun, "save", cfg.intrinsics.shape, path=str(path))
     kept = {}
     pipeline = Pipeline(cfg, "lossless", viewer=RerunLogger(target.rec, cfg.intrinsics, batch_frames=batch_frames),
                         writers=(lambda r: kept.__setitem__(r.frame.frame_counter, r),))
@@ -67,7 +67,7 @@ def test_a_batch_is_sent_once_its_first_frame_waited_long_enough(tmp_path):
 
 def test_bad_sink_is_rejected():
     with pytest.raises(ValueError, match="sink"):
-        RerunTarget(Config().rerun, "telepathy")
+        RerunTarget(Config().rerun, "telepathy", Config().intrinsics.shape)
 
 
 def test_results_lines_match_delivered_frames(tmp_path):
@@ -90,7 +90,7 @@ def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tm
     not logged twice and the amplitude is stored as integers."""
     import numpy as np
     import rerun as rr
-    from rrd_helpers import image_at, read_entities
+    from rrd_helpers import feature_map_at, image_at, read_entities
 
     from drivers.frame import Frame
     from drivers.intrinsics import Intrinsics
@@ -123,6 +123,9 @@ def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tm
     assert not [e for e in tables if e.endswith("/range")]  # radial = depth / ray z
     amp = image_at(tables[bp.AMPLITUDE][1], "Image", 0)
     assert amp.dtype == np.uint16 and int(amp[0, 0]) == 1234
+    for entity in bp.FEATURES.values():  # no foreground: nothing drawn, from a one-pixel crop
+        assert not feature_map_at(tables[entity][1], 0, intr.shape).any()
+        assert image_at(tables[entity][1], "DepthImage", 0).shape == (1, 1)
 
 
 def test_blueprint_has_an_events_view():
@@ -135,7 +138,7 @@ def test_blueprint_has_an_events_view():
             yield item
             yield from views(item)
 
-    found = [v for v in views(build_blueprint().root_container) if isinstance(v, rrb.TextLogView)]
+    found = [v for v in views(build_blueprint((144, 176)).root_container) if isinstance(v, rrb.TextLogView)]
     assert [v.origin for v in found] == [bp.EVENTS]
 
 
@@ -150,7 +153,7 @@ def test_saved_rrd_is_batched_and_the_viewer_sends_no_usage_data(tmp_path, monke
     monkeypatch.delenv("CI", raising=False)
     cfg = Config()
     path = tmp_path / "run.rrd"
-    target = RerunTarget(cfg.rerun, "save", path=str(path))
+    target = RerunTarget(cfg.rerun, "save", cfg.intrinsics.shape, path=str(path))
     assert os.environ.get("CI") == "1"
     logger = RerunLogger(target.rec, cfg.intrinsics, batch_frames=frames_per_send(cfg.rerun, "lossless"))
     pipeline = Pipeline(cfg, "lossless", viewer=logger)

@@ -124,7 +124,7 @@ def test_wire_format_carries_the_track():
 
 def test_viewer_logs_the_track_box_with_its_confidence(tmp_path):
     path = tmp_path / "track.rrd"
-    target = RerunTarget(Config().rerun, "save", path=str(path))
+    target = RerunTarget(Config().rerun, "save", Config().intrinsics.shape, path=str(path))
     logger = RerunLogger(target.rec, INTRINSICS, point_cloud=False)
     results = tracked_results([hit(0.0)] * 5 + [MISS] * 20)
     for r in results:

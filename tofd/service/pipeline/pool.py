@@ -78,8 +78,11 @@ class WorkerPool:
         return min(ready, key=lambda w: len(w.inflight)) if ready else None
 
     def wait_free(self, timeout_s: float, abort: threading.Event) -> bool:
+        """Wait until a frame can be submitted (a free worker and a free slot: a result being read still holds
+        its slot after its worker counts as free) or `abort` is set; whether one can."""
         with self.lock:
-            return self.lock.wait_for(lambda: self.free_worker() is not None or abort.is_set(), timeout_s)
+            return self.lock.wait_for(
+                lambda: (self.free_worker() is not None and self.ring.free > 0) or abort.is_set(), timeout_s)
 
     def submit(self, seq: int, range_m: np.ndarray, amplitude: np.ndarray) -> bool:
         """Copy a frame into a free slot and send it to the least busy worker; False if none is free."""

@@ -100,6 +100,11 @@ class SlotRing:
         """The arrays of one slot, by field name (writable views into shared memory)."""
         return self._views[slot]
 
+    @property
+    def free(self) -> int:
+        """How many slots are free."""
+        return len(self._free)
+
     def acquire(self) -> int | None:
         """A free slot index, or None if every slot is in use."""
         return self._free.pop() if self._free else None

@@ -17,25 +17,32 @@ NOSE_3D = "/world/nose"  # Points3D: detected nose tip, metres
 TRACK_2D = f"{IMAGE}/nose_track"  # Boxes2D: the confirmed nose track, pixels, labelled with its confidence
 TRACK_3D = "/world/nose_track"  # Points3D: the confirmed nose track, metres
 TRACK_CONFIDENCE = "/track/confidence"  # Scalars: the nose track's confidence (0-1), every frame
-FEATURES = {name: "/features/" + name.removeprefix("range_").replace("_", "/") for name in VIEWED_MAPS}
-"""Feature map name -> entity (range_fft_eps0 -> /features/fft/eps0); colour-mapped scalar images."""
+FEATURES_ORIGIN = "/features"  # the feature views' space: image pixels, like IMAGE's
+FEATURES = {name: f"{FEATURES_ORIGIN}/" + name.removeprefix("range_").replace("_", "/") for name in VIEWED_MAPS}
+"""Feature map name -> entity (range_fft_eps0 -> /features/fft/eps0): colour-mapped scalar images of the foreground's
+bounding box, each translated to where that box lies in the image."""
 TIMINGS = "/timings"  # Scalars per stage, milliseconds
 EVENTS = "/events"  # TextLog: device gaps and reconnects
 
 
-def build_blueprint() -> rrb.Blueprint:
+def build_blueprint(image_shape: tuple[int, int]) -> rrb.Blueprint:
     """Camera images (left), feature maps (middle), 3-D scene, stage timings, track confidence and device events
-    (right)."""
+    (right); `image_shape` (rows, columns): the feature views show the whole image, not just the crop."""
 
     def image_view(name: str, entity: str) -> rrb.Spatial2DView:
         return rrb.Spatial2DView(name=name, origin=IMAGE, contents=[entity, NOSE_2D, TRACK_2D])
+
+    def feature_view(entity: str) -> rrb.Spatial2DView:
+        family, eps = entity.split("/")[2:4]
+        return rrb.Spatial2DView(name=f"{family.upper()} {eps}", origin=FEATURES_ORIGIN, contents=[entity],
+                                 visual_bounds=rrb.VisualBounds2D(x_range=[0, image_shape[1]],
+                                                                  y_range=[0, image_shape[0]]))
 
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(image_view("depth z [m]", RANGE), image_view("amplitude", AMPLITUDE),
                          image_view("foreground mask", MASK)),
-            rrb.Grid(*(rrb.Spatial2DView(name=f"{path.split('/')[2].upper()} {path.split('/')[3]}", origin=path)
-                       for path in FEATURES.values()), grid_columns=2),
+            rrb.Grid(*(feature_view(path) for path in FEATURES.values()), grid_columns=2),
             rrb.Vertical(
                 rrb.Spatial3DView(name="3-D (camera frame)", origin="/world",
                                   contents=["+ /world/**", f"- {IMAGE}/**"]),

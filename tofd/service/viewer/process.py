@@ -58,7 +58,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     cfg = config_from_dict(cfg_table)
     ring = SlotRing.attach(slots[0], slots[1], cfg.intrinsics.shape, wire.PLANES)
     try:
-        target = RerunTarget(cfg.rerun, sink, footer=footer)
+        target = RerunTarget(cfg.rerun, sink, cfg.intrinsics.shape, footer=footer)
         logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud, batch_frames)
     except Exception as exc:  # reported to the parent as one line
         status.send_bytes(json.dumps({"error": str(exc)}).encode())

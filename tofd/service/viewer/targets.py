@@ -75,11 +75,12 @@ class RerunTarget:
     """A RecordingStream connected to the configured sink, and the viewer child process if we started one.
 
     `sink`: "save" (cfg.path or `path`; `footer`: see file_footer), "connect" (cfg.url), "web" or "spawn" (child
-    viewer on cfg.bind).
+    viewer on cfg.bind). `image_shape`: the camera's (rows, columns), for the blueprint.
     """
 
-    def __init__(self, cfg: RerunConfig, sink: str, path: str | None = None, url: str | None = None,
-                 recording_id: str | None = None, start_timeout_s: float = 20.0, footer: bool = True):
+    def __init__(self, cfg: RerunConfig, sink: str, image_shape: tuple[int, int], path: str | None = None,
+                 url: str | None = None, recording_id: str | None = None, start_timeout_s: float = 20.0,
+                 footer: bool = True):
         self.cfg, self.sink = cfg, sink
         self.child: subprocess.Popen | None = None
         self.web_url: str | None = None
@@ -87,7 +88,7 @@ class RerunTarget:
         batcher = rr.ChunkBatcherConfig(**FILE_BATCHER) if sink == "save" else None
         self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or str(uuid.uuid4()),
                                       batcher_config=batcher)
-        blueprint = build_blueprint()
+        blueprint = build_blueprint(image_shape)
         if sink == "save":
             Path(path or cfg.path).parent.mkdir(parents=True, exist_ok=True)
             self.rec.save(path or cfg.path, default_blueprint=blueprint, write_footer=footer)
