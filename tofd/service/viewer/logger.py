@@ -20,14 +20,14 @@ metres, radii, colours) are logged once, static.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cache
 
 import numpy as np
 import pyarrow as pa
 import rerun as rr
-from rerun.components import ImageBufferBatch, ImageFormat, ImageFormatBatch
+from rerun.components import ImageBufferBatch, ImageFormat, ImageFormatBatch, Translation3DBatch
 
 from drivers.intrinsics import Intrinsics
 from tofd.config import RerunConfig
@@ -101,6 +101,39 @@ def blobs(flat: np.ndarray, sizes: np.ndarray) -> pa.ListArray:
     np.cumsum(np.asarray(sizes) * flat.itemsize, out=offsets[1:])
     return pa.ListArray.from_arrays(pa.array(offsets), pa.array(flat.view(np.uint8)),
                                     type=ImageBufferBatch._ARROW_DATATYPE)
+
+
+@dataclass(frozen=True, slots=True)
+class ArrowBatch:
+    """An arrow array ready in a Rerun component's type, as a component batch (ComponentBatchLike): send_columns
+    takes it as it is, without the archetype's per-call conversions (most of a one-frame send's CPU)."""
+
+    descriptor: rr.ComponentDescriptor
+    array: pa.Array
+
+    def component_descriptor(self) -> rr.ComponentDescriptor:
+        return self.descriptor
+
+    def as_arrow_array(self) -> pa.Array:
+        return self.array
+
+
+def row_columns(*described: tuple[rr.ComponentDescriptor, pa.Array]) -> list[rr.ComponentColumn]:
+    """Columns of one component value per row, from (descriptor, arrow array) pairs."""
+    offsets = np.arange(len(described[0][1]) + 1, dtype=np.int32)
+    return [rr.ComponentColumn(d, ArrowBatch(d, a), offsets=offsets) for d, a in described]
+
+
+def image_columns(archetype: type, buffers: pa.ListArray, formats: pa.StructArray) -> list[rr.ComponentColumn]:
+    """An image archetype's buffer and format columns, one image per row."""
+    return row_columns((archetype.descriptor_buffer(), buffers), (archetype.descriptor_format(), formats))
+
+
+def translations(xy: np.ndarray) -> pa.FixedSizeListArray:
+    """(N, 2) translations in the image plane as Rerun's Translation3D arrow type (z = 0)."""
+    xyz = np.zeros((len(xy), 3), np.float32)
+    xyz[:, :2] = xy
+    return pa.FixedSizeListArray.from_arrays(pa.array(xyz.reshape(-1)), type=Translation3DBatch._ARROW_DATATYPE)
 
 
 def image_formats(template: pa.StructArray, heights: np.ndarray, widths: np.ndarray) -> pa.StructArray:
@@ -298,9 +331,9 @@ class RerunLogger:
         rows = range(len(b.frames))
         for path, image in self._images.items():
             frames = b.images[path][: len(rows)]
-            self._send(path, b, rows, image.archetype.columns(
-                buffer=blobs(frames.reshape(-1), np.full(len(rows), frames[0].size)),
-                format=self._formats_of(path, len(rows))))
+            self._send(path, b, rows, image_columns(
+                image.archetype, blobs(frames.reshape(-1), np.full(len(rows), frames[0].size)),
+                self._formats_of(path, len(rows))))
         self._send_crops(b, rows)
         self._send_parts(b)
         share_ms = (time.perf_counter() - t0) * 1e3 / len(rows)
@@ -310,14 +343,18 @@ class RerunLogger:
             self._series.add(f"{bp.TIMINGS}/latency", at, scalars=[(now - b.arrival_s[i]) * 1e3])
 
     def _send_crops(self, b: Shown, rows: Sequence[int]) -> None:
-        """The feature maps' crops of the batch, each with the translation that puts it back in the image."""
-        corners = np.asarray(b.corners, np.float32)
-        place = rr.Transform3D.columns(translation=np.c_[corners, np.zeros(len(corners), np.float32)])
+        """The feature maps' crops of the batch, each with the translation that puts it back in the image (one
+        box per frame: every map's crops have the same shapes, formats and translations)."""
+        if not b.crops:
+            return
+        shapes = np.array([c.shape for c in next(iter(b.crops.values()))])
+        formats = image_formats(self._formats[next(iter(b.crops))], shapes[:, 0], shapes[:, 1])
+        place = (rr.Transform3D.descriptor_translation(), translations(np.asarray(b.corners, np.float32)))
+        archetype = self._crop.archetype
         for path, crops in b.crops.items():
-            shapes = np.array([c.shape for c in crops])
-            self._send(path, b, rows, [*self._crop.archetype.columns(
-                buffer=blobs(np.concatenate([c.reshape(-1) for c in crops]), shapes.prod(axis=1)),
-                format=image_formats(self._formats[path], shapes[:, 0], shapes[:, 1])), *place])
+            buffers = blobs(np.concatenate([c.reshape(-1) for c in crops]), shapes.prod(axis=1))
+            self._send(path, b, rows, row_columns((archetype.descriptor_buffer(), buffers),
+                                                  (archetype.descriptor_format(), formats), place))
 
     def _formats_of(self, path: str, frames: int) -> pa.Array:
         """The entity's one image format, once per frame of a batch of `frames` (built once per length)."""
@@ -339,6 +376,6 @@ class RerunLogger:
             columns = {name: np.concatenate([np.asarray(c[name]) for c in components]) for name in components[0]}
             self._send(path, b, at, PARTS[path][0].columns(**columns).partition(lengths))
 
-    def _send(self, path: str, b: Batch, rows: Sequence[int], columns: rr.ComponentColumnList) -> None:
+    def _send(self, path: str, b: Batch, rows: Sequence[int], columns: Iterable[rr.ComponentColumn]) -> None:
         """send_columns of `columns` at the batch's frames `rows`, on both timelines."""
         self.rec.send_columns(path, indexes=b.time_columns(rows), columns=columns)
