@@ -1,20 +1,19 @@
 """Logs FrameResults to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
 
-Per frame (~0.2 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right;
+Per frame (~0.3 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right;
 the camera's radial range is it over each ray's z), amplitude (uint16), mask, four feature maps cropped to the
-foreground's bounding box with the translation that puts them back in place (they are 0 outside it, which Rerun
-does not draw, so no pixel on screen changes and ~90 % of their bytes stay home), the foreground cloud (~3000
-points), the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of TRACK_BOX_M
-about its pixel, labelled with its confidence, and its 3-D point) and the track's confidence, one scalar per
-stage timing.
+foreground's bounding box (they are 0 outside it; the box is ~10 % of the frame) with the translation that puts
+the crop where it lies in the image, the foreground cloud (~3000 points), the detected nose in 2-D and 3-D,
+beside it the confirmed nose track (a box of TRACK_BOX_M about its pixel, labelled with its confidence, and its
+3-D point) and the track's confidence, one scalar per stage timing.
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
 
 Everything per frame goes out as columns (Rerun's send_columns), `batch_frames` frames per send: a log call
 costs about four times the CPU of its share of a batched send, and on two cores that CPU is the feature
 workers'. Lossless runs and files batch (frames_per_send); live runs to a viewer send what the views show each
 frame at once, so the viewer is never behind, and the time series SERIES_FRAMES at once (a plot can lag).
-A missing nose or track is a row with no points (nothing drawn); styles that never change (colour maps,
-metres, radii, colours) are logged once, static.
+Images go out as ready arrow columns (ArrowBatch). A missing nose or track is a row with no points (nothing
+drawn); styles that never change (colour maps, metres, radii, colours) are logged once, static.
 """
 
 from __future__ import annotations
