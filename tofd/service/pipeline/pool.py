@@ -129,12 +129,13 @@ class WorkerPool:
         for obj in ready:  # after its results: _died hands over what it still finished
             if obj in sentinels:
                 self._died(sentinels[obj], "worker_died", on_result, on_lost, restart)
-        for w in self.workers:
-            if w.process is not None and w.inflight and w.oldest_task_age_s() > self.timeout_s:
-                log.warning("feature worker %d held a frame for more than %.1f s; killing it", w.index,
-                            self.timeout_s)
-                w.kill()
-                self._died(w, "worker_timeout", on_result, on_lost, restart)
+        with self.lock:  # the dispatcher adds to `inflight` meanwhile
+            overdue = [w for w in self.workers
+                       if w.process is not None and w.inflight and w.oldest_task_age_s() > self.timeout_s]
+        for w in overdue:
+            log.warning("feature worker %d held a frame for more than %.1f s; killing it", w.index, self.timeout_s)
+            w.kill()
+            self._died(w, "worker_timeout", on_result, on_lost, restart)
 
     def _receive(self, worker: WorkerHandle, on_result: OnResult) -> None:
         try:

@@ -109,6 +109,7 @@ class WorkerHandle:
         return json.loads(self.results.recv_bytes())
 
     def oldest_task_age_s(self) -> float:
+        """Seconds the oldest frame it holds has been with it (the caller holds the pool's lock)."""
         return max((time.monotonic() - t for _, t in self.inflight.values()), default=0.0)
 
     def kill(self) -> None:
