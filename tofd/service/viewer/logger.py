@@ -117,10 +117,30 @@ class ArrowBatch:
         return self.array
 
 
-def row_columns(*described: tuple[rr.ComponentDescriptor, pa.Array]) -> list[rr.ComponentColumn]:
-    """Columns of one component value per row, from (descriptor, arrow array) pairs."""
-    offsets = np.arange(len(described[0][1]) + 1, dtype=np.int32)
+def row_columns(*described: tuple[rr.ComponentDescriptor, pa.Array], offsets: np.ndarray | None = None
+                ) -> list[rr.ComponentColumn]:
+    """Columns from (descriptor, arrow array) pairs: row i holds values offsets[i]:offsets[i + 1] (int32; None:
+    one value per row)."""
+    if offsets is None:
+        offsets = np.arange(len(described[0][1]) + 1, dtype=np.int32)
     return [rr.ComponentColumn(d, ArrowBatch(d, a), offsets=offsets) for d, a in described]
+
+
+@cache
+def component_type(archetype: type, name: str) -> tuple[rr.ComponentDescriptor, pa.DataType]:
+    """The descriptor and arrow type of an archetype's component (`name` as in its columns() arguments)."""
+    descriptor = getattr(archetype, f"descriptor_{name}")()
+    batch = getattr(rr.components, descriptor.component_type.rsplit(".", 1)[-1] + "Batch")
+    return descriptor, batch._ARROW_DATATYPE
+
+
+def component_array(datatype: pa.DataType, values: np.ndarray | list) -> pa.Array:
+    """Values in a Rerun component's arrow type: fixed-size lists (points, sizes) from (N, k) numbers, else as
+    they are (colours, scalars, labels)."""
+    if pa.types.is_fixed_size_list(datatype):
+        flat = np.ascontiguousarray(values, np.float32).reshape(-1)
+        return pa.FixedSizeListArray.from_arrays(pa.array(flat, type=datatype.value_type), type=datatype)
+    return pa.array(values, type=datatype)
 
 
 def image_columns(archetype: type, buffers: pa.ListArray, formats: pa.StructArray) -> list[rr.ComponentColumn]:
@@ -371,9 +391,14 @@ class RerunLogger:
         """send_columns of each PARTS entity of the batch, partitioned by frame."""
         for path, entries in b.parts.items():
             at, components = zip(*entries, strict=True)
-            lengths = [len(next(iter(c.values()))) for c in components]
-            columns = {name: np.concatenate([np.asarray(c[name]) for c in components]) for name in components[0]}
-            self._send(path, b, at, PARTS[path][0].columns(**columns).partition(lengths))
+            offsets = np.zeros(len(components) + 1, np.int32)
+            np.cumsum([len(next(iter(c.values()))) for c in components], out=offsets[1:])
+            described = []
+            for name in components[0]:
+                descriptor, datatype = component_type(PARTS[path][0], name)
+                values = np.concatenate([np.asarray(c[name]) for c in components])
+                described.append((descriptor, component_array(datatype, values)))
+            self._send(path, b, at, row_columns(*described, offsets=offsets))
 
     def _send(self, path: str, b: Batch, rows: Sequence[int], columns: Iterable[rr.ComponentColumn]) -> None:
         """send_columns of `columns` at the batch's frames `rows`, on both timelines."""
