@@ -26,7 +26,7 @@ from functools import cache
 import numpy as np
 import pyarrow as pa
 import rerun as rr
-from rerun.components import ImageBufferBatch, ImageFormat, ImageFormatBatch, Translation3DBatch
+from rerun.components import ImageBufferBatch, ImageFormat, ImageFormatBatch
 
 from drivers.intrinsics import Intrinsics
 from tofd.config import RerunConfig
@@ -143,16 +143,10 @@ def component_array(datatype: pa.DataType, values: np.ndarray | list) -> pa.Arra
     return pa.array(values, type=datatype)
 
 
-def image_columns(archetype: type, buffers: pa.ListArray, formats: pa.StructArray) -> list[rr.ComponentColumn]:
-    """An image archetype's buffer and format columns, one image per row."""
-    return row_columns((archetype.descriptor_buffer(), buffers), (archetype.descriptor_format(), formats))
-
-
-def translations(xy: np.ndarray) -> pa.FixedSizeListArray:
-    """(N, 2) translations in the image plane as Rerun's Translation3D arrow type (z = 0)."""
-    xyz = np.zeros((len(xy), 3), np.float32)
-    xyz[:, :2] = xy
-    return pa.FixedSizeListArray.from_arrays(pa.array(xyz.reshape(-1)), type=Translation3DBatch._ARROW_DATATYPE)
+def image_columns(archetype: type, buffers: pa.ListArray, formats: pa.StructArray,
+                  *more: tuple[rr.ComponentDescriptor, pa.Array]) -> list[rr.ComponentColumn]:
+    """An image archetype's buffer and format columns (and `more`), one image per row."""
+    return row_columns((archetype.descriptor_buffer(), buffers), (archetype.descriptor_format(), formats), *more)
 
 
 def image_formats(template: pa.StructArray, heights: np.ndarray, widths: np.ndarray) -> pa.StructArray:
@@ -368,12 +362,11 @@ class RerunLogger:
             return
         shapes = np.array([c.shape for c in next(iter(b.crops.values()))])
         formats = image_formats(self._formats[next(iter(b.crops))], shapes[:, 0], shapes[:, 1])
-        place = (rr.Transform3D.descriptor_translation(), translations(np.asarray(b.corners, np.float32)))
-        archetype = self._crop.archetype
+        descriptor, datatype = component_type(rr.Transform3D, "translation")
+        place = (descriptor, component_array(datatype, np.c_[b.corners, np.zeros(len(b.corners))]))  # z = 0
         for path, crops in b.crops.items():
             buffers = blobs(np.concatenate([c.reshape(-1) for c in crops]), shapes.prod(axis=1))
-            self._send(path, b, rows, row_columns((archetype.descriptor_buffer(), buffers),
-                                                  (archetype.descriptor_format(), formats), place))
+            self._send(path, b, rows, image_columns(self._crop.archetype, buffers, formats, place))
 
     def _formats_of(self, path: str, frames: int) -> pa.Array:
         """The entity's one image format, once per frame of a batch of `frames` (built once per length)."""
