@@ -74,7 +74,7 @@ def load_kernels(dtype: type[np.complexfloating]) -> None:
 def hermitian_norms(half: np.ndarray, weights: np.ndarray) -> tuple[float, float]:
     """(|f|^2, |band f|^2) over the full Hermitian spectrum of a compact half (N - 1, N/2); weights from
     norm_weights(band)."""
-    return _kernels().norms(half.view(np.finfo(half.dtype).dtype), weights, np.arange(len(half)))
+    return _kernels().norms(_as_reals(half)[0], weights, np.arange(len(half)))
 
 
 class DampedNormalEquations:
@@ -132,7 +132,7 @@ class DampedNormalEquations:
 
 
 def _as_reals(*arrays: np.ndarray) -> list[np.ndarray]:
-    """Views of complex (V, 2N, N/2) arrays as (V, 2N, N) reals (real and imaginary parts interleaved)."""
+    """Views of complex arrays as reals, the last axis doubled (real and imaginary parts interleaved)."""
     return [a.view(np.finfo(a.dtype).dtype) for a in arrays]
 
 

@@ -93,13 +93,18 @@ def foreground_box(mask: np.ndarray) -> tuple[slice, slice]:
     return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
+def offsets_of(lengths: Sequence[int] | np.ndarray) -> np.ndarray:
+    """(len(lengths) + 1,) int32 offsets: item i spans offsets[i]:offsets[i + 1]."""
+    offsets = np.zeros(len(lengths) + 1, np.int32)
+    np.cumsum(lengths, out=offsets[1:])
+    return offsets
+
+
 def blobs(flat: np.ndarray, sizes: np.ndarray) -> pa.ListArray:
     """Images stored back to back in the 1-D array `flat`, `sizes` elements each, as image buffers (Rerun's
     ImageBuffer arrow type) without a copy."""
-    offsets = np.zeros(len(sizes) + 1, np.int32)
-    np.cumsum(np.asarray(sizes) * flat.itemsize, out=offsets[1:])
-    return pa.ListArray.from_arrays(pa.array(offsets), pa.array(flat.view(np.uint8)),
-                                    type=ImageBufferBatch._ARROW_DATATYPE)
+    return pa.ListArray.from_arrays(pa.array(offsets_of(np.asarray(sizes) * flat.itemsize)),
+                                    pa.array(flat.view(np.uint8)), type=ImageBufferBatch._ARROW_DATATYPE)
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +152,13 @@ def image_columns(archetype: type, buffers: pa.ListArray, formats: pa.StructArra
                   *more: tuple[rr.ComponentDescriptor, pa.Array]) -> list[rr.ComponentColumn]:
     """An image archetype's buffer and format columns (and `more`), one image per row."""
     return row_columns((archetype.descriptor_buffer(), buffers), (archetype.descriptor_format(), formats), *more)
+
+
+def image_format(image: ImageEntity, height: int, width: int) -> pa.StructArray:
+    """The one-row image format (Rerun's ImageFormat arrow type) of an `image` entity's (height, width) images."""
+    return ImageFormatBatch([ImageFormat(width=width, height=height, color_model=image.color_model,
+                                         channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(image.dtype)))
+                             ]).as_arrow_array()
 
 
 def image_formats(template: pa.StructArray, heights: np.ndarray, widths: np.ndarray) -> pa.StructArray:
@@ -251,10 +263,9 @@ class RerunLogger:
                         bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8)}
         self._crop = ImageEntity(rr.DepthImage, np.float32, feature_style)  # every feature map's
         self._shape = height, width = intrinsics.shape
-        self._formats = {path: ImageFormatBatch([ImageFormat(  # as arrow, built once: Rerun's conversion is slow
-            width=width, height=height, color_model=image.color_model,
-            channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(image.dtype)))]).as_arrow_array()
-            for path, image in {**self._images, **dict.fromkeys(bp.FEATURES.values(), self._crop)}.items()}
+        # as arrow, built once: Rerun's conversion is slow
+        self._formats = {path: image_format(image, height, width) for path, image in self._images.items()}
+        self._crop_format = image_format(self._crop, height, width)  # the crops' template (their sizes vary)
         self._format_columns: dict[tuple[str, int], pa.Array] = {}
         self._shown, self._series = self._new_shown(), Batch()
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
@@ -361,7 +372,7 @@ class RerunLogger:
         if not b.crops:
             return
         shapes = np.array([c.shape for c in next(iter(b.crops.values()))])
-        formats = image_formats(self._formats[next(iter(b.crops))], shapes[:, 0], shapes[:, 1])
+        formats = image_formats(self._crop_format, shapes[:, 0], shapes[:, 1])
         descriptor, datatype = component_type(rr.Transform3D, "translation")
         place = (descriptor, component_array(datatype, np.c_[b.corners, np.zeros(len(b.corners))]))  # z = 0
         for path, crops in b.crops.items():
@@ -384,8 +395,7 @@ class RerunLogger:
         """send_columns of each PARTS entity of the batch, partitioned by frame."""
         for path, entries in b.parts.items():
             at, components = zip(*entries, strict=True)
-            offsets = np.zeros(len(components) + 1, np.int32)
-            np.cumsum([len(next(iter(c.values()))) for c in components], out=offsets[1:])
+            offsets = offsets_of([len(next(iter(c.values()))) for c in components])
             described = []
             for name in components[0]:
                 descriptor, datatype = component_type(PARTS[path][0], name)
