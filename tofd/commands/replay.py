@@ -178,15 +178,17 @@ def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Con
     except ValueError as exc:
         print(f"tofd replay: {exc}", file=sys.stderr)
         return 2
-    problems, notes = compare(golden, rows)
-    notes += [f"the golden file was made with {k} {v[:12]}, this run has {doc['digests'][k][:12]}"
-              for k, v in golden.get("digests", {}).items() if k != "run" and v != doc["digests"].get(k)]
+    report = compare(golden, rows)
+    notes = list(report.notes) + [
+        f"the golden file was made with {k} {v[:12]}, this run has {doc['digests'][k][:12]}"
+        for k, v in golden.get("digests", {}).items() if k != "run" and v != doc["digests"].get(k)]
     for line in notes:
         print(f"tofd replay: check: {line}", file=sys.stderr)
-    if problems:
+    if report.problems:
         print(f"tofd replay: check FAILED against {args.check}:", file=sys.stderr)
-        for line in problems:
+        for line in report.problems:
             print(f"  {line}", file=sys.stderr)
         return 1
-    print(f"tofd replay: check passed against {args.check} ({len(rows)} frames)", file=sys.stderr)
+    print(f"tofd replay: check passed against {args.check} ({report.frames_compared} frames within tolerance"
+          f"{', bit-identical' if report.bit_identical else ''})", file=sys.stderr)
     return 0
