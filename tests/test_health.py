@@ -12,6 +12,7 @@ from pipeline_sources import RenderedSource
 from tofd.config import Config, config_digest
 from tofd.service.health import HealthServer, ServiceMetrics, notify_status, sd_notify, watchdog_interval_s
 from tofd.service.pipeline import Pipeline
+from tofd.service.pipeline.monitor import PipelineSnapshot
 
 
 def get(url):
@@ -85,8 +86,11 @@ def test_sd_notify_reaches_a_unix_datagram_socket(tmp_path, monkeypatch):
         monkeypatch.setenv("NOTIFY_SOCKET", str(path))
         assert sd_notify("READY=1")
         assert sock.recv(100) == b"READY=1"
-        snap = {"fps": 29.96, "frames_out": 120, "frames_dropped": 5,
-                "drops": {("dispatch", "superseded"): 4, ("sink", "superseded"): 0, ("capture", "invalid"): 1}}
+        snap = PipelineSnapshot(
+            frames_in=125, frames_out=120, frames_dropped=5,
+            drops={("dispatch", "superseded"): 4, ("sink", "superseded"): 0, ("capture", "invalid"): 1},
+            viewer_drops={}, gaps=0, fps=29.96, timings_ms={}, queue_depth={}, workers_alive=2, worker_restarts=0,
+            device_events={}, last_delivery_age_s=0.1, error=None, track=None)
         assert notify_status(snap)
         assert sock.recv(200) == b"STATUS=30.0 fps, 120 frames delivered, 5 dropped (invalid 1, superseded 4)"
     monkeypatch.delenv("NOTIFY_SOCKET")

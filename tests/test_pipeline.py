@@ -28,7 +28,7 @@ def test_ledger_counts_every_frame_once():
         ledger.admit(seq, 100 + seq)
     ledger.deliver(0)
     ledger.drop(1, "features", "worker_died")
-    ledger.advance(2, "viewer")
+    ledger.advance(2, "sink")
     assert ledger.consistent() and ledger.pending == 3
     with pytest.raises(RuntimeError, match="not in flight"):
         ledger.deliver(1)
@@ -40,7 +40,7 @@ def test_ledger_counts_every_frame_once():
     s = ledger.summary()
     assert (s["frames_in"], s["frames_out"], s["frames_dropped"], s["consistent"]) == (5, 1, 4, True)
     assert {(d["frame_counter"], d["stage"], d["reason"]) for d in s["drops"]} == {
-        (101, "features", "worker_died"), (102, "viewer", "shutdown"), (103, "capture", "shutdown"),
+        (101, "features", "worker_died"), (102, "sink", "shutdown"), (103, "capture", "shutdown"),
         (104, "capture", "shutdown")}
 
 
@@ -122,6 +122,29 @@ def test_lossless_delivers_every_frame_in_order_with_the_in_process_features():
         assert r.mask.sum() > 300  # a face, not an empty frame
     assert {"capture", "queue", "segmentation", "fft", "nfft", "latency"} <= set(sink.results[0].timings_ms)
     assert not pipeline.running
+
+
+class FailingWriter:
+    """A results writer whose write of one frame counter fails (a full disk, say)."""
+
+    def __init__(self, bad_counter: int):
+        self.bad_counter, self.written = bad_counter, []
+
+    def __call__(self, result) -> None:
+        if result.frame.frame_counter == self.bad_counter:
+            raise OSError(28, "No space left on device")
+        self.written.append(result.frame.frame_counter)
+
+
+def test_a_failing_writer_is_ledgered_as_the_sink_stage_naming_the_writer():
+    writer = FailingWriter(2)
+    _, summary, _ = run_pipeline(RenderedSource(5, n_distinct=2), "lossless", sink=writer)
+    assert writer.written == [0, 1, 3, 4]
+    assert summary["consistent"] and summary["frames_out"] == 4 and summary["dropped_by_stage"] == {"sink": 1}
+    (drop,) = summary["drops"]
+    assert drop["frame_counter"] == 2 and drop["stage"] == "sink"
+    assert str(drop["reason"]).startswith("writer_error: OSError")
+    assert summary["viewer_dropped"] == 0  # the viewer is not what failed
 
 
 @pytest.mark.parametrize("kept", [(), ("range_nfft_eps0", "amp_nfft_eps0")])
@@ -214,7 +237,7 @@ def test_a_stopped_worker_does_not_hold_back_live_output():
         os.kill(victim.pid, signal.SIGSTOP)
         stopped.append((victim.pid, set(victim.inflight), len(sink.results)))
         try:
-            ok = wait_for(lambda: (backlog.append(pipeline.snapshot()["queue_depth"].get("reorder", 0)) or
+            ok = wait_for(lambda: (backlog.append(pipeline.snapshot().queue_depth.get("reorder", 0)) or
                                    len(sink.results) >= stopped[0][2] + 30), 120, poll_s=0.05)
             assert ok, "live output stopped with the worker"
         finally:

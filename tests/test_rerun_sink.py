@@ -21,7 +21,8 @@ def test_saved_rrd_holds_every_frame(tmp_path, batch_frames):
     path = tmp_path / "run.rrd"
     target = RerunTarget(cfg.rerun, "save", cfg.intrinsics.shape, path=str(path))
     kept = {}
-    pipeline = Pipeline(cfg, "lossless", viewer=RerunLogger(target.rec, cfg.intrinsics, batch_frames=batch_frames),
+    logger = RerunLogger(target.rec, cfg.intrinsics, batch_frames=batch_frames)
+    pipeline = Pipeline(cfg, "lossless", inline_viewer=logger,
                         writers=(lambda r: kept.__setitem__(r.frame.frame_counter, r),))
     source = RenderedSource(20, skip_counters=(7,), n_distinct=3)
     pipeline.start(source)
@@ -156,7 +157,7 @@ def test_saved_rrd_is_batched_and_the_viewer_sends_no_usage_data(tmp_path, monke
     target = RerunTarget(cfg.rerun, "save", cfg.intrinsics.shape, path=str(path))
     assert os.environ.get("CI") == "1"
     logger = RerunLogger(target.rec, cfg.intrinsics, batch_frames=frames_per_send(cfg.rerun, "lossless"))
-    pipeline = Pipeline(cfg, "lossless", viewer=logger)
+    pipeline = Pipeline(cfg, "lossless", inline_viewer=logger)
     pipeline.start(RenderedSource(60, n_distinct=3))
     assert pipeline.wait(120)
     pipeline.close()

@@ -25,7 +25,7 @@ from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline
 from tofd.service.pipeline.results import FrameResult, result_record, track_from, track_px
 from tofd.service.pipeline.slots import SlotRing
-from tofd.service.pipeline.stats import TrackStats
+from tofd.service.pipeline.stats import TrackSnapshot, TrackStats
 from tofd.service.viewer import RerunLogger, RerunTarget, wire
 from tofd.service.viewer import blueprint as bp
 
@@ -59,19 +59,19 @@ def tracked_results(detections: list[Detection]) -> list[FrameResult]:
 def test_track_counts_acquisition_replacement_and_loss():
     cfg = TrackerConfig(report_coast_s=2.5 * DT)
     tracker, stats = NoseTracker(cfg), TrackStats()
-    assert stats.snapshot() == {"status": "none", "confidence": 0.0, "detected_frames": 0, "tracked_frames": 0,
-                                "acquired": 0, "lost": 0}
+    assert stats.snapshot() == TrackSnapshot(status="none", confidence=0.0, detected_frames=0, tracked_frames=0,
+                                             acquired=0, lost=0)
     t = 0.0
     script = [hit(0.0)] * 6 + [hit(0.10)] * cfg.confirm_hits + [MISS] * 20 + [hit(-0.05)] * 4
     for d in script:  # confirmed at 0, replaced by a challenger at 10 cm, lost while missing, confirmed again
         stats.record(d, tracker.update(d, t))
         t += DT
     snap = stats.snapshot()
-    assert snap["acquired"] == 3 and snap["lost"] == 1
-    assert snap["detected_frames"] == 6 + cfg.confirm_hits + 4
-    assert snap["status"] == "tracking" and 0.5 < snap["confidence"] < 1.0
+    assert snap.acquired == 3 and snap.lost == 1
+    assert snap.detected_frames == 6 + cfg.confirm_hits + 4
+    assert snap.status == "tracking" and 0.5 < snap.confidence < 1.0
     # 2 misses reported (report_coast_s), then the track coasts unreported until lost: one loss, not one per coast
-    assert snap["tracked_frames"] == (6 - 2) + cfg.confirm_hits + 2 + (4 - 2)
+    assert snap.tracked_frames == (6 - 2) + cfg.confirm_hits + 2 + (4 - 2)
 
 
 def test_a_loss_is_counted_when_a_new_track_starts_in_the_same_frame():
@@ -84,7 +84,7 @@ def test_a_loss_is_counted_when_a_new_track_starts_in_the_same_frame():
         states.append(tracker.update(d, k * DT))
         stats.record(d, states[-1])
     assert states[-2].status == "coasting" and states[-1].status == "tentative" and states[-1].reacquired
-    assert stats.snapshot()["lost"] == 1 and stats.snapshot()["acquired"] == 1
+    assert stats.snapshot().lost == 1 and stats.snapshot().acquired == 1
 
 
 def test_results_record_reports_the_track_beside_the_detection():
@@ -185,4 +185,4 @@ def test_metrics_without_a_model_have_no_track():
         text = ServiceMetrics(pipeline.snapshot).render().decode()
     finally:
         pipeline.close()
-    assert "tofd_track" not in text and pipeline.snapshot()["track"] is None
+    assert "tofd_track" not in text and pipeline.snapshot().track is None

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import re
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -225,6 +227,17 @@ def test_no_device_and_access_denied_messages():
         UsbCamera(backend=backend)
     (listing,) = list_devices(backend)
     assert listing.serial is None and "udev rule" in listing.error
+
+
+def test_access_denied_hint_names_the_shipped_udev_rule():
+    """The file the hint tells the user to `sudo cp` exists and is the camera's rule."""
+    with pytest.raises(AccessDenied) as denied:
+        UsbCamera(backend=EmulatorBackend(EmulatedSR3000(access_denied=True)))
+    copied = re.search(r"sudo cp (\S+) /etc/udev/rules.d/", str(denied.value))
+    assert copied is not None, str(denied.value)
+    rule = Path(copied.group(1))
+    assert rule.is_file() and rule.name == "70-tofd-sr3000.rules"
+    assert 'ATTRS{idVendor}=="0852", ATTRS{idProduct}=="0074"' in rule.read_text()
 
 
 def test_bad_arguments_name_themselves():

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import tofd
 import tofd.commands
-from tofd.errors import UsageError
+from tofd.errors import ConfigError, UsageError
+from tofd.extras import install_hint, missing_extra
 from tofd.logs import LEVELS, setup_logging
 
 DESCRIPTION = """\
@@ -83,7 +84,16 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
     to a second), so that SIGTERM ends the service within pipeline.shutdown_timeout_s."""
     argv = sys.argv[1:] if argv is None else argv
     commands = _command_modules()
-    args = build_parser(_named_command(argv, commands), commands).parse_args(argv)
+    named = _named_command(argv, commands)
+    try:
+        parser = build_parser(named, commands)
+    except ImportError as exc:  # the command's module needs an extra that is not installed
+        extra = missing_extra(exc)
+        if extra is None:
+            raise
+        print(f"tofd {' '.join(named)}: {install_hint(extra)}", file=sys.stderr)
+        return 2
+    args = parser.parse_args(argv)
     setup_logging("debug" if args.verbose else args.log_level)
     code = _run(args)
     if exit_at_once and getattr(args, "exit_at_once", False):
@@ -102,14 +112,20 @@ def entry() -> typing.NoReturn:
 def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
+    except ConfigError as exc:
+        print(f"tofd {args.command}: config error: {exc}", file=sys.stderr)
+        return 2
     except UsageError as exc:
-        kind = "config error: " if type(exc).__name__ == "ConfigError" else ""
-        print(f"tofd {args.command}: {kind}{exc}", file=sys.stderr)
+        print(f"tofd {args.command}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"tofd {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 (an unexpected failure: one line, the traceback only with -v)
+        extra = missing_extra(exc) if isinstance(exc, ImportError) else None
+        if extra is not None:  # a module of an extra that is not installed, imported as the command ran
+            print(f"tofd {args.command}: {install_hint(extra)}", file=sys.stderr)
+            return 2
         logging.getLogger("tofd").debug("unexpected error", exc_info=True)
         print(f"tofd {args.command}: error: {type(exc).__name__}: {exc} (run with -v for the traceback)",
               file=sys.stderr)

@@ -17,7 +17,7 @@ from pathlib import Path
 from drivers.frame import DEFAULT_REGISTER_VALUES
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
-from tofd.errors import UsageError
+from tofd.errors import ConfigError
 
 
 def default_file(name: str) -> Path:
@@ -34,10 +34,6 @@ MAX_CONFIG_BYTES = 1 << 20  # a config file is a few kB; anything larger is not 
 
 RERUN_SINKS = ("none", "save", "web", "connect", "spawn")
 """Where the Rerun stream can go: nowhere, an .rrd file, a served web viewer, a running viewer, a desktop viewer."""
-
-
-class ConfigError(UsageError):
-    """A config file that cannot be used; the message names the offending key."""
 
 
 def check_serial(serial: str) -> str:
@@ -163,7 +159,7 @@ class Config:
 def _convert(value: object, tp: object, key: str) -> object:
     """Check (and widen int -> float) one TOML value against a dataclass field type."""
     origin = typing.get_origin(tp)
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise ConfigError(f"{key}: expected a table, got {type(value).__name__}")
         return _build(tp, value, key)

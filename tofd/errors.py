@@ -1,4 +1,4 @@
-"""The exception a command turns into one line on stderr and exit status 2 (a usage or data mistake)."""
+"""The exceptions a command turns into one line on stderr and exit status 2 (a usage, config or data mistake)."""
 
 from __future__ import annotations
 
@@ -8,3 +8,8 @@ class UsageError(ValueError):
 
     `tofd` prints `tofd: <message>` and exits 2; the message names the argument or file and the problem.
     """
+
+
+class ConfigError(UsageError):
+    """A config file that cannot be used; the message names the offending key. `tofd` prints
+    `tofd <command>: config error: <message>`."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import errno
 from dataclasses import dataclass, field
 from types import SimpleNamespace
+from typing import Any
 
 import usb.backend
 
@@ -162,7 +163,7 @@ class EmulatorBackend(usb.backend.IBackend):
 class EmulatedCamera(UsbCamera):
     """A UsbCamera reading an emulated device through pyusb; `emulator` is the device (inject faults there)."""
 
-    def __init__(self, emulator: EmulatedSR3000, **camera_kwargs: object) -> None:
+    def __init__(self, emulator: EmulatedSR3000, **camera_kwargs: Any) -> None:
         self.emulator = emulator
         self.usb_backend = EmulatorBackend(emulator)
         camera_kwargs.setdefault("serial", emulator.serial_str)

@@ -245,4 +245,5 @@ def render_face(
     row, col = int(round(v)), int(round(u))
     inside = 0 <= row < intrinsics.height and 0 <= col < intrinsics.width
     visible = bool(inside and face_mask[row, col] and abs(face_range[row, col] - np.linalg.norm(nose)) < 0.01)
-    return Rendering(range_out, amplitude, face_mask, (float(u), float(v)), tuple(map(float, nose)), visible)
+    nose_xyz_m = (float(nose[0]), float(nose[1]), float(nose[2]))
+    return Rendering(range_out, amplitude, face_mask, (float(u), float(v)), nose_xyz_m, visible)

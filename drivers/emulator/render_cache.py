@@ -56,7 +56,8 @@ def load(key: str, n_poses: int) -> dict[int, Pose] | None:
         return None
     return {i: (ranges[i].astype(np.float32, copy=False), amplitudes[i].astype("<u2", copy=False),
                 GroundTruth(nose_px=(float(nose_px[i, 0]), float(nose_px[i, 1])), visible=bool(visible[i]),
-                            nose_xyz_m=None if np.isnan(nose_xyz[i]).any() else tuple(map(float, nose_xyz[i]))))
+                            nose_xyz_m=None if np.isnan(nose_xyz[i]).any() else
+                            (float(nose_xyz[i, 0]), float(nose_xyz[i, 1]), float(nose_xyz[i, 2]))))
             for i in range(n_poses)}
 
 
@@ -77,7 +78,7 @@ def store(key: str, poses: Mapping[int, Pose]) -> None:
         fd, tmp = tempfile.mkstemp(prefix=".scene-", suffix=".npz.tmp", dir=directory)
         try:
             with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **arrays)
+                np.savez(fh, allow_pickle=False, **arrays)
             os.replace(tmp, directory / f"scene-{key}.npz")
         except BaseException:
             os.unlink(tmp)

@@ -244,11 +244,14 @@ class UsbCamera(FrameSource):
         try:
             header = p.check_frame(data)
         except p.PartialFrame:
-            return self._discard("partial_frame")
+            self._discard("partial_frame")
+            return None
         except p.CrcError:
-            return self._discard("crc_error")
+            self._discard("crc_error")
+            return None
         except p.BadHeader:
-            return self._discard("bad_header")
+            self._discard("bad_header")
+            return None
         if not self._tally.good_frame(header):
             self.counters["counter_reset"] += 1
             self._dropped_before += self._tally.total
@@ -270,7 +273,6 @@ class UsbCamera(FrameSource):
     def _discard(self, kind: str) -> None:
         self.counters[kind] += 1
         self._tally.discarded += 1
-        return None
 
     def _frame_registers(self, header: p.FrameHeader) -> Registers:
         """The Registers a frame was taken with, from its header (one object per distinct setting)."""

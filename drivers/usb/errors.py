@@ -11,7 +11,11 @@ import usb.core
 
 from drivers.source import DriverError
 
-UDEV_RULE = Path(__file__).resolve().parent.parent / "config" / "70-tofd-sr3000.rules"
+UDEV_RULE_NAME = "70-tofd-sr3000.rules"
+_ROOT = Path(__file__).resolve().parent.parent.parent  # holds the package drivers/ (a checkout or site-packages)
+UDEV_RULE = next((path for path in (_ROOT / "config" / UDEV_RULE_NAME, _ROOT / "tofd" / "defaults" / UDEV_RULE_NAME)
+                  if path.is_file()), _ROOT / "config" / UDEV_RULE_NAME)
+"""The udev rule shipped with tofd: config/ of a source checkout, tofd/defaults/ of an installed tofd."""
 
 LIBUSB_ERRORS = {  # errno -> (libusb-1.0 code, message), as pyusb's libusb1 backend raises them
     errno.EIO: (-1, "Input/output error"),

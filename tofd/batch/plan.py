@@ -95,7 +95,12 @@ def expand_inputs(items: list[str]) -> list[InputPlan]:
         found.extend(InputPlan(fs.unstrip_protocol(p) if fs.protocol not in ("file", ("file", "local")) else p)
                      for p in paths)
     seen: set[str] = set()
-    return [p for p in found if p.error or not (p.url in seen or seen.add(p.url))]
+    kept = []
+    for p in found:
+        if p.error or p.url not in seen:
+            kept.append(p)
+            seen.add(p.url)
+    return kept
 
 
 def _name(url: str, taken: set[str]) -> str:
@@ -167,7 +172,9 @@ def _plan_recording(inp: InputPlan, out: str, run_digest: str, partition_frames:
         if "://" in inp.url:
             inp.error = "recording has no index (its writer did not finish); copy it locally to read it whole"
             return
-        inp.indexed, bounds, offsets, channels = False, [(0, 0)], (), ()
+        inp.indexed, bounds = False, [(0, 0)]
+        offsets: tuple[int, ...] = ()
+        channels: tuple[tuple[int, str], ...] = ()
     else:
         input_digest = index.digest
         inp.frames = index.chunk_count

@@ -62,9 +62,11 @@ def frame_row(r: FrameResult) -> dict:
     for name in MAP_NAMES:
         m = r.features.get(name)  # absent: a family the run did not compute
         finite = np.isfinite(m) if m is not None else None
-        computed = finite is not None and bool(finite.any())
-        row[f"digest_{name}"] = array_digest(m) if computed else None
-        row[f"mean_{name}"] = float(np.mean(m[finite], dtype=np.float64)) if computed else None
+        if m is None or finite is None or not finite.any():
+            row[f"digest_{name}"] = row[f"mean_{name}"] = None
+        else:
+            row[f"digest_{name}"] = array_digest(m)
+            row[f"mean_{name}"] = float(np.mean(m[finite], dtype=np.float64))
     for stage in TIMED:
         row[f"t_{stage}_ms"] = timings.get(stage)
     return row

@@ -240,8 +240,9 @@ def prepare(items: list[str], out: str, cfg: Config, partition_frames: int,
     if partition_frames < 1:
         raise ValueError(f"partition size: expected >= 1 frames, got {partition_frames}")
     model = load_service_model(cfg)
-    job = {"config": config_table(cfg), "model": None if model is None else model.to_dict(), "evaluation": evaluation}
-    digests = run_digests(job["config"], job["model"], evaluation)
+    table, model_dict = config_table(cfg), None if model is None else model.to_dict()
+    job = {"config": table, "model": model_dict, "evaluation": evaluation}
+    digests = run_digests(table, model_dict, evaluation)
     inputs = expand_inputs(items)
     plan_inputs(inputs, out, digests["run"], partition_frames)
     return inputs, job, digests

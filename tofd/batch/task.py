@@ -156,11 +156,12 @@ def run_partition(part_json: str, job_json: str) -> dict:
     model = None if job["model"] is None else NoseModel.from_dict(job["model"])
     stats: dict = {"output": part.output, "frames_in": 0, "frames_out": 0, "dropped": Counter(), "errors": [],
                    "setup_ms": 0.0, "read_ms": 0.0, "compute_ms": 0.0, "write_ms": 0.0, "pid": os.getpid()}
-    rows, stage, slot, stage_intrinsics, evaluation = [], None, None, None, None
+    rows: list[dict] = []
+    stage_intrinsics: Intrinsics | None = None
     for frame, read_ms in _frames(part, stats, stats["errors"]):
         stats["read_ms"] += read_ms
         t0 = time.perf_counter()
-        if stage is None or frame.intrinsics != stage_intrinsics:
+        if frame.intrinsics != stage_intrinsics:
             stage_intrinsics = frame.intrinsics  # each frame carries its camera's intrinsics (as replay uses)
             stage = FeatureStage(replace(cfg, intrinsics=stage_intrinsics), stage_intrinsics, model)
             slot = local_slot(stage_intrinsics.shape)

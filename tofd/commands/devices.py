@@ -32,10 +32,10 @@ def main(args: argparse.Namespace) -> int:
         return 1
     print(f"{'bus':>3} {'addr':>4}  {'serial':8}  {'firmware':8}  settings")
     for d in listings:
-        if d.error is not None:
+        r = d.registers
+        if d.error is not None or r is None:
             print(f"{d.bus:>3} {d.address:>4}  {'?':8}  {'?':8}  cannot query: {d.error}")
             continue
-        r = d.registers
         settings = (f"integration {r.integration_time_s * 1e3:.1f} ms (code {r.int_time_code}), "
                     f"modulation {r.mod_freq_hz / 1e6:g} MHz (index {r.mod_freq_index}), "
                     f"{'test pattern' if r.data_source == 1 else 'scene'}, acq_mode 0x{r.acq_mode:02X}")

@@ -55,12 +55,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _check_seek(path: Path, seek: int) -> None:
     """UsageError when no frame of the recording has a counter >= seek (reads until one does)."""
+    from drivers.frame import Frame
     from drivers.recording.replay import RecordingReader
     from tofd.errors import UsageError
 
     last = None
     with RecordingReader(path) as reader:
         for frame in reader.frames():
+            if not isinstance(frame, Frame):
+                continue  # a damaged stretch: seeking goes on past it
             if frame.frame_counter >= seek:
                 return
             last = frame.frame_counter
@@ -112,12 +115,13 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     from tofd.progress import Progress
     from tofd.service.daemon import parse_rerun_spec, serve
     from tofd.service.pipeline import PipelineError, ResultsWriter
+    from tofd.service.pipeline.queues import run_policy
     from tofd.service.viewer import ViewerError
 
     cfg = load_config(args.config)
     cfg = parse_rerun_spec(args.rerun or f"save:{args.out / (stem + '.rrd')}", cfg)
     cfg = replace(cfg, health=replace(cfg.health, enabled=False))
-    policy = "lossless" if cfg.pipeline.policy == "auto" else cfg.pipeline.policy
+    policy = run_policy(cfg.pipeline.policy, live_source=False)
     try:
         info = read_recording_info(recording)
         if args.seek is not None:

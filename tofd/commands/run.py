@@ -54,6 +54,7 @@ def main(args: argparse.Namespace) -> int:
     from tofd.service.camera import open_camera
     from tofd.service.daemon import parse_rerun_spec, serve
     from tofd.service.pipeline import PipelineError
+    from tofd.service.pipeline.queues import run_policy
     from tofd.service.signals import StopSignals
     from tofd.service.viewer import ViewerError
 
@@ -64,7 +65,7 @@ def main(args: argparse.Namespace) -> int:
         cfg = replace(cfg, health=replace(cfg.health, port=args.health_port))
     if args.summary is not None:
         check_output_file(args.summary, "--summary")
-    policy = "latest" if cfg.pipeline.policy == "auto" else cfg.pipeline.policy
+    policy = run_policy(cfg.pipeline.policy, live_source=True)
     try:
         with StopSignals(_raise_stopped):
             camera = open_camera(cfg, args.emulate)

@@ -46,6 +46,7 @@ def main(args: argparse.Namespace) -> int:
                         candidates=Candidates.from_config(cfg.detector, cfg.segmentation))
     path = save_model(model, args.out)
     for name, vm in model.variants.items():
-        print(f"{name:<16} operating scale {vm.operating_scale:.3f}  training EER {100 * vm.train_eer:.1f} %")
+        eer = "-" if vm.train_eer is None else f"{100 * vm.train_eer:.1f} %"
+        print(f"{name:<16} operating scale {vm.operating_scale:.3f}  training EER {eer}")
     print(f"wrote {path}")
     return 0

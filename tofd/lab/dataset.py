@@ -219,7 +219,7 @@ def save_dataset(dataset: Dataset, path: str | Path) -> Path:
     arrays = dataset._as_dict()
     arrays["subject"] = np.asarray(arrays["subject"]).astype(str)
     with AtomicFile(path, "wb") as fh:
-        np.savez_compressed(fh.file, **arrays)
+        np.savez_compressed(fh.file, allow_pickle=False, **arrays)
     write_text(sidecar_path(path), json.dumps({"intrinsics": dataset.intrinsics.to_dict()}, indent=2) + "\n")
     return path
 
@@ -245,13 +245,13 @@ def dataset_from_frames(frames: Iterable[Frame], subject: str = "recording") -> 
     yaw and pitch are unknown (NaN).
     """
     kept = [f for f in frames if f.ground_truth is not None]
+    truths = [f.ground_truth for f in kept if f.ground_truth is not None]
     if not kept:
         raise DatasetError("recording: no frame carries ground truth (nose pixel)")
     intrinsics = kept[0].intrinsics
-    nose_px = np.array([f.ground_truth.nose_px for f in kept], dtype=np.float32)
+    nose_px = np.array([t.nose_px for t in truths], dtype=np.float32)
     rng = np.stack([f.range_m for f in kept]).astype(np.float32)
-    xyz = np.array([f.ground_truth.nose_xyz_m if f.ground_truth.nose_xyz_m is not None else (np.nan,) * 3
-                    for f in kept], dtype=np.float64)
+    xyz = np.array([t.nose_xyz_m if t.nose_xyz_m is not None else (np.nan,) * 3 for t in truths], dtype=np.float64)
     missing = ~np.all(np.isfinite(xyz), axis=1)
     if missing.any():
         xyz[missing] = _nose_from_range(rng[missing], nose_px[missing], intrinsics)
@@ -260,7 +260,7 @@ def dataset_from_frames(frames: Iterable[Frame], subject: str = "recording") -> 
         range_m=_valid_range(rng),
         amplitude=np.stack([f.amplitude for f in kept]).astype(np.float32),
         nose_px=nose_px,
-        nose_visible=np.array([f.ground_truth.visible for f in kept], dtype=bool),
+        nose_visible=np.array([t.visible for t in truths], dtype=bool),
         distance_m=np.linalg.norm(xyz, axis=1),
         yaw_deg=np.full(n, np.nan),
         pitch_deg=np.full(n, np.nan),

@@ -160,7 +160,8 @@ class PixelTable:
         """Per frame: the smallest of `distance` over the pixels farther than the detector's rival radius from the
         frame's best pixel (tofd.algorithm.detector.rival_distance; inf: none)."""
         out = np.full(self.n_frames, np.inf)
-        bounds = np.flatnonzero(np.r_[True, self.frame[1:] != self.frame[:-1], True]) if len(self.frame) else []
+        bounds: list[int] = (np.flatnonzero(np.r_[True, self.frame[1:] != self.frame[:-1], True]).tolist()
+                             if len(self.frame) else [])
         for start, stop in itertools.pairwise(bounds):
             d = distance[start:stop]
             out[self.frame[start]] = rival_distance(d, self.xyz[start:stop], int(np.argmin(d)))
@@ -205,7 +206,7 @@ def shape_box(box: Box, table: PixelTable, has_nose: np.ndarray) -> tuple[Box, R
     """
     deviation = np.abs(table.features - box.centre) / box.half_width  # (P, k): box distance per feature
     deviation[np.isnan(deviation)] = np.inf
-    best = None
+    best: tuple[tuple[float, float, float], np.ndarray, RocCurve] | None = None
     for tail in itertools.product(WIDTH_MULTIPLIERS, repeat=len(box.features) - 1):
         mult = np.array((1.0, *tail))
         true_min, false_min = table.min_distances(np.max(deviation / mult, axis=1))
@@ -215,6 +216,8 @@ def shape_box(box: Box, table: PixelTable, has_nose: np.ndarray) -> tuple[Box, R
         key = (round(roc.eer, 9), float(np.abs(np.log(mult)).sum()), -float(np.nan_to_num(margin, nan=0.0).mean()))
         if best is None or key < best[0]:
             best = (key, mult, roc)
+    if best is None:
+        raise ValueError("box: has no features")
     _, mult, roc = best
     return Box(box.features, box.centre, box.half_width * mult), roc
 

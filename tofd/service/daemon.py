@@ -22,10 +22,11 @@ from tofd.progress import Progress
 from tofd.service.health import HealthServer, ServiceMetrics, sd_notify
 from tofd.service.model import ModelIdentity, read_model_file, service_model
 from tofd.service.pipeline.core import Pipeline, Sink, maps_read
+from tofd.service.pipeline.ledger import LedgerSummary
 from tofd.service.pipeline.queues import Policy
 from tofd.service.shutdown import Shutdown
 from tofd.service.signals import StopSignals
-from tofd.service.summary import run_summary, write_json_atomic
+from tofd.service.summary import ModelRecord, RunSummary, run_summary, write_json_atomic
 from tofd.service.supervise import show_progress, supervise
 from tofd.service.viewer.spec import RERUN_SPEC_HELP, parse_rerun_spec
 
@@ -41,7 +42,7 @@ log = logging.getLogger(__name__)
 @dataclass(slots=True)
 class ServiceResult:
     exit_code: int
-    summary: dict  # ledger summary + final snapshot
+    summary: RunSummary
     model: NoseModel | None  # the nose model the run used (None: it ran without one)
     web_url: str | None = None
 
@@ -68,11 +69,11 @@ def _health(cfg: Config, pipeline: Pipeline, metrics: ServiceMetrics) -> HealthS
 
 
 def _close(shutdown: Shutdown, pipeline: Pipeline | None, health: HealthServer | None,
-           viewer: ViewerProcess | None) -> dict:
+           viewer: ViewerProcess | None) -> LedgerSummary | None:
     """Stop what was started, each part within its share of the shutdown budget: drain half of what is left
     (at most pipeline.drain_timeout_s), give the threads and workers a quarter of the rest before killing
-    them, then the viewer the rest before killing it; the ledger summary."""
-    summary: dict = {}
+    them, then the viewer the rest before killing it; the ledger summary (None: no pipeline was made)."""
+    summary = None
     if pipeline is not None:
         with shutdown.phase("pipeline"):
             summary = pipeline.close(min(pipeline.cfg.pipeline.drain_timeout_s, shutdown.left_s(0.5)),
@@ -97,7 +98,10 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     The results `writers` get carry the viewed feature maps while a viewer runs, every computed map with
     `writers_read_maps`, else none (the mask and detection always)."""
     pc = cfg.pipeline
-    health = pipeline = viewer = None
+    health: HealthServer | None = None
+    pipeline: Pipeline | None = None
+    viewer: ViewerProcess | None = None
+    ledger: LedgerSummary | None = None
     run_s, started_s = 0.0, time.monotonic()
     with StopSignals() as stop:  # from here a signal is a stop request, also while the children start
         try:
@@ -110,11 +114,13 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             if cfg.rerun.sink != "none":
                 viewer = ViewerProcess(cfg, cfg.rerun.sink, frames_per_send(cfg.rerun, policy),
                                        cancelled=lambda: bool(stop), footer=file_footer(policy))
-            metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
+            made: list[Pipeline] = []  # the metrics are one of the pipeline's sinks, so they come first
+            metrics = ServiceMetrics(lambda: made[0].snapshot(), identity)
             model = service_model(cfg, model_file)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe), model=model,
                                 live_source=live_source,
                                 result_maps=maps_read(viewer is not None, writers_read_maps))
+            made.append(pipeline)
             health = _health(cfg, pipeline, metrics)
             pipeline.start(source, max_frames, cancelled=lambda: bool(stop))
             started_s = time.monotonic()
@@ -129,13 +135,13 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             sd_notify("STOPPING=1")
             shutdown = Shutdown.start(stop.name or ("error" if pipeline is None or pipeline.error else "end"),
                                       pc.shutdown_timeout_s, stop.first_at_s)
-            summary = _close(shutdown, pipeline, health, viewer)
+            ledger = _close(shutdown, pipeline, health, viewer)
             viewer_report = None if viewer is None else viewer.report
+    assert pipeline is not None and ledger is not None  # else the try block raised
     snap = pipeline.snapshot()
-    summary = run_summary(summary, snap, run_s, viewer_report)
-    summary["model"] = {"path": identity["model_path"], "sha256": identity["model_sha256"]}
-    summary["config_sha256"] = identity["config_sha256"]
-    summary["shutdown"] = shutdown.report()
+    summary = run_summary(ledger, snap, run_s, viewer_report,
+                          ModelRecord(path=identity["model_path"], sha256=identity["model_sha256"]),
+                          identity["config_sha256"], shutdown.report())
     if progress is not None:
         show_progress(progress, snap)
         progress.done()

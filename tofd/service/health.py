@@ -24,9 +24,11 @@ import tofd
 from tofd.algorithm.tracking import STATUSES
 
 if TYPE_CHECKING:
+    from tofd.service.pipeline.monitor import PipelineSnapshot
     from tofd.service.pipeline.results import FrameResult
+    from tofd.service.pipeline.stats import TrackSnapshot
 
-Snapshot = Callable[[], dict]
+Snapshot = Callable[[], "PipelineSnapshot"]
 
 
 def sd_notify(message: str) -> bool:
@@ -69,66 +71,65 @@ class _SnapshotCollector:
     def collect(self) -> Iterator[Metric]:
         snap = self._snapshot()
         one = _unlabelled
-        yield one(CounterMetricFamily, "tofd_frames_in", "Frames that entered the pipeline.", snap["frames_in"])
-        yield one(CounterMetricFamily, "tofd_frames_out", "Frames delivered to every sink.", snap["frames_out"])
+        yield one(CounterMetricFamily, "tofd_frames_in", "Frames that entered the pipeline.", snap.frames_in)
+        yield one(CounterMetricFamily, "tofd_frames_out", "Frames delivered to every sink.", snap.frames_out)
         dropped = CounterMetricFamily("tofd_frames_dropped", "Frames dropped, by stage and reason.",
                                       labels=["stage", "reason"])
-        for (stage, reason), n in sorted(snap["drops"].items()):
+        for (stage, reason), n in sorted(snap.drops.items()):
             dropped.add_metric([stage, reason], float(n))
         yield dropped
         viewer = CounterMetricFamily("tofd_viewer_frames_dropped",
                                      "Delivered frames the best-effort viewer did not get, by reason.",
                                      labels=["reason"])
-        for reason, n in sorted(snap.get("viewer_drops", {}).items()):
+        for reason, n in sorted(snap.viewer_drops.items()):
             viewer.add_metric([reason], float(n))
         yield viewer
-        yield one(GaugeMetricFamily, "tofd_fps", "Delivered frames per second (last 5 s).", snap["fps"])
+        yield one(GaugeMetricFamily, "tofd_fps", "Delivered frames per second (last 5 s).", snap.fps)
         rolling = GaugeMetricFamily("tofd_stage_duration_rolling_seconds",
                                     "Per-frame stage durations over the rolling window, by quantile.",
                                     labels=["stage", "quantile"])
-        for stage, quantiles in sorted(snap["timings_ms"].items()):
+        for stage, quantiles in sorted(snap.timings_ms.items()):
             for q, v in zip(("0.5", "0.99"), quantiles, strict=True):
                 rolling.add_metric([stage, q], v / 1e3)
         yield rolling
         depth = GaugeMetricFamily("tofd_queue_depth", "Frames waiting in each queue (workers: being processed).",
                                   labels=["queue"])
-        for q, n in snap["queue_depth"].items():
+        for q, n in snap.queue_depth.items():
             depth.add_metric([q], float(n))
         yield depth
         yield one(CounterMetricFamily, "tofd_device_gaps", "Device-side gaps (counter jumps, reconnects).",
-                  snap["gaps"])
+                  snap.gaps)
         yield one(CounterMetricFamily, "tofd_reconnects", "Camera reconnects.",
-                  snap["device_events"].get("reconnect", 0))
+                  snap.device_events.get("reconnect", 0))
         events = CounterMetricFamily("tofd_device_events", "Device events counted by the driver, by kind.",
                                      labels=["kind"])
-        for kind, n in sorted(snap["device_events"].items()):
+        for kind, n in sorted(snap.device_events.items()):
             events.add_metric([kind], float(n))
         yield events
         yield one(CounterMetricFamily, "tofd_worker_restarts", "Feature worker processes restarted.",
-                  snap["worker_restarts"])
-        yield one(GaugeMetricFamily, "tofd_workers_alive", "Feature worker processes alive.", snap["workers_alive"])
-        track = snap.get("track")
-        if track is not None:
-            yield from _track_metrics(track)
+                  snap.worker_restarts)
+        yield one(GaugeMetricFamily, "tofd_workers_alive", "Feature worker processes alive.", snap.workers_alive)
+        if snap.track is not None:
+            yield from _track_metrics(snap.track)
 
 
-def _track_metrics(track: dict) -> Iterator[Metric]:
+def _track_metrics(track: TrackSnapshot) -> Iterator[Metric]:
     """The nose track beside the per-frame detection (tofd.service.pipeline.stats.TrackStats.snapshot)."""
     one = _unlabelled
     yield one(CounterMetricFamily, "tofd_nose_detected_frames", "Frames with an accepted nose detection.",
-              track["detected_frames"])
+              track.detected_frames)
     yield one(CounterMetricFamily, "tofd_nose_tracked_frames", "Frames with a reported nose track.",
-              track["tracked_frames"])
+              track.tracked_frames)
     yield one(CounterMetricFamily, "tofd_track_acquired", "Confirmed nose tracks begun (new or replacing one).",
-              track["acquired"])
+              track.acquired)
     yield one(CounterMetricFamily, "tofd_track_lost", "Confirmed nose tracks lost without a successor.",
-              track["lost"])
+              track.lost)
     yield one(GaugeMetricFamily, "tofd_track_confidence", "Confidence of the nose track after the last frame (0-1).",
-              track["confidence"])
+              track.confidence)
     status = GaugeMetricFamily("tofd_track_status", "The nose track's status after the last frame (1: current).",
                                labels=["status"])
     for name in STATUSES:
-        status.add_metric([name], float(track["status"] == name))
+        status.add_metric([name], float(track.status == name))
     yield status
 
 
@@ -158,33 +159,33 @@ class ServiceMetrics:
         return generate_latest(self.registry)
 
 
-def status_text(snap: dict) -> str:
+def status_text(snap: PipelineSnapshot) -> str:
     """A one-line STATUS= text for `systemctl status`: fps, frames delivered, drops by reason."""
     reasons: dict[str, int] = {}
-    for (_stage, reason), n in snap["drops"].items():
+    for (_stage, reason), n in snap.drops.items():
         reasons[reason] = reasons.get(reason, 0) + n
     drops = ", ".join(f"{r} {n}" for r, n in sorted(reasons.items()) if n)
-    return (f"{snap['fps']:.1f} fps, {snap['frames_out']} frames delivered, {snap['frames_dropped']} dropped"
+    return (f"{snap.fps:.1f} fps, {snap.frames_out} frames delivered, {snap.frames_dropped} dropped"
             + (f" ({drops})" if drops else ""))
 
 
-def notify_status(snap: dict) -> bool:
+def notify_status(snap: PipelineSnapshot) -> bool:
     """Send STATUS=<status_text> to systemd (no-op outside systemd)."""
     return sd_notify("STATUS=" + status_text(snap))
 
 
-def health_status(snap: dict, running: bool, stale_after_s: float) -> tuple[bool, dict]:
+def health_status(snap: PipelineSnapshot, running: bool, stale_after_s: float) -> tuple[bool, dict]:
     """(healthy, JSON-ready status) of a snapshot; see the module docstring."""
-    age = snap["last_delivery_age_s"]
+    age = snap.last_delivery_age_s
     problems = []
-    if snap["error"]:
-        problems.append(snap["error"])
+    if snap.error:
+        problems.append(snap.error)
     if not running:
         problems.append("pipeline not running")
     if age is not None and age > stale_after_s:
         problems.append(f"no frame delivered for {age:.1f} s")
     return not problems, {"status": "ok" if not problems else "unhealthy", "problems": problems,
-                          "fps": round(snap["fps"], 2), "frames_out": snap["frames_out"],
+                          "fps": round(snap.fps, 2), "frames_out": snap.frames_out,
                           "last_frame_age_s": None if age is None else round(age, 3)}
 
 

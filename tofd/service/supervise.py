@@ -9,6 +9,7 @@ import time
 from tofd.progress import Progress
 from tofd.service.health import notify_status, sd_notify, watchdog_interval_s
 from tofd.service.pipeline import Pipeline
+from tofd.service.pipeline.monitor import PipelineSnapshot
 from tofd.service.signals import StopSignals
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,6 @@ def supervise(pipeline: Pipeline, stop: StopSignals, progress: Progress | None) 
             show_progress(progress, pipeline.snapshot())
 
 
-def show_progress(progress: Progress, snap: dict) -> None:
+def show_progress(progress: Progress, snap: PipelineSnapshot) -> None:
     """Move the progress bar to the frames delivered or dropped so far, with fps and drops."""
-    progress.update(snap["frames_out"] + snap["frames_dropped"],
-                    status=f"{snap['fps']:.1f} fps, dropped {snap['frames_dropped']}")
+    progress.update(snap.frames_out + snap.frames_dropped, status=f"{snap.fps:.1f} fps, dropped {snap.frames_dropped}")

@@ -4,13 +4,15 @@ Threads in the parent process:
 - capture: iterates the FrameSource, checks each frame (capture.py), admits it to the ledger, queues it;
 - dispatch: hands a queued frame to the worker pool (pool.py: slots, workers, restarts, timeouts);
 - collect: receives the workers' results, puts them in output order (reorder.py), queues them for the sink;
-- sink: writes results (writers), then offers the frame to the viewer; a frame is delivered when written.
+- sink: hands the frame to an inline viewer and the writers, then offers it to the best-effort viewer; a frame
+  is delivered when written.
 
 Queue policy (queues.py): "latest" for live sources (the dispatch queue holds only the newest frame, each
 worker holds at most one, a finished frame never waits for an older one, the sink queue drops its
 oldest), "lossless" for replay (every queue blocks, strict order). Every drop goes to the DropLedger with
-its stage and reason. The viewer is best effort: a viewer with `offer` (a ViewerProcess) never blocks the
-sink; frames it refuses are ledgered as viewer drops. A plain callable viewer is called inline.
+its stage and reason. The viewer is best effort: an OfferingViewer (a ViewerProcess) never blocks the sink;
+frames it refuses are ledgered as viewer drops. An InlineViewer (a RerunLogger in tests) is called on the sink
+thread.
 
 Timings per frame (ms): capture (driver receive -> admitted), queue (admitted -> sent to a worker),
 segmentation, fft, nfft, detection (in the worker), logging (inline viewer only), latency (driver receive
@@ -36,7 +38,9 @@ from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config, config_table
 from tofd.service.pipeline import monitor
 from tofd.service.pipeline.capture import GapTracker
-from tofd.service.pipeline.ledger import DropLedger
+from tofd.service.pipeline.ledger import DropLedger, LedgerSummary
+from tofd.service.pipeline.messages import WorkerReply
+from tofd.service.pipeline.monitor import PipelineSnapshot
 from tofd.service.pipeline.pool import WorkerPool
 from tofd.service.pipeline.queues import Policy, StageQueue
 from tofd.service.pipeline.reorder import Reorderer
@@ -61,6 +65,14 @@ class OfferingViewer(Protocol):
     def offer(self, result: FrameResult, block_s: float) -> bool: ...
 
 
+class InlineViewer(Protocol):
+    """A viewer called on the sink thread with each delivered frame; `flush` sends what it batches at the end."""
+
+    def __call__(self, result: FrameResult) -> None: ...
+
+    def flush(self) -> None: ...
+
+
 @dataclasses.dataclass(slots=True)
 class _Queued:
     seq: int
@@ -80,7 +92,8 @@ def maps_read(viewer: bool, writers_read_maps: bool = False) -> tuple[str, ...] 
 class Pipeline:
     """Run frames from a FrameSource through the stages; see the module docstring.
 
-    `viewer`: an OfferingViewer, or a callable called inline on the sink thread after `writers`.
+    `viewer`: a best-effort OfferingViewer, offered each frame after it was delivered (the daemon's viewer
+    process); `inline_viewer`: one called on the sink thread before `writers` (its time is the "logging" stage).
     `model`: the workers run the nose detector of cfg.detector with this model (None: no detection).
     `live_source`: the frames' host receive times are this process's monotonic clock (a camera), so latency
     counts from there; else (replay) from the capture thread's arrival.
@@ -90,12 +103,13 @@ class Pipeline:
     """
 
     def __init__(self, cfg: Config, policy: Policy, intrinsics: Intrinsics | None = None,
-                 viewer: OfferingViewer | Sink | None = None, writers: tuple[Sink, ...] = (),
+                 viewer: OfferingViewer | None = None, inline_viewer: InlineViewer | None = None,
+                 writers: tuple[Sink, ...] = (),
                  model: NoseModel | None = None, live_source: bool = True,
                  result_maps: tuple[str, ...] | None = None):
         pc = cfg.pipeline
         self.cfg, self.policy, self.intrinsics = cfg, policy, intrinsics or cfg.intrinsics
-        self.viewer, self.writers, self.live_source = viewer, writers, live_source
+        self.viewer, self.inline_viewer, self.writers, self.live_source = viewer, inline_viewer, writers, live_source
         self.ledger = DropLedger()
         self.stats = PipelineStats(pc.stats_window)
         spec = {"config": config_table(cfg), "intrinsics": self.intrinsics.to_dict(),
@@ -150,7 +164,7 @@ class Pipeline:
                                 f"{self.cfg.pipeline.worker_start_timeout_s:g} s")
         self._spawn("dispatch", self._dispatch_loop)
         self._spawn("sink", self._sink_loop)
-        self._spawn("capture", self._capture_loop)
+        self._spawn("capture", lambda: self._capture_loop(source))
 
     def stop(self) -> None:
         """Stop capturing (the source is closed); frames already in the pipeline are drained by wait()."""
@@ -168,7 +182,7 @@ class Pipeline:
     def running(self) -> bool:
         return any(t.is_alive() for t in self._threads)
 
-    def close(self, drain_timeout_s: float | None = None, stop_timeout_s: float = STOP_TIMEOUT_S) -> dict:
+    def close(self, drain_timeout_s: float | None = None, stop_timeout_s: float = STOP_TIMEOUT_S) -> LedgerSummary:
         """Drain (up to `drain_timeout_s`, default pipeline.drain_timeout_s), then stop the threads and the
         workers within `stop_timeout_s` (killing workers that do not exit in time) and release shared memory;
         the ledger summary. Frames still in flight then are dropped ("shutdown"); what was left behind or
@@ -227,8 +241,8 @@ class Pipeline:
         self.ledger.drop(seq, stage, reason)
 
     # ---------------------------------------------------------------- capture
-    def _capture_loop(self) -> None:
-        source, seq = self.source, 0
+    def _capture_loop(self, source: FrameSource) -> None:
+        seq = 0
         gaps = GapTracker(source)
         try:
             for frame in source:
@@ -323,18 +337,19 @@ class Pipeline:
         finally:
             self._collect_done.set()
 
-    def _on_result(self, seq: int, msg: dict) -> None:
+    def _on_result(self, seq: int, msg: WorkerReply) -> None:
         slot = msg["slot"]
         with self._items_lock:
             item = self._items.get(seq)
         if item is None:  # dropped meanwhile (live: late); the slot is all that is left to free
             self.pool.release(slot)
             return
-        if "error" in msg:
+        if "reply" not in msg:
             self.pool.release(slot)
-            self._drop(seq, "features", f"error: {msg['error']}")
+            self._drop(seq, "features", f"error: {msg.get('error', 'no reply')}")
             return
-        result = frame_result(seq, item.frame, self.pool.ring.views(slot), msg, self.maps, arrival_s=item.origin_s,
+        result = frame_result(seq, item.frame, self.pool.ring.views(slot), msg["reply"], self.maps,
+                              arrival_s=item.origin_s,
                               gap_before=item.gap_before,
                               timings_ms={"capture": (item.admitted_s - item.origin_s) * 1e3,
                                           "queue": (item.sent_s - item.admitted_s) * 1e3})
@@ -353,51 +368,58 @@ class Pipeline:
         if self.tracker is not None and self.track_stats is not None:
             result.track = self.tracker.update(result.detection, result.frame.timestamp_us / 1e6)
             self.track_stats.record(result.detection, result.track)
-        self.ledger.advance(result.seq, "viewer")
+        self.ledger.advance(result.seq, "sink")
         for old in self.outq.put(result, self._abort):
-            self.ledger.drop(old.seq, "viewer", "queue_full" if old is not result else "shutdown")
+            self.ledger.drop(old.seq, "sink", "queue_full" if old is not result else "shutdown")
 
     # ---------------------------------------------------------------- sink
     def _sink_loop(self) -> None:
-        offer = getattr(self.viewer, "offer", None)
-        flush = None if offer is not None else getattr(self.viewer, "flush", None)  # an inline viewer's batch
         block_s = self.cfg.pipeline.shutdown_timeout_s if self.policy == "lossless" else 0.0
         while True:
             result = self.outq.get(POLL_S)
             if result is None:
                 if self._abort.is_set() or (self._collect_done.is_set() and len(self.outq) == 0):
-                    if flush is not None:
-                        self._flush_inline(flush)
+                    if self.inline_viewer is not None:
+                        self._flush_inline(self.inline_viewer)
                     return
                 continue
-            try:
-                if self.viewer is not None and offer is None:
-                    t0 = time.perf_counter()
-                    self.viewer(result)
-                    result.timings_ms["logging"] = (time.perf_counter() - t0) * 1e3
-                result.timings_ms["latency"] = (time.monotonic() - result.arrival_s) * 1e3
-                for write in self.writers:
-                    write(result)
-            except Exception as exc:
-                log.exception("sink failed on frame %d", result.frame.frame_counter)
-                self.ledger.drop(result.seq, "viewer", f"error: {type(exc).__name__}: {exc}")
+            if not self._write(result):
                 continue
             self.ledger.deliver(result.seq)
             self.stats.record(result.timings_ms)
-            if offer is not None and not offer(result, block_s):
+            if self.viewer is not None and not self.viewer.offer(result, block_s):
                 self.ledger.skip_viewer(result.seq, result.frame.frame_counter, "blocked")
 
+    def _write(self, result: FrameResult) -> bool:
+        """Hand a frame to the inline viewer and the writers; False (the frame ledgered as dropped by the sink
+        stage, naming which part failed) if one raised."""
+        part = "viewer"
+        try:
+            if self.inline_viewer is not None:
+                t0 = time.perf_counter()
+                self.inline_viewer(result)
+                result.timings_ms["logging"] = (time.perf_counter() - t0) * 1e3
+            part = "writer"
+            result.timings_ms["latency"] = (time.monotonic() - result.arrival_s) * 1e3
+            for write in self.writers:
+                write(result)
+            return True
+        except Exception as exc:
+            log.exception("sink: the %s failed on frame %d", part, result.frame.frame_counter)
+            self.ledger.drop(result.seq, "sink", f"{part}_error: {type(exc).__name__}: {exc}")
+            return False
+
     @staticmethod
-    def _flush_inline(flush: Callable[[], None]) -> None:
+    def _flush_inline(viewer: InlineViewer) -> None:
         """Send what an inline viewer still batches; its failure costs those frames' viewer rows, nothing else."""
         try:
-            flush()
+            viewer.flush()
         except Exception:
             log.exception("the viewer failed to send its last frames")
 
     # ---------------------------------------------------------------- monitoring
-    def snapshot(self) -> dict:
-        """Counters, rates, timings and queue depths for /metrics and the run summary (see monitor.py)."""
+    def snapshot(self) -> PipelineSnapshot:
+        """Counters, rates, timings and queue depths for /metrics and the run summary."""
         counters = dict(self.source.counters) if self.source is not None else {}
         track = None if self.track_stats is None else self.track_stats.snapshot()
         return monitor.snapshot(self.ledger, self.stats, self.pool,

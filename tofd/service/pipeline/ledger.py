@@ -14,10 +14,11 @@ from __future__ import annotations
 import threading
 from collections import Counter
 from dataclasses import asdict, dataclass
+from typing import TypedDict
 
-STAGES = ("capture", "features", "viewer")
+STAGES = ("capture", "features", "sink")
 """capture: the capture thread; features: the queue to and the worker processes (segmentation, FFT, NFFT,
-detection); viewer: the queue to and the sink thread (Rerun logging, results file)."""
+detection); sink: the queue to and the sink thread (the results writers, metrics and an inline viewer)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,6 +38,21 @@ class Gap:
     after_counter: int  # last frame counter before the gap (-1 = none)
     next_counter: int  # first frame counter after the gap
     kind: str  # "counter_gap" or "reconnect"
+
+
+class LedgerSummary(TypedDict):
+    """DropLedger.summary: the ledger's part of the run summary (JSON)."""
+
+    frames_in: int
+    frames_out: int
+    frames_dropped: int
+    frames_pending: int
+    consistent: bool  # frames_in == frames_out + frames_dropped + frames_pending
+    dropped_by_stage: dict[str, int]
+    drops: list[dict[str, int | str]]  # each Drop's fields
+    gaps: list[dict[str, int | str]]  # each Gap's fields
+    viewer_dropped: int
+    viewer_dropped_by_reason: dict[str, int]
 
 
 class DropLedger:
@@ -135,21 +151,14 @@ class DropLedger:
         with self._lock:
             return self.frames_in == self.frames_out + len(self.drops) + len(self._pending)
 
-    def summary(self) -> dict:
+    def summary(self) -> LedgerSummary:
         """JSON-ready totals, drops by stage and reason, every drop and gap."""
         with self._lock:
             drops, gaps, viewer = list(self.drops), list(self.gaps), list(self.viewer_drops)
             frames_in, frames_out, pending = self.frames_in, self.frames_out, len(self._pending)
         by_stage = Counter(d.stage for d in drops)
-        return {
-            "frames_in": frames_in,
-            "frames_out": frames_out,
-            "frames_dropped": len(drops),
-            "frames_pending": pending,
-            "consistent": frames_in == frames_out + len(drops) + pending,
-            "dropped_by_stage": dict(sorted(by_stage.items())),
-            "drops": [asdict(d) for d in drops],
-            "gaps": [asdict(g) for g in gaps],
-            "viewer_dropped": len(viewer),
-            "viewer_dropped_by_reason": dict(sorted(Counter(d.reason for d in viewer).items())),
-        }
+        return LedgerSummary(
+            frames_in=frames_in, frames_out=frames_out, frames_dropped=len(drops), frames_pending=pending,
+            consistent=frames_in == frames_out + len(drops) + pending, dropped_by_stage=dict(sorted(by_stage.items())),
+            drops=[asdict(d) for d in drops], gaps=[asdict(g) for g in gaps], viewer_dropped=len(viewer),
+            viewer_dropped_by_reason=dict(sorted(Counter(d.reason for d in viewer).items())))

@@ -16,13 +16,14 @@ from multiprocessing.connection import wait as wait_ready
 
 import numpy as np
 
+from tofd.service.pipeline.messages import WorkerReply
 from tofd.service.pipeline.slots import SlotRing
 from tofd.service.pipeline.worker import WorkerHandle
 
 log = logging.getLogger(__name__)
 
 POLL_S = 0.1  # seconds between checks of wait_ready's give_up
-OnResult = Callable[[int, dict], None]
+OnResult = Callable[[int, WorkerReply], None]
 OnLost = Callable[[list[int], str], None]
 
 
@@ -89,7 +90,7 @@ class WorkerPool:
         with self.lock:
             worker = self.free_worker()
             slot = self.ring.acquire() if worker is not None else None
-            if slot is None:  # a worker died between the wait and now
+            if worker is None or slot is None:  # a worker died between the wait and now
                 return False
             views = self.ring.views(slot)
             views["range_m"][...] = range_m
@@ -120,8 +121,8 @@ class WorkerPool:
         """Receive what the workers sent within `timeout_s`, handle deaths and timeouts (restarting the
         worker if `restart`)."""
         with self.lock:
-            conns = {w.results: w for w in self.workers if w.process is not None}
-            sentinels = {w.sentinel: w for w in self.workers if w.process is not None}
+            conns = {w.results: w for w in self.workers if w.started}
+            sentinels = {w.sentinel: w for w in self.workers if w.started}
         ready = wait_ready([*conns, *sentinels], timeout_s)
         for obj in ready:
             if obj in conns:
@@ -131,7 +132,7 @@ class WorkerPool:
                 self._died(sentinels[obj], "worker_died", on_result, on_lost, restart)
         with self.lock:  # the dispatcher adds to `inflight` meanwhile
             overdue = [w for w in self.workers
-                       if w.process is not None and w.inflight and w.oldest_task_age_s() > self.timeout_s]
+                       if w.started and w.inflight and w.oldest_task_age_s() > self.timeout_s]
         for w in overdue:
             log.warning("feature worker %d held a frame for more than %.1f s; killing it", w.index, self.timeout_s)
             w.kill()
@@ -142,7 +143,7 @@ class WorkerPool:
             msg = worker.receive()
         except (EOFError, OSError):
             return  # the sentinel reports the death
-        if "ready" in msg:
+        if "ready" in msg:  # WorkerReady
             with self.lock:
                 worker.ready = True
                 self.lock.notify_all()
@@ -167,7 +168,7 @@ class WorkerPool:
                 with self.lock:
                     worker.inflight.pop(msg["seq"], None)
                 on_result(msg["seq"], msg)
-        worker.process.join(1.0)
+        worker.join(1.0)
         with self.lock:
             lost = dict(worker.inflight)
             worker.inflight.clear()

@@ -16,6 +16,16 @@ T = TypeVar("T")
 Policy = Literal["latest", "lossless"]
 
 
+def run_policy(configured: str, live_source: bool) -> Policy:
+    """The policy of a run from `[pipeline] policy` ("auto": latest-wins for a live source, lossless for a
+    replay)."""
+    if configured == "auto":
+        return "latest" if live_source else "lossless"
+    if configured not in ("latest", "lossless"):
+        raise ValueError(f"pipeline.policy: {configured!r} is not one of 'auto', 'latest', 'lossless'")
+    return "latest" if configured == "latest" else "lossless"
+
+
 class StageQueue(Generic[T]):
     """A bounded FIFO between two pipeline threads; see the module docstring for the policies."""
 

@@ -47,7 +47,13 @@ def track_from(d: dict | None) -> TrackState | None:
     """The TrackState of track_dict (vectors back to tuples), or None."""
     if d is None:
         return None
-    return TrackState(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+    def vector(v: list[float] | None) -> tuple[float, float, float] | None:
+        return None if v is None else (float(v[0]), float(v[1]), float(v[2]))
+
+    return TrackState(status=d["status"], nose_xyz_m=vector(d["nose_xyz_m"]),
+                      velocity_m_per_s=vector(d["velocity_m_per_s"]), confidence=float(d["confidence"]),
+                      associated=bool(d["associated"]), reacquired=bool(d["reacquired"]))
 
 
 def track_px(state: TrackState | None, intrinsics: Intrinsics) -> tuple[float, float] | None:
@@ -67,7 +73,7 @@ def track_record(state: TrackState | None, intrinsics: Intrinsics) -> dict | Non
     reported = px is not None
     return {"status": state.status, "confidence": state.confidence, "associated": state.associated,
             "reacquired": state.reacquired,
-            "nose_px": [round(c, 2) for c in px] if reported else None,
+            "nose_px": [round(c, 2) for c in px] if px is not None else None,
             "nose_xyz_m": [round(c, 5) for c in state.nose_xyz_m] if reported and state.nose_xyz_m else None,
             "velocity_m_per_s": ([round(c, 5) for c in state.velocity_m_per_s]
                                  if reported and state.velocity_m_per_s else None)}

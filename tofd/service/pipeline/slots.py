@@ -68,7 +68,8 @@ class SlotRing:
 
     def __init__(self, shm: shared_memory.SharedMemory, n_slots: int, shape: tuple[int, int], owner: bool,
                  fields: Fields = SLOT_FIELDS):
-        self.shm, self.n_slots, self.shape, self._owner = shm, n_slots, tuple(shape), owner
+        self.shm, self.n_slots, self._owner = shm, n_slots, owner
+        self.shape: tuple[int, int] = (int(shape[0]), int(shape[1]))
         offsets, slot_bytes = _layout(self.shape, fields)
         self._views = [
             {name: np.ndarray(self.shape, dtype, shm.buf, k * slot_bytes + off)
@@ -84,7 +85,7 @@ class SlotRing:
         if n_slots < 1:
             raise ValueError(f"n_slots: must be >= 1, got {n_slots}")
         remove_stale_segments()
-        size = n_slots * _layout(tuple(shape), fields)[1]
+        size = n_slots * _layout((int(shape[0]), int(shape[1])), fields)[1]
         name = f"{SHM_PREFIX}{os.getpid()}_{use}_{secrets.token_hex(4)}"
         return cls(shared_memory.SharedMemory(name=name, create=True, size=size), n_slots, shape, True, fields)
 

@@ -13,6 +13,7 @@ from tofd.algorithm.detector import Detection, NoseDetector, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import FAMILIES, VARIANTS, VIEWED_FAMILIES, families_for, family_maps
 from tofd.config import Config
+from tofd.service.pipeline.messages import DetectionMessage, FeatureReply
 from tofd.service.pipeline.results import FrameResult
 
 
@@ -35,15 +36,15 @@ class FeatureStage:
         self._detector = None if model is None else NoseDetector(model, cfg.detector, cfg.features,
                                                                   cfg.segmentation, intrinsics)
 
-    def run(self, slot: dict[str, np.ndarray]) -> dict:
+    def run(self, slot: dict[str, np.ndarray]) -> FeatureReply:
         """Read range_m/amplitude from `slot`, write mask and feature maps into it; timings in ms."""
         ff = self._extractor(slot["range_m"], slot["amplitude"])
         slot["mask"][...] = ff.mask
         for name in self.maps:
             slot[name][...] = ff.maps[name]
         timings = ff.timings_ms
-        reply = {"timings_ms": timings, "nfft_iterations": int(ff.nfft_iterations),
-                 "nfft_residual": float(ff.nfft_residual)}
+        reply = FeatureReply(timings_ms=timings, nfft_iterations=int(ff.nfft_iterations),
+                             nfft_residual=float(ff.nfft_residual))
         if self._detector is not None:
             t0 = time.perf_counter()
             det = self._detector.detect_maps(ff.maps, slot["range_m"], ff.rotation[2])
@@ -52,12 +53,14 @@ class FeatureStage:
         return reply
 
 
-def detection_dict(det: Detection) -> dict:
+def detection_dict(det: Detection) -> DetectionMessage:
     """A Detection as a JSON-ready dict (score may be inf: no foreground)."""
-    return {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score, "accepted": det.accepted}
+    return DetectionMessage(nose_px=None if det.nose_px is None else list(det.nose_px),
+                            nose_xyz_m=None if det.nose_xyz_m is None else list(det.nose_xyz_m), score=det.score,
+                            accepted=det.accepted)
 
 
-def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: dict, maps: tuple[str, ...], *,
+def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: FeatureReply, maps: tuple[str, ...], *,
                  arrival_s: float = 0.0, gap_before: str = "",
                  timings_ms: dict[str, float] | None = None) -> FrameResult:
     """The FrameResult of `frame` from a FeatureStage reply and the slot it filled (the computed `maps`, copied out
@@ -65,7 +68,7 @@ def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: di
     return FrameResult(
         seq=seq, frame=frame, mask=views["mask"].copy(), features={name: views[name].copy() for name in maps},
         nfft_iterations=reply["nfft_iterations"], nfft_residual=reply["nfft_residual"], arrival_s=arrival_s,
-        gap_before=gap_before, detection=detection_from(reply),
+        gap_before=gap_before, detection=detection_from(reply.get("detection")),
         timings_ms={**(timings_ms or {}), **reply["timings_ms"]})
 
 
@@ -77,11 +80,12 @@ def process_frame(stage: FeatureStage, frame: Frame, slot: dict[str, np.ndarray]
     return frame_result(seq, frame, slot, stage.run(slot), stage.maps)
 
 
-def detection_from(message: dict) -> Detection | None:
-    """The Detection in a worker's reply, or None (no detector)."""
-    d = message.get("detection")
+def detection_from(d: DetectionMessage | None) -> Detection | None:
+    """The Detection of detection_dict, or None (no detector)."""
     if d is None:
         return None
-    return Detection(tuple(d["nose_px"]) if d["nose_px"] else None,
-                     tuple(d["nose_xyz_m"]) if d["nose_xyz_m"] else None, float(d["score"]), bool(d["accepted"]))
+    px, xyz = d["nose_px"], d["nose_xyz_m"]
+    return Detection((int(px[0]), int(px[1])) if px else None,
+                     (float(xyz[0]), float(xyz[1]), float(xyz[2])) if xyz else None, float(d["score"]),
+                     bool(d["accepted"]))
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,8 +21,8 @@ class PipelineStats:
 
     def __init__(self, window: int = 600) -> None:
         self._lock = threading.Lock()
-        self._timings = {stage: deque(maxlen=window) for stage in TIMED_STAGES}
-        self._done = deque(maxlen=window)  # monotonic seconds of delivered frames
+        self._timings: dict[str, deque[float]] = {stage: deque(maxlen=window) for stage in TIMED_STAGES}
+        self._done: deque[float] = deque(maxlen=window)  # monotonic seconds of delivered frames
         self.started_s = time.monotonic()
 
     def record(self, timings_ms: dict[str, float]) -> None:
@@ -54,6 +55,19 @@ class PipelineStats:
         return None if last is None else time.monotonic() - last
 
 
+@dataclass(frozen=True, slots=True)
+class TrackSnapshot:
+    """The nose track as TrackStats reports it: the latest status ("none" before the first frame) and confidence
+    (0-1), and the frame and track counts of TrackStats."""
+
+    status: str
+    confidence: float
+    detected_frames: int
+    tracked_frames: int
+    acquired: int
+    lost: int
+
+
 class TrackStats:
     """The nose track as /metrics and the run summary report it: its latest state, frames with an accepted
     detection and with a reported track nose, and how often a confirmed track began (acquired: a new track
@@ -63,21 +77,20 @@ class TrackStats:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._last: TrackState | None = None
-        self._counts = {"detected_frames": 0, "tracked_frames": 0, "acquired": 0, "lost": 0}
+        self._detected = self._tracked = self._acquired = self._lost = 0
 
     def record(self, detection: Detection | None, state: TrackState) -> None:
         """Count one frame's detection and the track after it (frames in pipeline order)."""
         with self._lock:
             before = self._last is not None and self._last.confirmed
-            self._counts["detected_frames"] += detection is not None and detection.accepted
-            self._counts["tracked_frames"] += state.reported
-            self._counts["acquired"] += state.confirmed and (not before or state.reacquired)
-            self._counts["lost"] += before and not state.confirmed  # hits never fall: only a loss unconfirms
+            self._detected += detection is not None and detection.accepted
+            self._tracked += state.reported
+            self._acquired += state.confirmed and (not before or state.reacquired)
+            self._lost += before and not state.confirmed  # hits never fall: only a loss unconfirms
             self._last = state
 
-    def snapshot(self) -> dict:
-        """{"status", "confidence", and the counts of the class docstring} (status "none" before the first frame)."""
+    def snapshot(self) -> TrackSnapshot:
         with self._lock:
             last = self._last
-            return {"status": "none" if last is None else last.status,
-                    "confidence": 0.0 if last is None else last.confidence, **self._counts}
+            return TrackSnapshot("none" if last is None else last.status, 0.0 if last is None else last.confidence,
+                                 self._detected, self._tracked, self._acquired, self._lost)

@@ -1,10 +1,7 @@
 """Feature worker processes (multiprocessing "spawn" context) and their parent-side handles.
 
-Protocol, JSON over one-way pipes (small messages only; the arrays stay in the shared-memory SlotRing):
-  worker -> parent  {"ready": pid}                          once, after its plans are built
-  parent -> worker  {"seq": n, "slot": k}                   process the frame in slot k
-  worker -> parent  {"seq", "slot", "timings_ms", ...}      or {"seq", "slot", "error": "..."}
-  parent -> worker  {"stop": true}  (or the pipe closes)    exit
+Protocol: JSON over one-way pipes (tofd.service.pipeline.messages; small messages only, the arrays stay in the
+shared-memory SlotRing); the worker exits at the stop message or when the pipe closes.
 Workers ignore SIGINT/SIGTERM: the parent decides when they stop (stop message, else SIGKILL).
 """
 
@@ -15,10 +12,14 @@ import multiprocessing as mp
 import os
 import signal
 import time
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.threads import THREAD_ENV
+from tofd.service.pipeline import messages
+from tofd.service.pipeline.messages import WorkerReady, WorkerReply, WorkerTask
 
 KILL_JOIN_S = 1.0  # seconds to wait for a SIGKILLed worker to be reaped
 
@@ -41,23 +42,32 @@ def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
     ring = SlotRing.attach(spec["shm"], spec["n_slots"], tuple(spec["shape"]))
     model = None if spec["model"] is None else NoseModel.from_dict(spec["model"])
     stage = FeatureStage(config_from_dict(spec["config"]), Intrinsics.from_dict(spec["intrinsics"]), model)
-    results.send_bytes(json.dumps({"ready": os.getpid()}).encode())
+    results.send_bytes(messages.encode(WorkerReady(ready=os.getpid())))
     try:
         while True:
             try:
-                msg = json.loads(tasks.recv_bytes())
+                task = messages.decode_task(tasks.recv_bytes())
             except EOFError:
                 break
-            if msg.get("stop"):
+            if task is None:
                 break
-            reply = {"seq": msg["seq"], "slot": msg["slot"]}
+            reply = WorkerReply(seq=task["seq"], slot=task["slot"])
             try:
-                reply.update(stage.run(ring.views(msg["slot"])))
+                reply["reply"] = stage.run(ring.views(task["slot"]))
             except Exception as exc:  # a bad frame must not kill the worker; the parent ledgers it
                 reply["error"] = f"{type(exc).__name__}: {exc}"
-            results.send_bytes(json.dumps(reply).encode())
+            results.send_bytes(messages.encode(reply))
     finally:
         ring.close()
+
+
+@dataclass(frozen=True, slots=True)
+class _Running:
+    """A started worker process and the parent's ends of its pipes."""
+
+    process: BaseProcess
+    tasks: Connection
+    results: Connection
 
 
 class WorkerHandle:
@@ -65,9 +75,7 @@ class WorkerHandle:
 
     def __init__(self, index: int, spec_json: str):
         self.index, self._spec_json = index, spec_json
-        self.process: mp.process.BaseProcess | None = None
-        self.tasks: Connection | None = None
-        self.results: Connection | None = None
+        self._running: _Running | None = None
         self.ready = False
         self.inflight: dict[int, tuple[int, float]] = {}  # seq -> (slot, monotonic send time)
         self.started_s = 0.0
@@ -79,63 +87,84 @@ class WorkerHandle:
         ctx = mp.get_context("spawn")
         task_r, task_w = ctx.Pipe(duplex=False)
         result_r, result_w = ctx.Pipe(duplex=False)
-        self.process = ctx.Process(
+        process = ctx.Process(
             target=worker_main, args=(self._spec_json, task_r, result_w), name=f"tofd-worker-{self.index}", daemon=True
         )
-        self.process.start()
+        process.start()
         task_r.close()
         result_w.close()
-        self.tasks, self.results, self.ready, self.inflight = task_w, result_r, False, {}
+        self._running, self.ready, self.inflight = _Running(process, task_w, result_r), False, {}
         self.started_s = time.monotonic()
 
     @property
+    def started(self) -> bool:
+        """Whether a process runs or ran for this handle since the last stop()."""
+        return self._running is not None
+
+    def _live(self) -> _Running:
+        if self._running is None:
+            raise RuntimeError(f"feature worker {self.index} is not started")
+        return self._running
+
+    @property
+    def results(self) -> Connection:
+        """The pipe the worker's messages come from (started workers only)."""
+        return self._live().results
+
+    @property
     def pid(self) -> int | None:
-        return self.process.pid if self.process else None
+        return None if self._running is None else self._running.process.pid
 
     @property
     def sentinel(self) -> int:
-        return self.process.sentinel
+        return self._live().process.sentinel
 
     def alive(self) -> bool:
-        return self.process is not None and self.process.is_alive()
+        return self._running is not None and self._running.process.is_alive()
 
     def send(self, seq: int, slot: int) -> None:
         """Hand the frame in `slot` to the worker (raises OSError if the worker is gone)."""
-        self.tasks.send_bytes(json.dumps({"seq": seq, "slot": slot}).encode())
+        self._live().tasks.send_bytes(messages.encode(WorkerTask(seq=seq, slot=slot)))
         self.inflight[seq] = (slot, time.monotonic())
 
-    def receive(self) -> dict:
+    def receive(self) -> WorkerReady | WorkerReply:
         """The next message from the worker (raises EOFError/OSError if it died)."""
-        return json.loads(self.results.recv_bytes())
+        return messages.decode_from_worker(self._live().results.recv_bytes())
 
     def oldest_task_age_s(self) -> float:
         """Seconds the oldest frame it holds has been with it (the caller holds the pool's lock)."""
         return max((time.monotonic() - t for _, t in self.inflight.values()), default=0.0)
 
     def kill(self) -> None:
-        if self.alive():
-            os.kill(self.process.pid, signal.SIGKILL)
+        pid = self.pid
+        if self.alive() and pid is not None:
+            os.kill(pid, signal.SIGKILL)
+
+    def join(self, timeout_s: float) -> None:
+        """Wait up to `timeout_s` for the process to end (a died worker: reap it)."""
+        self._live().process.join(timeout_s)
 
     def request_stop(self) -> None:
         """Ask the worker to exit after the frame it is on (a dead or stuck pipe is ignored)."""
-        if self.process is not None:
+        if self._running is not None:
             try:
-                self.tasks.send_bytes(b'{"stop": true}')
+                self._running.tasks.send_bytes(messages.STOP)
             except OSError:
                 pass
 
     def stop(self, timeout_s: float) -> bool:
         """Ask the worker to exit, wait up to `timeout_s`, then kill it; close the pipes. False if it had to be
         killed."""
-        if self.process is None:
+        running = self._running
+        if running is None:
             return True
         self.request_stop()
-        self.process.join(timeout_s)
-        exited = not self.process.is_alive()
+        running.process.join(timeout_s)
+        exited = not running.process.is_alive()
         if not exited:
             self.kill()
-            self.process.join(KILL_JOIN_S)
-        self.tasks.close()
-        self.results.close()
-        self.process = None
+            running.process.join(KILL_JOIN_S)
+        running.tasks.close()
+        running.results.close()
+        self._running = None
         return exited

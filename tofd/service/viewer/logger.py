@@ -12,8 +12,8 @@ Everything per frame goes out as columns (Rerun's send_columns), `batch_frames` 
 costs about four times the CPU of its share of a batched send, and on two cores that CPU is the feature
 workers'. Lossless runs and files batch (frames_per_send); live runs to a viewer send what the views show each
 frame at once, so the viewer is never behind, and the time series SERIES_FRAMES at once (a plot can lag).
-Images go out as ready arrow columns (ArrowBatch). A missing nose or track is a row with no points (nothing
-drawn); styles that never change (colour maps, metres, radii, colours) are logged once, static.
+Images go out as ready arrow columns (tofd.service.viewer.columns). A missing nose or track is a row with no
+points (nothing drawn); styles that never change (colour maps, metres, radii, colours) are logged once, static.
 """
 
 from __future__ import annotations
@@ -26,13 +26,23 @@ from functools import cache
 import numpy as np
 import pyarrow as pa
 import rerun as rr
-from rerun.components import ImageBufferBatch, ImageFormat, ImageFormatBatch
+from rerun.encodings import ColorModelLike
 
 from drivers.intrinsics import Intrinsics
 from tofd.config import RerunConfig
 from tofd.service.pipeline.results import FrameResult, track_px
 from tofd.service.pipeline.stats import TIMED_STAGES
 from tofd.service.viewer import blueprint as bp
+from tofd.service.viewer.columns import (
+    blobs,
+    component_array,
+    component_type,
+    image_columns,
+    image_format,
+    image_formats,
+    offsets_of,
+    row_columns,
+)
 from tofd.service.viewer.wire import OWN_TIMINGS
 
 NOSE_COLOR = (255, 0, 255)
@@ -93,82 +103,6 @@ def foreground_box(mask: np.ndarray) -> tuple[slice, slice]:
     return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
-def offsets_of(lengths: Sequence[int] | np.ndarray) -> np.ndarray:
-    """(len(lengths) + 1,) int32 offsets: item i spans offsets[i]:offsets[i + 1]."""
-    offsets = np.zeros(len(lengths) + 1, np.int32)
-    np.cumsum(lengths, out=offsets[1:])
-    return offsets
-
-
-def blobs(flat: np.ndarray, sizes: np.ndarray) -> pa.ListArray:
-    """Images stored back to back in the 1-D array `flat`, `sizes` elements each, as image buffers (Rerun's
-    ImageBuffer arrow type) without a copy."""
-    return pa.ListArray.from_arrays(pa.array(offsets_of(np.asarray(sizes) * flat.itemsize)),
-                                    pa.array(flat.view(np.uint8)), type=ImageBufferBatch._ARROW_DATATYPE)
-
-
-@dataclass(frozen=True, slots=True)
-class ArrowBatch:
-    """An arrow array ready in a Rerun component's type, as a component batch (ComponentBatchLike): send_columns
-    takes it as it is, without the archetype's per-call conversions (most of a one-frame send's CPU)."""
-
-    descriptor: rr.ComponentDescriptor
-    array: pa.Array
-
-    def component_descriptor(self) -> rr.ComponentDescriptor:
-        return self.descriptor
-
-    def as_arrow_array(self) -> pa.Array:
-        return self.array
-
-
-def row_columns(*described: tuple[rr.ComponentDescriptor, pa.Array], offsets: np.ndarray | None = None
-                ) -> list[rr.ComponentColumn]:
-    """Columns from (descriptor, arrow array) pairs: row i holds values offsets[i]:offsets[i + 1] (int32; None:
-    one value per row)."""
-    if offsets is None:
-        offsets = np.arange(len(described[0][1]) + 1, dtype=np.int32)
-    return [rr.ComponentColumn(d, ArrowBatch(d, a), offsets=offsets) for d, a in described]
-
-
-@cache
-def component_type(archetype: type, name: str) -> tuple[rr.ComponentDescriptor, pa.DataType]:
-    """The descriptor and arrow type of an archetype's component (`name` as in its columns() arguments)."""
-    descriptor = getattr(archetype, f"descriptor_{name}")()
-    batch = getattr(rr.components, descriptor.component_type.rsplit(".", 1)[-1] + "Batch")
-    return descriptor, batch._ARROW_DATATYPE
-
-
-def component_array(datatype: pa.DataType, values: np.ndarray | list) -> pa.Array:
-    """Values in a Rerun component's arrow type: fixed-size lists (points, sizes) from (N, k) numbers, else as
-    they are (colours, scalars, labels)."""
-    if pa.types.is_fixed_size_list(datatype):
-        flat = np.ascontiguousarray(values, np.float32).reshape(-1)
-        return pa.FixedSizeListArray.from_arrays(pa.array(flat, type=datatype.value_type), type=datatype)
-    return pa.array(values, type=datatype)
-
-
-def image_columns(archetype: type, buffers: pa.ListArray, formats: pa.StructArray,
-                  *more: tuple[rr.ComponentDescriptor, pa.Array]) -> list[rr.ComponentColumn]:
-    """An image archetype's buffer and format columns (and `more`), one image per row."""
-    return row_columns((archetype.descriptor_buffer(), buffers), (archetype.descriptor_format(), formats), *more)
-
-
-def image_format(image: ImageEntity, height: int, width: int) -> pa.StructArray:
-    """The one-row image format (Rerun's ImageFormat arrow type) of an `image` entity's (height, width) images."""
-    return ImageFormatBatch([ImageFormat(width=width, height=height, color_model=image.color_model,
-                                         channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(image.dtype)))
-                             ]).as_arrow_array()
-
-
-def image_formats(template: pa.StructArray, heights: np.ndarray, widths: np.ndarray) -> pa.StructArray:
-    """Image formats like the one-row `template` (Rerun's ImageFormat arrow type), one per height and width."""
-    same = np.zeros(len(heights), np.intp)
-    fields = [pa.array(widths, pa.uint32()), pa.array(heights, pa.uint32()),
-              *(template.field(i).take(same) for i in range(2, template.type.num_fields))]
-    return pa.StructArray.from_arrays(fields, fields=list(template.type))
-
-
 @dataclass(frozen=True, slots=True)
 class ImageEntity:
     """A per-frame image: its archetype, pixel type, colour model and the static style logged once."""
@@ -176,7 +110,7 @@ class ImageEntity:
     archetype: type
     dtype: type
     style: rr.AsComponents | None = None
-    color_model: str | None = None
+    color_model: ColorModelLike | None = None
 
 
 # entities with a variable number of instances per frame (0 = none): archetype, static style
@@ -264,8 +198,10 @@ class RerunLogger:
         self._crop = ImageEntity(rr.DepthImage, np.float32, feature_style)  # every feature map's
         self._shape = height, width = intrinsics.shape
         # as arrow, built once: Rerun's conversion is slow
-        self._formats = {path: image_format(image, height, width) for path, image in self._images.items()}
-        self._crop_format = image_format(self._crop, height, width)  # the crops' template (their sizes vary)
+        self._formats = {path: image_format(height=height, width=width, color_model=image.color_model,
+                                            dtype=image.dtype) for path, image in self._images.items()}
+        self._crop_format = image_format(height=height, width=width, color_model=self._crop.color_model,
+                                         dtype=self._crop.dtype)  # the crops' template (their sizes vary)
         self._format_columns: dict[tuple[str, int], pa.Array] = {}
         self._shown, self._series = self._new_shown(), Batch()
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)

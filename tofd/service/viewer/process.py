@@ -10,8 +10,8 @@ refused (the caller ledgers it as a viewer drop). close() asks the child to flus
 the deadline: nothing in the parent ever waits on Rerun, and the pipe never fills (at most `queue_frames` small
 headers are in it).
 
-Protocol: parent -> child, one JSON header per frame (wire.py) or b"close"; child -> parent, JSON
-{"ready": web_url} or {"error": text} once at start, {"closed": {"frames": n, "errors": n}} at the end.
+Protocol: parent -> child, one JSON header per frame (wire.py) or b"close"; child -> parent, one JSON
+ViewerStatus once at start (ready, with the web viewer's address, or error) and one at the end (closed).
 """
 
 from __future__ import annotations
@@ -27,12 +27,14 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
+from typing import NotRequired, TypedDict
 
 from tofd.algorithm.heap import keep_arrays_on_the_heap
 from tofd.config import Config, config_from_dict, config_table
 from tofd.service.lifeline import die_with_parent
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.slots import SlotRing
+from tofd.service.summary import ViewerReport
 from tofd.service.viewer import wire
 from tofd.service.viewer.logger import RerunLogger
 from tofd.service.viewer.targets import QUIET_NO_FOOTER, RerunTarget, ViewerError
@@ -43,6 +45,23 @@ CLOSE = b"close"
 POLL_S = 0.1  # seconds between checks of a start's `cancelled`
 IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this long without a new frame
 VIEWER_NICE = 10  # the viewer process's niceness: on busy cores the feature workers go first
+
+
+class ViewerClosed(TypedDict):
+    frames: int  # frames logged
+    errors: int  # frames Rerun refused
+
+
+class ViewerStatus(TypedDict):
+    """A message of the viewer process to its parent: exactly one of the keys."""
+
+    ready: NotRequired[str | None]  # started; the web viewer's address (the "web" sink) or None
+    error: NotRequired[str]  # could not start its sink
+    closed: NotRequired[ViewerClosed]  # flushed and about to exit
+
+
+def _send_status(status: Connection, message: ViewerStatus) -> None:
+    status.send_bytes(json.dumps(message).encode())
 
 
 def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, parent_pid: int, frames: Connection,
@@ -61,9 +80,9 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
         target = RerunTarget(cfg.rerun, sink, cfg.intrinsics.shape, footer=footer)
         logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud, batch_frames)
     except Exception as exc:  # reported to the parent as one line
-        status.send_bytes(json.dumps({"error": str(exc)}).encode())
+        _send_status(status, ViewerStatus(error=str(exc)))
         return
-    status.send_bytes(json.dumps({"ready": target.web_url}).encode())
+    _send_status(status, ViewerStatus(ready=target.web_url))
     logged = errors = 0
 
     def logging_step(what: str, step: Callable[..., None], *args: object) -> bool:
@@ -93,7 +112,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     logging_step("batch", logger.flush)
     ring.close()
     target.close(cfg.pipeline.shutdown_timeout_s)
-    status.send_bytes(json.dumps({"closed": {"frames": logged, "errors": errors}}).encode())
+    _send_status(status, ViewerStatus(closed=ViewerClosed(frames=logged, errors=errors)))
 
 
 @contextmanager
@@ -132,26 +151,28 @@ class ViewerProcess:
         self._lock = threading.Lock()  # the pipe and `_closing`, between offer and close
         self._closing = False
         self.stalled = False  # no slot was free at the last offer
-        self.report: dict = {}
+        self.report: ViewerReport = {}
         self.web_url: str | None = None  # the web viewer's address, for the "web" sink
         msg = self._status_message(start_timeout_s, cancelled)
         if msg is None and cancelled():  # a stop signal while it started: nothing to flush, close() says so
             self._release()
-            self.report = {"exit": "cancelled", "unsent": 0}
+            self.report = ViewerReport(exit="cancelled", unsent=0)
             return
-        if msg is None or "error" in msg:
+        if msg is None or "ready" not in msg:
             self._release()
             raise ViewerError((msg or {}).get("error") or f"the viewer process did not start in {start_timeout_s:g} s")
         self.web_url = msg["ready"]
 
-    def _status_message(self, timeout_s: float, cancelled: Callable[[], bool] = lambda: False) -> dict | None:
+    def _status_message(self, timeout_s: float,
+                        cancelled: Callable[[], bool] = lambda: False) -> ViewerStatus | None:
         """The child's next status message within `timeout_s`; None if none came, the child died or
         `cancelled()` (polled every POLL_S) turned true."""
         deadline = time.monotonic() + timeout_s
         try:
             while not cancelled():
                 if self._status.poll(min(POLL_S, max(0.0, deadline - time.monotonic()))):
-                    return json.loads(self._status.recv_bytes())
+                    message: ViewerStatus = json.loads(self._status.recv_bytes())
+                    return message
                 if time.monotonic() >= deadline:
                     break
         except (EOFError, OSError):
@@ -178,7 +199,7 @@ class ViewerProcess:
                 return False  # the child is gone
         return True
 
-    def close(self, timeout_s: float) -> dict:
+    def close(self, timeout_s: float) -> ViewerReport:
         """Let the child log what it was handed, flush and exit; SIGKILL it after `timeout_s`. A summary:
         {"exit": "clean" | "killed" | "cancelled" (stopped while starting), "frames": logged, "errors": frames
         Rerun refused, "unsent": frames handed over but not logged}."""
@@ -194,11 +215,12 @@ class ViewerProcess:
         msg = self._status_message(max(0.0, deadline - time.monotonic()))
         self.process.join(max(0.0, min(1.0, deadline - time.monotonic())))
         unsent = self.queue_frames - self._free.get_value()
-        if msg is None or self.process.is_alive():
+        if msg is None or "closed" not in msg or self.process.is_alive():
             log.warning("the viewer did not finish in %.1f s (a stalled receiver?); abandoning it", timeout_s)
-            self.report = {"exit": "killed", "unsent": unsent}
+            self.report = ViewerReport(exit="killed", unsent=unsent)
         else:
-            self.report = {"exit": "clean", **msg["closed"], "unsent": unsent}
+            closed = msg["closed"]
+            self.report = ViewerReport(exit="clean", frames=closed["frames"], errors=closed["errors"], unsent=unsent)
         self._release()
         return self.report
 

@@ -26,7 +26,7 @@ from tofd.service.viewer.blueprint import build_blueprint
 APPLICATION_ID = "tofd"
 # A file sink batches large chunks (few seconds, up to 64 MiB of rows) so `rerun rrd stats` finds the .rrd
 # optimised; viewers keep the SDK's low-latency default.
-FILE_BATCHER = {"flush_tick": 5.0, "flush_num_bytes": 64 << 20, "flush_num_rows": 100_000}
+FILE_BATCHER_FLUSH_TICK_S, FILE_BATCHER_FLUSH_BYTES, FILE_BATCHER_FLUSH_ROWS = 5.0, 64 << 20, 100_000
 QUIET_NO_FOOTER = "warn,re_log_encoding::rrd::file_sink=error"  # RUST_LOG: no warning that a file has no footer
 
 
@@ -85,7 +85,8 @@ class RerunTarget:
         self.child: subprocess.Popen | None = None
         self.web_url: str | None = None
         apply_analytics_setting(cfg.analytics)
-        batcher = rr.ChunkBatcherConfig(**FILE_BATCHER) if sink == "save" else None
+        batcher = rr.ChunkBatcherConfig(flush_tick=FILE_BATCHER_FLUSH_TICK_S, flush_num_bytes=FILE_BATCHER_FLUSH_BYTES,
+                                        flush_num_rows=FILE_BATCHER_FLUSH_ROWS) if sink == "save" else None
         self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or str(uuid.uuid4()),
                                       batcher_config=batcher)
         blueprint = build_blueprint(image_shape)

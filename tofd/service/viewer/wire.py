@@ -8,12 +8,14 @@ pipe. No pickle, and no large message: a pipe carries each byte through two kern
 from __future__ import annotations
 
 import json
+from typing import TypedDict
 
 import numpy as np
 
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.names import VIEWED_MAPS
+from tofd.service.pipeline.messages import DetectionMessage
 from tofd.service.pipeline.results import FrameResult, track_dict, track_from
 from tofd.service.pipeline.slots import SLOT_FIELDS, SlotRing
 from tofd.service.pipeline.stages import detection_dict, detection_from
@@ -24,28 +26,47 @@ PLANES = tuple((name, dtype) for name, dtype in SLOT_FIELDS if name in ("range_m
 OWN_TIMINGS = ("logging", "latency")  # the viewer process measures these itself (RerunLogger)
 
 
+class FrameHeader(TypedDict):
+    """The JSON header of one frame handed to the viewer process: FrameResult's fields beside its planes (times in
+    seconds of time.monotonic(), timings in ms) and the slot holding the planes."""
+
+    slot: int
+    seq: int
+    frame_counter: int
+    timestamp_us: int
+    host_monotonic_s: float
+    arrival_s: float
+    gap_before: str
+    nfft_iterations: int
+    nfft_residual: float
+    timings_ms: dict[str, float]
+    detection: DetectionMessage | None
+    track: dict | None  # results.track_dict
+
+
 def write(r: FrameResult, slot: int, planes: dict[str, np.ndarray]) -> bytes:
     """Copy r's planes into `planes` (one slot's views, PLANES) and return the header naming `slot`."""
     f, det = r.frame, r.detection
     source = {"range_m": f.range_m, "amplitude": f.amplitude, "mask": r.mask, **r.features}
     for name, _ in PLANES:
         np.copyto(planes[name], source[name], casting="unsafe")
-    header = {"slot": slot, "seq": r.seq, "frame_counter": f.frame_counter, "timestamp_us": f.timestamp_us,
-              "host_monotonic_s": f.host_monotonic_s, "arrival_s": r.arrival_s, "gap_before": r.gap_before,
-              "nfft_iterations": r.nfft_iterations, "nfft_residual": r.nfft_residual,
-              "timings_ms": {k: v for k, v in r.timings_ms.items() if k not in OWN_TIMINGS},
-              "detection": None if det is None else detection_dict(det), "track": track_dict(r.track)}
+    header = FrameHeader(slot=slot, seq=r.seq, frame_counter=f.frame_counter, timestamp_us=f.timestamp_us,
+                         host_monotonic_s=f.host_monotonic_s, arrival_s=r.arrival_s, gap_before=r.gap_before,
+                         nfft_iterations=r.nfft_iterations, nfft_residual=r.nfft_residual,
+                         timings_ms={k: v for k, v in r.timings_ms.items() if k not in OWN_TIMINGS},
+                         detection=None if det is None else detection_dict(det), track=track_dict(r.track))
     return json.dumps(header).encode()
 
 
 def read(header: bytes, ring: SlotRing, intrinsics: Intrinsics) -> FrameResult:
     """The FrameResult of a header, whose arrays are views of the slot it names (use them before the slot is
     written again)."""
-    h = json.loads(header)
+    h: FrameHeader = json.loads(header)
     planes = ring.views(h["slot"])
     frame = Frame(planes["range_m"], planes["amplitude"], h["frame_counter"], h["timestamp_us"],
                   host_monotonic_s=h["host_monotonic_s"], host_wall_s=0.0, intrinsics=intrinsics)
     return FrameResult(seq=h["seq"], frame=frame, mask=planes["mask"],
                        features={name: planes[name] for name in VIEWED_MAPS}, nfft_iterations=h["nfft_iterations"],
                        nfft_residual=h["nfft_residual"], arrival_s=h["arrival_s"], timings_ms=h["timings_ms"],
-                       detection=detection_from(h), track=track_from(h["track"]), gap_before=h["gap_before"])
+                       detection=detection_from(h["detection"]), track=track_from(h["track"]),
+                       gap_before=h["gap_before"])
