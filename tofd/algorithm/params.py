@@ -84,7 +84,7 @@ class DetectorConfig:
     box_scale: float = 0.0  # box half-widths times this (> 0); 0 = the model's operating scale (training EER)
     border_margin_m: float = 0.006  # metres: pixels nearer than this to the mask border are never the nose
     front_depth_m: float = 0.001  # metres: pixels this far behind the front-most one within 12 mm are never the
-    # nose (0 = no front test; tofd/algorithm/detector.py)
+    # nose (0 = no front test; tofd/algorithm/detector/candidates.py)
     front_noise_factor: float = 0.0  # the front test allows front_depth_m + this x the pixel's local range noise
     # sigma (estimated from the frame; tofd/algorithm/detector/candidates.py); 0 = fixed allowance
     margin_ratio: float = 0.7  # the best pixel is reported only if its box distance is at most this times that of
