@@ -34,9 +34,9 @@ def test_no_detector_is_an_explicit_choice_and_a_missing_or_unusable_model_a_con
     cfg = _config_with_model("")
     file = read_model_file(cfg)
     assert file.identity == NO_MODEL and service_model(cfg, file) is None
-    with pytest.raises(ConfigError, match="cannot read detector.model_path .*absent.json: No such file"):
+    with pytest.raises(ConfigError, match="detector.model_path: cannot read model .*absent.json: No such file"):
         read_model_file(_config_with_model(tmp_path / "absent.json"))
-    with pytest.raises(ConfigError, match="detector.model_path /dev/zero: not a regular file"):
+    with pytest.raises(ConfigError, match="detector.model_path: cannot read model /dev/zero: not a regular file"):
         read_model_file(_config_with_model(Path("/dev/zero")))
     (tmp_path / "huge.json").write_bytes(b" " * (17 << 20))
     with pytest.raises(ConfigError, match="huge.json: larger than"):

@@ -52,8 +52,10 @@ def read_model_file(cfg: Config) -> ModelFile:
     if cfg.detector.model_path == NO_MODEL_PATH:
         return ModelFile(None, None)
     path = resolve_model_path(cfg.detector.model_path).resolve()
-    data = read_regular_file(path, MAX_MODEL_BYTES, "detector.model_path")
-    return ModelFile(path, data)
+    try:
+        return ModelFile(path, read_regular_file(path, MAX_MODEL_BYTES, "model"))
+    except ConfigError as exc:
+        raise ConfigError(f"detector.model_path: {exc} (model_path = \"\" runs without nose detection)") from None
 
 
 def service_model(cfg: Config, file: ModelFile) -> NoseModel | None:
