@@ -441,8 +441,9 @@ def recording_info(reader: RecordingReader) -> RecordingInfo:
     """
     first = reader.read_header()
     header = (fmt.META_RECORDING, fmt.META_INTRINSICS, fmt.META_DEVICE, fmt.META_REGISTERS)
-    if reader.damage and not all(name in reader.metadata for name in header):
-        raise DriverError(f"{reader.path}: damaged recording header: {reader.damage[0].detail}")
+    if (reader.damage or reader.reason == "corrupt") and not all(name in reader.metadata for name in header):
+        detail = reader.damage[0].detail if reader.damage else reader.detail
+        raise DriverError(f"{reader.path}: damaged recording header: {detail}")
     try:
         info = _info_from(reader)
     except (ValueError, TypeError, KeyError, RecursionError) as exc:  # FormatError and JSON errors: ValueErrors

@@ -87,6 +87,7 @@ class ReplaySource(FrameSource):
         self.stop_detail = ""
         self.last_good_counter: int | None = None  # counter of the last frame read intact from the file
         self.frames_read = 0  # intact frames read from the file in the first pass
+        self.damage: list[Damage] = []  # damaged stretches skipped in the first pass
 
     def counters_reach(self, seek: int) -> tuple[bool, int | None]:
         """Whether a frame of the recording has a counter >= seek, and the last counter read to find out (a pass
@@ -159,6 +160,7 @@ class ReplaySource(FrameSource):
 
     def _report(self, reader: RecordingReader) -> None:
         self.stopped_reason, self.stop_detail = reader.reason, reader.detail
+        self.damage = list(reader.damage)
         if reader.reason != "end":
             self.counters["corrupt_tail"] += 1
             log.warning("%s: replayed the readable prefix (%d frames, last frame counter %s); %s: %s",
