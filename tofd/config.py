@@ -159,11 +159,13 @@ class HealthConfig:
     bind: str = "127.0.0.1"  # listen address
     port: int = 9464  # TCP port (0 = any free port)
     stale_after_s: float = 5.0  # seconds without a delivered frame before /healthz reports unhealthy
+    max_connections: int = 32  # HTTP connections open at once (more wait in the kernel's backlog)
 
     def validate(self) -> None:
         if not 0 <= self.port < 65536:
             raise ValueError(f"port: {self.port} is not a TCP port")
         check_seconds("stale_after_s", self.stale_after_s)
+        check_count("max_connections", self.max_connections, MAX_QUEUE)
 
 
 @dataclass(frozen=True, slots=True)
