@@ -58,7 +58,9 @@ def replay_run(recordings: list[Path], tmp: Path) -> dict:
     """Frames/s of `tofd replay --rerun none` with one feature worker over the recordings (frame-weighted) and
     CPU seconds per frame beyond a one-frame replay's."""
     config = tmp / "one_worker.toml"
-    config.write_text(re.sub(r"(?m)^workers = \d+", "workers = 1", (ROOT / "config" / "tofd.toml").read_text()))
+    text = re.sub(r"(?m)^workers = \d+", "workers = 1", (ROOT / "config" / "tofd.toml").read_text())
+    config.write_text(text.replace('model_path = "nose_model.json"',
+                                   f'model_path = "{ROOT / "config" / "nose_model.json"}"'))
     frames = seconds = cpu = 0.0
     for rec in recordings:
         summary, rec_cpu = _replay(rec, tmp / f"replay_{rec.stem}", config)

@@ -259,7 +259,8 @@ def bad_pixel_frames(work: Path) -> dict:
 # ---------------------------------------------------------------- fuzz
 def fuzz_trial(path: Path, reference: dict) -> dict:
     """Read one fuzzed recording as `tofd replay` does (header, then every frame); what came out."""
-    from drivers.recording.replay import ReplaySource, read_recording_info
+    from drivers.recording.reader import read_recording_info
+    from drivers.recording.replay import ReplaySource
     from drivers.source import DriverError
 
     try:

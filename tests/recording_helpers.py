@@ -10,7 +10,8 @@ import numpy as np
 
 from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
 from drivers.intrinsics import Intrinsics
-from drivers.recording.replay import ZSTD_FIELD, RecordingReader, iter_frames
+from drivers.recording.reader import ZSTD_FIELD, RecordingReader
+from drivers.recording.replay import iter_frames
 from drivers.recording.writer import RecordingWriter
 from drivers.usb import protocol
 

@@ -25,3 +25,34 @@ def test_int_widens_to_float():
 def test_missing_file_is_clear(tmp_path):
     with pytest.raises(ConfigError, match="cannot read config"):
         load_config(tmp_path / "nope.toml")
+
+
+@pytest.mark.parametrize("toml, key", [
+    ("[pipeline]\nshutdown_timeout_s = inf", "pipeline.shutdown_timeout_s: inf is not a finite number"),
+    ("[pipeline]\ninput_queue = 1000000000", "pipeline.input_queue: 1000000000 is not in 1..1024"),
+    ("[pipeline]\nworkers = 1000", "pipeline.workers: 1000 is not in 1.."),
+    ("[pipeline]\nworkers = 99999999999", "pipeline.workers: 99999999999 is larger than any setting"),
+    ("[pipeline]\ntasks_per_worker = 1e9", "pipeline.tasks_per_worker: expected int"),
+    ("[pipeline]\ndrain_timeout_s = 1e9", "pipeline.drain_timeout_s: 1000000000.0 is not in"),
+    ("[camera]\nread_timeout_s = inf", "camera.read_timeout_s: inf is not a finite number"),
+    ("[camera]\nread_timeout_s = 3600", "camera.read_timeout_s: 3600.0 is not in"),
+    ("[health]\nstale_after_s = nan", "health.stale_after_s: nan is not a finite number"),
+    ("[intrinsics]\nfx = nan", "intrinsics.fx: nan is not a finite number"),
+    ("[intrinsics]\nfx = -5.0", "intrinsics: intrinsics fx = -5.0"),
+    ("[intrinsics]\nwidth = 100000\nheight = 100000", "intrinsics: image size 100000 x 100000"),
+    ("[intrinsics]\nwidth = 0", "intrinsics: image size 0 x 144"),
+    ("[intrinsics]\ncx = 1e6", "intrinsics: intrinsics cx = 1000000.0"),
+])
+def test_out_of_bounds_values_are_config_errors_naming_the_key(tmp_path, toml, key):
+    path = tmp_path / "tofd.toml"
+    path.write_text(toml + "\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert key in str(err.value)
+
+
+def test_deeply_nested_toml_is_a_config_error(tmp_path):
+    path = tmp_path / "deep.toml"
+    path.write_text("a = " + "[" * 5000 + "]" * 5000 + "\n")
+    with pytest.raises(ConfigError, match="nested too deeply"):
+        load_config(path)

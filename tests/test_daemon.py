@@ -13,7 +13,7 @@ import pytest
 from pipeline_sources import write_config
 from rrd_helpers import check_rrd, has_footer
 
-from drivers.recording.replay import read_recording_info
+from drivers.recording.reader import read_recording_info
 from tofd.service.viewer import blueprint as bp
 
 ROOT = Path(__file__).resolve().parent.parent

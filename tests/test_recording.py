@@ -17,7 +17,8 @@ import tofd
 from drivers.frame import Registers
 from drivers.intrinsics import Intrinsics
 from drivers.recording import format as fmt
-from drivers.recording.replay import ReplaySource, iter_frames, read_recording_info
+from drivers.recording.reader import read_recording_info
+from drivers.recording.replay import ReplaySource, iter_frames
 from drivers.recording.schemas import RawImage
 from drivers.recording.writer import RecordingWriter
 from tofd import cli

@@ -20,7 +20,8 @@ from rrd_helpers import image_at
 
 from drivers.recording import format as fmt
 from drivers.recording.index import frame_index, read_chunks
-from drivers.recording.replay import iter_frames, read_recording_info
+from drivers.recording.reader import read_recording_info
+from drivers.recording.replay import iter_frames
 from drivers.usb import protocol
 from tofd import cli
 

@@ -16,7 +16,8 @@ from mcap.reader import make_reader
 from recording_helpers import FRAME_PERIOD_S, assert_frames_equal, write_recording
 
 from drivers.frame import Frame
-from drivers.recording.replay import ReplaySource, read_recording_info
+from drivers.recording.reader import read_recording_info
+from drivers.recording.replay import ReplaySource
 from drivers.source import DriverError
 
 

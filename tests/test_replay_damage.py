@@ -23,7 +23,8 @@ from recording_helpers import (
 from test_replay import collect, counters
 
 from drivers.intrinsics import Intrinsics
-from drivers.recording.replay import ReplaySource, read_recording_info
+from drivers.recording.reader import read_recording_info
+from drivers.recording.replay import ReplaySource
 from drivers.recording.writer import RecordingWriter
 from drivers.source import DriverError
 

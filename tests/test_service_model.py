@@ -30,10 +30,17 @@ def test_identity_and_model_come_from_the_one_read(tmp_path):
     assert model is not None and model.to_dict() == load_model(SHIPPED).to_dict()
 
 
-def test_a_missing_model_file_means_no_model_and_an_unusable_one_a_config_error(tmp_path):
-    cfg = _config_with_model(tmp_path / "absent.json")
+def test_no_detector_is_an_explicit_choice_and_a_missing_or_unusable_model_a_config_error(tmp_path):
+    cfg = _config_with_model("")
     file = read_model_file(cfg)
     assert file.identity == NO_MODEL and service_model(cfg, file) is None
+    with pytest.raises(ConfigError, match="detector.model_path: cannot read model .*absent.json: No such file"):
+        read_model_file(_config_with_model(tmp_path / "absent.json"))
+    with pytest.raises(ConfigError, match="detector.model_path: cannot read model /dev/zero: not a regular file"):
+        read_model_file(_config_with_model(Path("/dev/zero")))
+    (tmp_path / "huge.json").write_bytes(b" " * (17 << 20))
+    with pytest.raises(ConfigError, match="huge.json: larger than"):
+        read_model_file(_config_with_model(tmp_path / "huge.json"))
     (tmp_path / "bad.json").write_text("[1]")
     cfg = _config_with_model(tmp_path / "bad.json")
     with pytest.raises(ConfigError, match="detector.model_path: .*bad.json: expected a JSON object"):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import os
 import stat
 import tomllib
@@ -16,6 +17,7 @@ from pathlib import Path
 
 from drivers.frame import DEFAULT_REGISTER_VALUES
 from drivers.intrinsics import Intrinsics
+from drivers.recording.bounds import intrinsics_problem
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
 from tofd.errors import ConfigError
 
@@ -30,10 +32,30 @@ def default_file(name: str) -> Path:
 
 DEFAULT_CONFIG_PATH = default_file("tofd.toml")
 MAX_CONFIG_BYTES = 1 << 20  # a config file is a few kB; anything larger is not one (e.g. /dev/zero, a disk image)
+MAX_MODEL_BYTES = 16 << 20  # a nose model is a few kB of JSON; anything larger is not one
+MAX_INT = 2**31 - 1  # no count or size in a config is larger; a larger integer is a typo or an attack
+MAX_TIMEOUT_S = 3600.0  # seconds: the longest wait, interval or timeout a config may set
+MAX_QUEUE = 1024  # frames: the longest queue (a frame in flight is ~0.1-10 MB)
+MAX_TASKS_PER_WORKER = 16  # frames in flight per worker (each needs a shared-memory slot)
+WORKERS_PER_CORE = 4  # pipeline.workers is at most this times the machine's cores
+MAX_STATS_WINDOW = 100_000  # frames in the rolling timing window
+NO_MODEL_PATH = ""  # detector.model_path that chooses to run without nose detection
 
 
 RERUN_SINKS = ("none", "save", "web", "connect", "spawn")
 """Where the Rerun stream can go: nowhere, an .rrd file, a served web viewer, a running viewer, a desktop viewer."""
+
+
+def check_seconds(key: str, value: float) -> None:
+    """ValueError naming `key` unless 0 < value <= MAX_TIMEOUT_S (finite)."""
+    if not 0 < value <= MAX_TIMEOUT_S:
+        raise ValueError(f"{key}: {value} is not in (0, {MAX_TIMEOUT_S:g}] seconds")
+
+
+def check_count(key: str, value: int, most: int) -> None:
+    """ValueError naming `key` unless 1 <= value <= most."""
+    if not 1 <= value <= most:
+        raise ValueError(f"{key}: {value} is not in 1..{most}")
 
 
 def check_serial(serial: str) -> str:
@@ -64,10 +86,10 @@ class CameraConfig:
             raise ValueError(f"int_time_code: {self.int_time_code} is not in 0..255")
         if not 0 <= self.mod_freq_index <= 4:
             raise ValueError(f"mod_freq_index: {self.mod_freq_index} is not in 0..4")
-        if not self.read_timeout_s >= 0.001:
-            raise ValueError(f"read_timeout_s: {self.read_timeout_s} must be >= 0.001")
-        if not self.stall_report_s > 0:
-            raise ValueError(f"stall_report_s: {self.stall_report_s} must be > 0")
+        if not 0.001 <= self.read_timeout_s <= 60:
+            raise ValueError(f"read_timeout_s: {self.read_timeout_s} is not in [0.001, 60] seconds")
+        check_seconds("stall_report_s", self.stall_report_s)
+        check_seconds("reconnect_max_s", self.reconnect_max_s)
         if not 0 < self.reconnect_initial_s <= self.reconnect_max_s:
             raise ValueError(f"reconnect_initial_s: {self.reconnect_initial_s} must be > 0 and <= "
                              f"reconnect_max_s ({self.reconnect_max_s})")
@@ -90,13 +112,13 @@ class PipelineConfig:
     stats_window: int = 600  # frames in the rolling timing/fps window
 
     def validate(self) -> None:
-        for key in ("workers", "tasks_per_worker", "input_queue", "sink_queue", "max_worker_failures",
-                    "stats_window"):
-            if getattr(self, key) < 1:
-                raise ValueError(f"{key}: {getattr(self, key)} must be >= 1")
+        most = {"workers": WORKERS_PER_CORE * (os.cpu_count() or 1), "tasks_per_worker": MAX_TASKS_PER_WORKER,
+                "input_queue": MAX_QUEUE, "sink_queue": MAX_QUEUE, "max_worker_failures": 1000,
+                "stats_window": MAX_STATS_WINDOW}
+        for key, limit in most.items():
+            check_count(key, getattr(self, key), limit)
         for key in ("worker_timeout_s", "worker_start_timeout_s", "drain_timeout_s", "shutdown_timeout_s"):
-            if not getattr(self, key) > 0:
-                raise ValueError(f"{key}: {getattr(self, key)} must be > 0")
+            check_seconds(key, getattr(self, key))
         if self.policy not in ("auto", "latest", "lossless"):
             raise ValueError(f"policy: {self.policy!r} is not one of 'auto', 'latest', 'lossless'")
 
@@ -122,8 +144,7 @@ class RerunConfig:
         for key in ("grpc_port", "web_port"):
             if not 0 < getattr(self, key) < 65536:
                 raise ValueError(f"{key}: {getattr(self, key)} is not a TCP port")
-        if self.batch_frames < 1:
-            raise ValueError(f"batch_frames: {self.batch_frames} must be >= 1")
+        check_count("batch_frames", self.batch_frames, MAX_QUEUE)
 
 
 @dataclass(frozen=True, slots=True)
@@ -134,12 +155,13 @@ class HealthConfig:
     bind: str = "127.0.0.1"  # listen address
     port: int = 9464  # TCP port (0 = any free port)
     stale_after_s: float = 5.0  # seconds without a delivered frame before /healthz reports unhealthy
+    max_connections: int = 32  # HTTP connections open at once (more wait in the kernel's backlog)
 
     def validate(self) -> None:
         if not 0 <= self.port < 65536:
             raise ValueError(f"port: {self.port} is not a TCP port")
-        if not self.stale_after_s > 0:
-            raise ValueError(f"stale_after_s: {self.stale_after_s} must be > 0")
+        check_seconds("stale_after_s", self.stale_after_s)
+        check_count("max_connections", self.max_connections, MAX_QUEUE)
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,6 +206,10 @@ def _convert(value: object, tp: object, key: str) -> object:
             choices = ", ".join(repr(a) for a in typing.get_args(tp))
             raise ConfigError(f"{key}: {value!r} is not one of {choices}")
         return value
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > MAX_INT:
+        raise ConfigError(f"{key}: {value} is larger than any setting of tofd (at most {MAX_INT})")
+    if tp is float and isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{key}: {value!r} is not a finite number")
     if tp is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     if tp is object or (isinstance(tp, type) and isinstance(value, tp) and not (tp is int and isinstance(value, bool))):
@@ -214,8 +240,12 @@ def _build(cls: type, table: dict, prefix: str) -> object:
 
 
 def config_from_dict(table: dict) -> Config:
-    """Build a Config from a parsed TOML table, rejecting unknown keys and wrong types."""
-    return typing.cast(Config, _build(Config, table, ""))
+    """Build a Config from a parsed TOML table, rejecting unknown keys, wrong types, numbers that are not finite
+    or out of their bounds, and intrinsics no camera has (drivers.recording.bounds.intrinsics_problem)."""
+    cfg = typing.cast(Config, _build(Config, table, ""))
+    if (problem := intrinsics_problem(cfg.intrinsics)) is not None:
+        raise ConfigError(f"intrinsics: {problem}")
+    return cfg
 
 
 def config_table(cfg: Config) -> dict:
@@ -223,21 +253,32 @@ def config_table(cfg: Config) -> dict:
     return json.loads(json.dumps(dataclasses.asdict(cfg)))
 
 
-def read_config_text(path: Path) -> str:
-    """The UTF-8 text of config file `path`: a regular file of at most MAX_CONFIG_BYTES (a FIFO would block,
-    a device would never end); ConfigError names the problem."""
+def read_regular_file(path: Path, limit: int, what: str) -> bytes:
+    """The bytes of `path`, a regular file of at most `limit` bytes (a FIFO would block, a device would never
+    end); ConfigError names `what` (e.g. "config", "detector.model_path") and the problem."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)  # O_NONBLOCK: opening a FIFO must not hang
     except OSError as exc:
-        raise ConfigError(f"cannot read config {path}: {exc.strerror}") from None
+        raise ConfigError(f"cannot read {what} {path}: {exc.strerror}") from None
     try:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise ConfigError(f"cannot read config {path}: not a regular file")
-        data = os.read(fd, MAX_CONFIG_BYTES + 1)
+            raise ConfigError(f"cannot read {what} {path}: not a regular file")
+        chunks, size = [], 0
+        while size <= limit and (chunk := os.read(fd, limit + 1 - size)):
+            chunks.append(chunk)
+            size += len(chunk)
+    except OSError as exc:
+        raise ConfigError(f"cannot read {what} {path}: {exc.strerror}") from None
     finally:
         os.close(fd)
-    if len(data) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"cannot read config {path}: larger than {MAX_CONFIG_BYTES >> 10} KiB, not a config file")
+    if size > limit:
+        raise ConfigError(f"cannot read {what} {path}: larger than {limit >> 10} KiB, not a {what} file")
+    return b"".join(chunks)
+
+
+def read_config_text(path: Path) -> str:
+    """The UTF-8 text of config file `path` (read_regular_file, at most MAX_CONFIG_BYTES)."""
+    data = read_regular_file(path, MAX_CONFIG_BYTES, "config")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -256,8 +297,12 @@ def load_config(path: str | Path | None = None) -> Config:
         table = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: invalid TOML: nested too deeply for a config") from None
     cfg = config_from_dict(table)
     model_path = Path(cfg.detector.model_path)
+    if cfg.detector.model_path == NO_MODEL_PATH:
+        return cfg
     if not model_path.is_absolute() and path.resolve() != DEFAULT_CONFIG_PATH.resolve():
         model_path = path.resolve().parent / model_path
         cfg = dataclasses.replace(cfg, detector=dataclasses.replace(cfg.detector, model_path=str(model_path)))

@@ -4,7 +4,7 @@ A tofd recording holds one frame per chunk (format 2: its header, images and cal
 (in file order) is frame k: reading frames [first, stop) seeks straight to chunk `first` and never scans the
 chunks before it. Works on any seekable binary file object (a local file or an fsspec file). A recording
 without an intact summary (its writer was killed) has no index: read it sequentially with
-drivers.recording.replay.
+drivers.recording.reader.
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
-from mcap.stream_reader import breakup_chunk
 
 from drivers.frame import Frame
-from drivers.recording.replay import MAX_RECORD_BYTES, channel_role, frames_of
+from drivers.recording.bounds import MAX_CHUNK_BYTES, MAX_RECORD_BYTES
+from drivers.recording.reader import channel_role, chunk_records, frames_of
 
 _FOOTER_TAIL = 8 + 8 + 4 + 8
 """Bytes from the footer record's summary_start field to the end of an MCAP file."""
@@ -32,7 +32,7 @@ _FOOTER_TAIL = 8 + 8 + 4 + 8
 @dataclass(frozen=True, slots=True)
 class FrameIndex:
     """Where each chunk of a recording starts (bytes, file order) and the (channel id, role) of each channel whose
-    messages make frames (roles: drivers.recording.replay.channel_role)."""
+    messages make frames (roles: drivers.recording.reader.channel_role)."""
 
     chunk_offsets: tuple[int, ...]
     frame_channels: frozenset[tuple[int, str]]
@@ -84,7 +84,7 @@ def _read_chunk(f: IO[bytes], offset: int, channels: frozenset[tuple[int, str]])
         raise ValueError(f"file ends inside the chunk at byte {offset}")
     chunk = Chunk.read(ReadDataStream(BytesIO(body)))
     roles = dict(channels)
-    return frames_of([(roles[rec.channel_id], rec.data) for rec in breakup_chunk(chunk, validate_crc=True)
+    return frames_of([(roles[rec.channel_id], rec.data) for rec in chunk_records(chunk, MAX_CHUNK_BYTES)
                       if isinstance(rec, Message) and rec.channel_id in roles])
 
 

@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from drivers.recording.format import FORMAT_VERSION
-    from drivers.recording.replay import ReplaySource, read_recording_info
+    from drivers.recording.replay import ReplaySource
     from drivers.recording.writer import RecordingWriter
     from drivers.source import DriverError
     from tofd.errors import UsageError
@@ -27,10 +27,12 @@ def main(args: argparse.Namespace) -> int:
 
     check_output_file(args.out, "OUT")
     try:
-        info = read_recording_info(args.file)
         source = ReplaySource(args.file)
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(f"{args.file}: {exc}") from None
+    info = source.info
+    if info is None:
+        raise UsageError(f"{args.file}: {source.header_problem}")
     tmp = args.out.with_name(f".{args.out.name}.{os.getpid()}.tmp")
     try:
         with source, RecordingWriter(tmp, config=info.config, fsync_interval_s=None) as writer:

@@ -53,23 +53,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     arguments.add_bag_arguments(parser)
 
 
-def _check_seek(path: Path, seek: int) -> None:
-    """UsageError when no frame of the recording has a counter >= seek (reads until one does)."""
-    from drivers.frame import Frame
-    from drivers.recording.replay import RecordingReader
-    from tofd.errors import UsageError
-
-    last = None
-    with RecordingReader(path) as reader:
-        for frame in reader.frames():
-            if not isinstance(frame, Frame):
-                continue  # a damaged stretch: seeking goes on past it
-            if frame.frame_counter >= seek:
-                return
-            last = frame.frame_counter
-    raise UsageError(f"--seek {seek}: past the end (last frame counter {last})")
-
-
 def _report_accuracy(results: Path, plot: Path) -> None:
     """Print the accuracy line and write the plot when the recording carries ground truth."""
     from tofd.lab.accuracy import accuracy_from_results, accuracy_table, plot_accuracy
@@ -106,7 +89,7 @@ def main(args: argparse.Namespace) -> int:
 
 def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     """Replay the tofd recording `recording` (args.file, or the recording a bag was imported to)."""
-    from drivers.recording.replay import ReplaySource, read_recording_info
+    from drivers.recording.replay import ReplaySource
     from drivers.source import DriverError
     from tofd.batch.golden import GoldenRecorder
     from tofd.config import load_config
@@ -123,13 +106,17 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     cfg = replace(cfg, health=replace(cfg.health, enabled=False))
     policy = run_policy(cfg.pipeline.policy, live_source=False)
     try:
-        info = read_recording_info(recording)
-        if args.seek is not None:
-            _check_seek(recording, args.seek)
         source = ReplaySource(recording, mode="realtime" if args.realtime else "lossless", speed=args.speed or 1.0,
                               loop=args.loop, seek=args.seek)
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(f"{args.file}: {exc}") from None
+    info = source.info
+    if info is None:
+        raise UsageError(f"{args.file}: {source.header_problem}")
+    if args.seek is not None:
+        reached, last = source.counters_reach(args.seek)
+        if not reached:
+            raise UsageError(f"--seek {args.seek}: past the end (last frame counter {last})")
     out = prepare_output_dir(args.out)
     if info.intrinsics is not None:
         cfg = replace(cfg, intrinsics=info.intrinsics)

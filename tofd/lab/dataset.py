@@ -40,6 +40,7 @@ import numpy as np
 from drivers.frame import Frame, GroundTruth
 from drivers.intrinsics import Intrinsics
 from tofd.errors import UsageError
+from tofd.lab.npz import NpzError, check_npz, read_npy_header
 from tofd.outputs import AtomicFile, write_text
 
 
@@ -190,7 +191,11 @@ def load_dataset(path: str | Path) -> Dataset:
     path = Path(path)
     intrinsics = _load_intrinsics(path)
     try:
-        with np.load(path, allow_pickle=False) as npz:
+        with open(path, "rb") as f:
+            check_npz(f)
+            npz = np.load(f, allow_pickle=False)
+            if not hasattr(npz, "files"):
+                raise ValueError("a single array, not an archive")
             missing = [k for k in ("range", "amplitude", *_PER_FRAME_KEYS) if k not in npz.files]
             if missing:
                 raise DatasetError(f"{path}: missing key(s) {', '.join(map(repr, missing))}")
@@ -203,6 +208,8 @@ def load_dataset(path: str | Path) -> Dataset:
                     raise DatasetError(f"{path}: key {key!r} cannot be read without pickle: {exc}") from None
     except DatasetError:
         raise
+    except NpzError as exc:
+        raise DatasetError(f"{path}: {exc}") from None
     except FileNotFoundError:
         raise DatasetError(f"{path}: no such dataset file") from None
     except (OSError, zipfile.BadZipFile, EOFError) as exc:
@@ -287,6 +294,7 @@ class DatasetFile:
         except FileNotFoundError:
             raise DatasetError(f"{url}: no such dataset file") from None
         try:
+            check_npz(self._file, streamed=_STACKS)
             self._npz = np.load(self._file, allow_pickle=False)
             if not hasattr(self._npz, "zip"):
                 raise ValueError("a single array, not an archive")
@@ -312,7 +320,7 @@ class DatasetFile:
 
     def _header(self, key: str) -> tuple[tuple[int, ...], np.dtype]:
         with self._npz.zip.open(f"{key}.npy") as member:
-            shape, fortran, dtype = _read_npy_header(member)
+            shape, fortran, dtype = read_npy_header(member)
         if fortran and len(shape) > 1:
             raise DatasetError(f"{self.url}: key {key!r} is stored in Fortran order: its frames are not contiguous")
         return shape, dtype
@@ -334,7 +342,7 @@ class DatasetFile:
         try:
             for member, key in zip(members, _STACKS, strict=True):
                 shape, dtype = self._stacks[key]
-                _read_npy_header(member)
+                read_npy_header(member)
                 member.seek(first * _frame_bytes(shape, dtype), 1)
             for i in range(first, min(stop, self.frames)):
                 rng, amp = (np.frombuffer(_read_exactly(m, _frame_bytes(*self._stacks[k])), self._stacks[k][1])
@@ -365,12 +373,6 @@ class DatasetFile:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _read_npy_header(member: zipfile.ZipExtFile) -> tuple[tuple[int, ...], bool, np.dtype]:
-    version = np.lib.format.read_magic(member)
-    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-    return read(member)
 
 
 def _frame_bytes(shape: tuple[int, ...], dtype: np.dtype) -> int:

@@ -60,7 +60,7 @@ def _health(cfg: Config, pipeline: Pipeline, metrics: ServiceMetrics) -> HealthS
         return None
     try:
         health = HealthServer(cfg.health.bind, cfg.health.port, pipeline.snapshot, lambda: pipeline.running,
-                              cfg.health.stale_after_s, metrics).start()
+                              cfg.health.stale_after_s, metrics, cfg.health.max_connections).start()
     except OSError as exc:
         raise ConfigError(f"health.port: cannot listen on {cfg.health.bind}:{cfg.health.port}: "
                           f"{exc.strerror}") from None

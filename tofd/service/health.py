@@ -1,4 +1,5 @@
-"""Health endpoint (/healthz, Prometheus /metrics over http.server) and systemd notifications (sd_notify).
+"""Health endpoint (/healthz, Prometheus /metrics; served by tofd.service.http_server) and systemd notifications
+(sd_notify).
 
 /healthz answers 200 while the pipeline runs, has no fatal error and delivered a frame within
 `stale_after_s` (or is still starting), else 503; the body is a small JSON status (HEAD answers the same
@@ -11,9 +12,8 @@ from __future__ import annotations
 import json
 import os
 import socket
-import threading
-from collections.abc import Callable, Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from collections.abc import Callable, Iterable, Iterator
+from http import HTTPStatus
 from typing import TYPE_CHECKING
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Histogram, Info, ProcessCollector
@@ -22,6 +22,7 @@ from prometheus_client.exposition import generate_latest
 
 import tofd
 from tofd.algorithm.tracking import STATUSES
+from tofd.service.http_server import HttpServer
 
 if TYPE_CHECKING:
     from tofd.service.pipeline.monitor import PipelineSnapshot
@@ -52,7 +53,6 @@ def watchdog_interval_s() -> float | None:
 
 
 STAGE_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.035, 0.05, 0.075, 0.1, 0.15, 0.25, 0.5, 1.0, 2.5)
-POLL_S = 0.1  # seconds: how often the HTTP server checks for close() (bounds how long closing takes)
 
 
 def _unlabelled(family: type, name: str, help_text: str, value: float) -> Metric:
@@ -190,56 +190,36 @@ def health_status(snap: PipelineSnapshot, running: bool, stale_after_s: float) -
 
 
 class HealthServer:
-    """Serves /healthz and /metrics on (bind, port) from a thread; port 0 picks a free port (see .port)."""
+    """Serves /healthz and /metrics on (bind, port) (tofd.service.http_server: timeouts, connection cap); port 0
+    picks a free port (see .port)."""
 
     def __init__(self, bind: str, port: int, snapshot: Snapshot, running: Callable[[], bool],
-                 stale_after_s: float, metrics: ServiceMetrics | None = None):
-        server = self
+                 stale_after_s: float, metrics: ServiceMetrics | None = None, max_connections: int = 32):
         self.metrics = metrics or ServiceMetrics(snapshot)
-
-        class Handler(BaseHTTPRequestHandler):
-            def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
-                self._answer(body=True)
-
-            def do_HEAD(self) -> None:  # noqa: N802
-                self._answer(body=False)
-
-            def _answer(self, body: bool) -> None:
-                path = self.path.split("?")[0]
-                if path == "/metrics":
-                    self._send(200, CONTENT_TYPE_LATEST, server.metrics.render(), body)
-                elif path == "/healthz":
-                    ok, status = server.status()
-                    self._send(200 if ok else 503, "application/json", (json.dumps(status) + "\n").encode(), body)
-                else:
-                    self._send(404, "text/plain", b"not found: try /healthz or /metrics\n", body)
-
-            def _send(self, code: int, content_type: str, data: bytes, body: bool) -> None:
-                self.send_response(code)
-                self.send_header("Content-Type", content_type)
-                self.send_header("Content-Length", str(len(data)))
-                self.end_headers()
-                if body:
-                    self.wfile.write(data)
-
-            def log_message(self, *args: object) -> None:  # no access log on stderr
-                pass
-
         self._snapshot, self._running, self.stale_after_s = snapshot, running, stale_after_s
-        self._httpd = ThreadingHTTPServer((bind, port), Handler)
-        self._httpd.daemon_threads = True
-        self.bind, self.port = self._httpd.server_address[:2]
-        self._thread = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": POLL_S},
-                                        name="tofd-health", daemon=True)
+        self._http = HttpServer(bind, port, self._app, max_connections)
+        self.bind, self.port = self._http.bind, self._http.port
+
+    def _app(self, environ: dict, start_response: Callable) -> Iterable[bytes]:
+        """The WSGI app: GET or HEAD of /healthz, /metrics; 404 elsewhere."""
+        path = environ.get("PATH_INFO", "")
+        if path == "/metrics":
+            code, content_type, data = 200, CONTENT_TYPE_LATEST, self.metrics.render()
+        elif path == "/healthz":
+            ok, status = self.status()
+            code, content_type, data = 200 if ok else 503, "application/json", (json.dumps(status) + "\n").encode()
+        else:
+            code, content_type, data = 404, "text/plain", b"not found: try /healthz or /metrics\n"
+        start_response(f"{code} {HTTPStatus(code).phrase}", [("Content-Type", content_type),
+                                                              ("Content-Length", str(len(data)))])
+        return [b"" if environ.get("REQUEST_METHOD") == "HEAD" else data]
 
     def status(self) -> tuple[bool, dict]:
         return health_status(self._snapshot(), self._running(), self.stale_after_s)
 
     def start(self) -> HealthServer:
-        self._thread.start()
+        self._http.start()
         return self
 
     def close(self) -> None:
-        self._httpd.shutdown()
-        self._httpd.server_close()
-        self._thread.join(2.0)
+        self._http.close()

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tofd.algorithm.detector import ModelError, NoseDetector, NoseModel, load_model, parse_model
-from tofd.config import Config, ConfigError, default_file
+from tofd.config import MAX_MODEL_BYTES, NO_MODEL_PATH, Config, ConfigError, default_file, read_regular_file
 
 log = logging.getLogger(__name__)
 
@@ -35,8 +35,8 @@ def resolve_model_path(model_path: str | Path) -> Path:
 class ModelFile:
     """cfg.detector's model file as read once, so that its identity and the model it holds are the same bytes."""
 
-    path: Path  # resolved
-    data: bytes | None  # None: there is no file at `path`
+    path: Path | None  # resolved; None: the config chose no detector (model_path = "")
+    data: bytes | None  # None: no detector
 
     @property
     def identity(self) -> ModelIdentity:
@@ -47,21 +47,22 @@ class ModelFile:
 
 
 def read_model_file(cfg: Config) -> ModelFile:
-    """The bytes of cfg.detector's model file (None when it does not exist); ConfigError when it cannot be read."""
+    """The bytes of cfg.detector's model file, a regular file of at most MAX_MODEL_BYTES (no bytes when the config
+    chooses no detector: model_path = ""); ConfigError when it is missing or cannot be read."""
+    if cfg.detector.model_path == NO_MODEL_PATH:
+        return ModelFile(None, None)
     path = resolve_model_path(cfg.detector.model_path).resolve()
     try:
-        return ModelFile(path, path.read_bytes())
-    except FileNotFoundError:
-        return ModelFile(path, None)
-    except OSError as exc:
-        raise ConfigError(f"detector.model_path: cannot read {path}: {exc.strerror}") from None
+        return ModelFile(path, read_regular_file(path, MAX_MODEL_BYTES, "model"))
+    except ConfigError as exc:
+        raise ConfigError(f"detector.model_path: {exc} (model_path = \"\" runs without nose detection)") from None
 
 
 def service_model(cfg: Config, file: ModelFile) -> NoseModel | None:
-    """The model in `file`, checked against the config's feature settings; None (with a warning) when there is
-    no file. ConfigError names a model that cannot be used."""
+    """The model in `file`, checked against the config's feature settings; None (logged) when the config chose no
+    detector. ConfigError names a model that cannot be used."""
     if file.data is None:
-        log.warning("no detector model at %s (detector.model_path): running without nose detection", file.path)
+        log.info("detector.model_path = \"\": running without nose detection")
         return None
     try:
         model = parse_model(file.data, str(file.path))
