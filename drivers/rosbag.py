@@ -148,7 +148,7 @@ def range_plane(image: np.ndarray, options: RangeOptions, intrinsics: Intrinsics
         metres = image.astype(np.float32) * np.float32(1e-3)
         metres[image == 0] = np.nan
     if options.depth == "z":
-        metres = (metres / intrinsics.unit_rays()[..., 2]).astype(np.float32)
+        metres = intrinsics.radial_from_z(metres).astype(np.float32)
     return metres
 
 
