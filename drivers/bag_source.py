@@ -23,11 +23,6 @@ def depth_metres(raw: np.ndarray, metres_per_unit: float) -> np.ndarray:
     return metres
 
 
-def radial_from_z(z_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
-    """(H, W) float32 radial range along each pixel's (undistorted) ray from z-depth along the optical axis."""
-    return (z_m / intrinsics.unit_rays()[..., 2]).astype(np.float32)
-
-
 class BagSource(FrameSource):
     """A FrameSource reading a bag through drivers.bag_scan.BagReader.
 

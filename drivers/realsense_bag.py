@@ -26,7 +26,7 @@ import numpy as np
 
 from drivers import ros1_wire
 from drivers.bag_scan import BagError, RawMessage, Topic
-from drivers.bag_source import BagSource, depth_metres, radial_from_z
+from drivers.bag_source import BagSource, depth_metres
 from drivers.frame import DeviceInfo, Frame
 from drivers.intrinsics import Intrinsics
 from drivers.ros_camera_info import camera_info_intrinsics, lens_intrinsics
@@ -249,7 +249,7 @@ class RealSenseSource(BagSource):
         units = self._units(depth)
         self.settings.setdefault("depth_units_m", units)
         z = depth_metres(depth.array, units)
-        return Frame(range_m=radial_from_z(z, intrinsics), amplitude=amplitude,
+        return Frame(range_m=intrinsics.radial_from_z(z).astype(np.float32), amplitude=amplitude,
                      frame_counter=depth.number % (1 << 32), timestamp_us=max(0, depth.timestamp_us),
                      host_monotonic_s=depth.log_ns / 1e9, host_wall_s=depth.log_ns / 1e9, intrinsics=intrinsics,
                      device=self.device)

@@ -11,15 +11,16 @@ compute with non-zero coefficients is refused rather than approximated.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 
 from drivers.bag_scan import BagError
-from drivers.intrinsics import Intrinsics
+from drivers.intrinsics import COEFFICIENT_COUNTS, Intrinsics
 
-ROS_LENS_MODELS: dict[str, int] = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
-"""ROS distortion_model -> number of coefficients."""
+ROS_LENS_MODELS = {name: n for name, n in COEFFICIENT_COUNTS.items() if n}
+"""ROS distortion_model -> number of coefficients (drivers.intrinsics' models but the pinhole)."""
 VENDOR_LENS_MODELS: dict[str, str | None] = {
     "Brown Conrady": "plumb_bob",  # librealsense RS2_DISTORTION_BROWN_CONRADY
     "Kannala Brandt4": "equidistant",  # RS2_DISTORTION_KANNALA_BRANDT4 (T265)
@@ -65,7 +66,7 @@ def lens_intrinsics(width: int, height: int, k: tuple[float, float, float, float
         raise BagError(f"{where}: {ros_name} takes {n} coefficients, got {d.tolist()}")
     padded = np.zeros(n)
     padded[:min(n, d.size)] = d[:n]
-    return _with_lens(base, ros_name, tuple(float(v) for v in padded))
+    return dataclasses.replace(base, distortion_model=ros_name, distortion=tuple(float(v) for v in padded))
 
 
 def orbbec_lens_intrinsics(width: int, height: int, k: tuple[float, ...], model: int,
@@ -98,8 +99,3 @@ def _field(msg: object, name: str) -> Any:
     """A CameraInfo matrix by its ROS 2 name (k, d) or ROS 1 name (K, D)."""
     return getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper())
 
-
-def _with_lens(base: Intrinsics, model: str, coefficients: tuple[float, ...]) -> Intrinsics:
-    """`base` with a lens model (drivers.intrinsics' distortion_model and coefficients, ROS names and order)."""
-    return Intrinsics(base.width, base.height, base.fx, base.fy, base.cx, base.cy,
-                      distortion_model=model, coefficients=coefficients)  # type: ignore[call-arg]

@@ -29,7 +29,7 @@ import numpy as np
 from mcap.stream_reader import StreamReader
 
 from drivers.bag_scan import BagError, RawMessage
-from drivers.bag_source import BagSource, depth_metres, radial_from_z
+from drivers.bag_source import BagSource, depth_metres
 from drivers.driver_layouts import CAMERA_INFO_TYPE, Layout, describe_topics, detect_layout, no_layout_error
 from drivers.frame import DeviceInfo, Frame, Registers
 from drivers.intrinsics import Intrinsics
@@ -110,7 +110,7 @@ def range_plane(image: np.ndarray, options: ResolvedOptions, intrinsics: Intrins
         metres = protocol.raw_to_range_m(image, round(options.mod_freq_mhz * 1000))
     else:
         metres = depth_metres(image, 1e-3)
-    return radial_from_z(metres, intrinsics) if options.depth == "z" else metres
+    return intrinsics.radial_from_z(metres).astype(np.float32) if options.depth == "z" else metres
 
 
 class RosbagSource(BagSource):
