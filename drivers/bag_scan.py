@@ -76,6 +76,11 @@ class BagReader:
             definitions = self._fallback.definitions
         self.typestore = _typestore(definitions, self.ros1)
 
+    @property
+    def recovering(self) -> bool:
+        """Whether the bag is read record by record because rosbags could not open it (it is damaged)."""
+        return self._fallback is not None
+
     def messages(self, topics: Collection[str]) -> Iterator[RawMessage]:
         """The messages of `topics` (all when empty) in bag order, up to the first damaged record."""
         if self._fallback is not None:

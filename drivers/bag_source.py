@@ -3,6 +3,7 @@ account of a damaged tail, and what the file says about the device and its setti
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -10,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from drivers.bag_scan import BagError, BagReader, RawMessage
+from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 
@@ -61,13 +63,14 @@ class BagSource(FrameSource):
         except BagError as exc:
             raise BagError(f"{self.path}: {message.topic}: {exc}") from None
 
-    def check_calibration(self, intrinsics: Intrinsics, where: str) -> Intrinsics:
-        """`intrinsics` if it is the first calibration or the same as before; BagError when it changes."""
+    def check_calibration(self, intrinsics: Intrinsics, where: str, when: str) -> Intrinsics:
+        """`intrinsics` if it is the first calibration or the same as before; BagError (naming the topic or stream
+        `where` and e.g. `when` = "at stamp 1.000000000") when it changes."""
         if self.intrinsics is None:
             self.intrinsics = intrinsics
         elif intrinsics != self.intrinsics:
-            raise BagError(f"{where}: the calibration changes ({self.intrinsics} -> {intrinsics}); a tofd recording "
-                           "holds one camera calibration")
+            raise BagError(f"{where}: the calibration changes {when} ({self.intrinsics} -> {intrinsics}); a tofd "
+                           "recording holds one camera calibration")
         return intrinsics
 
     def check_sizes(self, where: str, **planes: tuple[int, int]) -> None:
@@ -76,7 +79,22 @@ class BagSource(FrameSource):
             raise BagError(f"{where}: sizes differ: " + ", ".join(
                 f"{name.replace('_', ' ')} {w}x{h}" for name, (h, w) in planes.items()))
 
-    def note_damage(self, counter: int) -> None:
-        """Ledger the unreadable rest of a damaged bag as one rejected frame after the last one delivered."""
+    @abstractmethod
+    def frames(self) -> Iterator[Frame]:
+        """The bag's frames in order (BagError at the first one tofd cannot use)."""
+
+    def __iter__(self) -> Iterator[Frame]:
+        """`frames()`, then the unreadable rest of a damaged bag ledgered as one rejected frame after the last one
+        delivered. In a bag read record by record after damage, a message that does not decode is part of the
+        damage (its bytes may be the zeros standing in for a missing page), not an error."""
+        counter = 0
+        try:
+            for frame in self.frames():
+                counter = frame.frame_counter + 1
+                yield frame
+        except BagError as exc:
+            if not self.bag.recovering:
+                raise
+            self.bag.damage = f"{self.bag.damage or 'damaged'}; {exc}"
         if self.bag.damage is not None:
             self.reject(counter, f"damaged: {self.path}: the rest is unreadable ({self.bag.damage})")

@@ -34,6 +34,11 @@ class Layout:
         """Role ("range", "amplitude", "camera_info") -> topic relative to the namespace (None: not published)."""
         return {"range": self.range_topic, "amplitude": self.amplitude_topic, "camera_info": self.camera_info_topic}
 
+    @property
+    def topics(self) -> dict[str, str | None]:
+        """Role -> the driver's default topic (None: not published)."""
+        return {role: None if t is None else f"{self.namespace}/{t}" for role, t in self.relative_topics.items()}
+
 
 LAYOUTS: tuple[Layout, ...] = (
     Layout("swissranger_camera", "/SwissRanger", "distance/image_raw16", "intensity/image_raw16", "camera_info",

@@ -219,30 +219,26 @@ class RealSenseSource(BagSource):
                            "the frame, no Depth_Units option)")
         return float(units)
 
-    def __iter__(self) -> Iterator[Frame]:
+    def frames(self) -> Iterator[Frame]:
         """Frames in the order their second image arrives."""
         pending: dict[int, dict[str, _Image]] = {}
-        last_counter = -1
         for role, image in self._images():
             parts = pending.setdefault(image.number, {})
             parts[role] = image
             if len(parts) == 2:
                 del pending[image.number]
-                frame = self._frame(parts["depth"], parts["infrared"])
-                last_counter = frame.frame_counter
-                yield frame
+                yield self._frame(parts["depth"], parts["infrared"])
             while len(pending) > MAX_PENDING:
                 self._unpaired(pending.pop(next(iter(pending))))
         for parts in pending.values():
             self._unpaired(parts)
-        self.note_damage(last_counter + 1)
 
     def _unpaired(self, parts: dict[str, _Image]) -> None:
         for role in parts:
             self.counters["unpaired_range" if role == "depth" else "unpaired_amplitude"] += 1
 
     def _frame(self, depth: _Image, infrared: _Image) -> Frame:
-        intrinsics = self.check_calibration(self._lens, f"{self.path}: {self.depth.base}")
+        intrinsics = self.check_calibration(self._lens, f"{self.path}: {self.depth.base}", "")
         amplitude = infrared.array.astype(np.float32)
         self.check_sizes(f"{self.path}: frame {depth.number}", depth_image=depth.array.shape,
                          infrared_image=amplitude.shape, calibration=intrinsics.shape)

@@ -175,7 +175,7 @@ class RosbagSource(BagSource):
         topics = self.options.topics
         (rng, raw_range), (amp, _), (info, _) = parts["range"], parts["amplitude"], parts["camera_info"]
         intrinsics = self.check_calibration(camera_info_intrinsics(info, topics["camera_info"]),
-                                            f"{topics['camera_info']} at stamp {_seconds(info)}")
+                                            topics["camera_info"], f"at stamp {_seconds(info)}")
         range_image = plane(rng, self.bag.topics[topics["range"]].msgtype, RANGE_ENCODINGS, topics["range"])
         amplitude = plane(amp, self.bag.topics[topics["amplitude"]].msgtype, AMPLITUDE_ENCODINGS,
                           topics["amplitude"]).astype(np.float32)
@@ -188,7 +188,7 @@ class RosbagSource(BagSource):
                      device=DeviceInfo(serial="", backend="rosbag", model=self.options.driver or rng.header.frame_id),
                      registers=self._registers)
 
-    def __iter__(self) -> Iterator[Frame]:
+    def frames(self) -> Iterator[Frame]:
         """Frames in the order their last message arrives in the bag."""
         roles = {topic: role for role, topic in self.options.topics.items()}
         types = {topic: self.bag.topics[topic].msgtype for topic in roles}
@@ -208,7 +208,6 @@ class RosbagSource(BagSource):
                 self._unpaired(pending.pop(next(iter(pending))))
         for parts in pending.values():
             self._unpaired(parts)
-        self.note_damage(counter)
 
     def _unpaired(self, parts: dict[str, Any]) -> None:
         for role in parts:
