@@ -34,16 +34,17 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
     """Write the frames of `bag` to the recording `out` (renamed into place when complete) with a progress bar;
     returns what was written, e.g. "12 frames of 176x144". UsageError names a bad bag."""
     from drivers.recording.writer import RecordingWriter
-    from drivers.rosbag import BagError, RosbagSource
+    from drivers.bags import open_bag
+    from drivers.rosbag import BagError
     from tofd.errors import UsageError
     from tofd.outputs import AtomicFile
     from tofd.progress import Progress
 
     try:
-        source = RosbagSource(bag, options)
+        source = open_bag(bag, options)
     except BagError as exc:
         raise UsageError(str(exc)) from None
-    provenance = {"import": {"bag": str(bag), **dataclasses.asdict(options)}}
+    provenance = {"import": {"bag": str(bag), **dataclasses.asdict(options), "source": source.settings}}
     progress = Progress(command, source.range_messages)
     # the writer opens the temp file by name; AtomicFile renames it to `out` only when every frame is in
     with source, AtomicFile(out, "wb") as target:
@@ -58,10 +59,12 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
             progress.done()
         unpaired = _unpaired(source.counters)
         if source.intrinsics is None:
+            why = f"; {source.damage}" if source.damage else ""
             raise UsageError(f"{bag}: no header stamp has a range image, an amplitude image and a camera_info "
-                             f"({unpaired or 'its topics are empty'}); nothing written")
+                             f"({unpaired or 'its topics are empty'}{why}); nothing written")
     size = f"{source.intrinsics.width}x{source.intrinsics.height}"
-    return f"{writer.frames_written} frames of {size}" + (f"; skipped {unpaired}" if unpaired else "")
+    damage = f"; damaged, the rest unread: {source.damage}" if source.damage else ""
+    return f"{writer.frames_written} frames of {size}" + (f"; skipped {unpaired}" if unpaired else "") + damage
 
 
 def main(args: argparse.Namespace) -> int:
