@@ -86,6 +86,11 @@ class K4aRecordingSource(FrameSource):
         self.last_good_counter: int | None = None
         self.frame_period_us: float | None = None
         """Median spacing of the first captures' timestamps (microseconds), known once iteration started."""
+        first = self._captures()
+        if next(first, None) is None and self.stopped_reason not in (None, "end"):
+            raise self._fail("tracks DEPTH/IR", f"no capture readable: {self.stop_detail}")
+        first.close()
+        self.stopped_reason = None
 
     def _fail(self, what: str, why: str) -> K4aRecordingError:
         return K4aRecordingError(f"{self.path}: {what}: {why}")
@@ -205,8 +210,6 @@ class K4aRecordingSource(FrameSource):
         captures = self._captures()
         head = [c for _, c in zip(range(PERIOD_FRAMES), captures, strict=False)]
         if not head:
-            if self.stopped_reason not in (None, "end"):
-                raise self._fail("tracks DEPTH/IR", f"no capture readable: {self.stop_detail}")
             return
         steps = np.diff([c.timestamp_us for c in head])
         self.frame_period_us = float(np.median(steps)) if len(steps) and np.median(steps) > 0 else None
