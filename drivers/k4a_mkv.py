@@ -15,8 +15,9 @@ Each capture (a DEPTH and an IR block of one timestamp) becomes a Frame:
 - device: the serial number tag (else the calibration's SerialId), the depth firmware tag, model "Azure Kinect"
   or "Orbbec Femto" (from the calibration's DeviceName).
 
-A damaged file replays the captures the demuxer still reads, rejects the ones lost (counted from the timestamps)
-and stops at an unreadable tail, with `stopped_reason`, `stop_detail` and `last_good_counter` saying where.
+A damaged file replays the captures the demuxer still reads and rejects the ones lost, counted from the timestamps
+(and, for a file cut short, from the segment duration the recorder wrote); `stopped_reason` ("end", "truncated" or
+"corrupt"), `stop_detail` and `last_good_counter` say where it stopped.
 """
 
 from __future__ import annotations
@@ -86,6 +87,11 @@ class K4aRecordingSource(FrameSource):
         self.last_good_counter: int | None = None
         self.frame_period_us: float | None = None
         """Median spacing of the first captures' timestamps (microseconds), known once iteration started."""
+        first = self._captures()
+        if next(first, None) is None and self.stopped_reason not in (None, "end"):
+            raise self._fail("tracks DEPTH/IR", f"no capture readable: {self.stop_detail}")
+        first.close()
+        self.stopped_reason = None
 
     def _fail(self, what: str, why: str) -> K4aRecordingError:
         return K4aRecordingError(f"{self.path}: {what}: {why}")
@@ -142,6 +148,7 @@ class K4aRecordingSource(FrameSource):
             self._wall0_s = datetime.fromisoformat(created.replace("Z", "+00:00")).timestamp() if created else 0.0
         except ValueError:
             self._wall0_s = 0.0
+        self._last_us: int | None = None
         self._track_index = {tracks[DEPTH_TRACK].index: DEPTH_TRACK, tracks[IR_TRACK].index: IR_TRACK}
         self._image_bytes = w * h * 2
 
@@ -160,6 +167,8 @@ class K4aRecordingSource(FrameSource):
         except (av.FFmpegError, OSError) as exc:
             raise K4aRecordingError(f"{self.path}: not a readable Matroska file: {exc}") from None
         with container:
+            # Matroska's segment duration: the last block's time, which the recorder writes when it closes the file
+            self._last_us = None if container.duration is None else container.duration + self._start_offset_ns // 1000
             streams = [s for s in container.streams.video if s.index in self._track_index]
             try:
                 for packet in container.demux(streams):
@@ -205,8 +214,6 @@ class K4aRecordingSource(FrameSource):
         captures = self._captures()
         head = [c for _, c in zip(range(PERIOD_FRAMES), captures, strict=False)]
         if not head:
-            if self.stopped_reason not in (None, "end"):
-                raise self._fail("tracks DEPTH/IR", f"no capture readable: {self.stop_detail}")
             return
         steps = np.diff([c.timestamp_us for c in head])
         self.frame_period_us = float(np.median(steps)) if len(steps) and np.median(steps) > 0 else None
@@ -229,10 +236,28 @@ class K4aRecordingSource(FrameSource):
                 continue
             self.last_good_counter = counter
             yield self._frame(capture, counter, t0)
+        if self.closed:
+            return
+        self._reject_tail(last, t0)
         if self.stopped_reason not in (None, "end"):
             self.counters["corrupt_tail"] += 1
             log.warning("%s: replayed the readable prefix (last frame counter %s); %s: %s", self.path,
                         self.last_good_counter, self.stopped_reason, self.stop_detail)
+
+    def _reject_tail(self, last: int | None, t0_us: int) -> None:
+        """When the segment duration says the recording went on past the last capture read (a truncated or
+        damaged end), reject the captures lost there and mark the recording truncated."""
+        if self._last_us is None or last is None or not self.frame_period_us:
+            return
+        final = round((self._last_us - t0_us) / self.frame_period_us)
+        if not last < final <= last + MAX_LOST_FRAMES:
+            return
+        if self.stopped_reason in (None, "end"):
+            self.stopped_reason = "truncated"
+            self.stop_detail = f"the file ends at {t0_us + round(last * self.frame_period_us)} us, its duration at " \
+                               f"{self._last_us} us"
+        for lost in range(last + 1, final + 1):
+            self.reject(lost, f"damaged: {self.stopped_reason} file ({self.stop_detail})")
 
     @property
     def fps(self) -> float | None:
