@@ -58,6 +58,23 @@ def _is_bag(path: Path, head: bytes) -> bool:
             or (head.startswith(MCAP_MAGIC) and _mcap_profile(path) not in (TOFD_MCAP_PROFILE, None)))
 
 
+def _bag_of(kind: str) -> Callable[[Path, bytes], bool]:
+    """Whether a file is a ROS bag whose topics are those of a vendor SDK's recording `kind` (drivers.bags)."""
+
+    def matches(path: Path, head: bytes) -> bool:
+        from drivers.bags import bag_kind
+        from drivers.source import DriverError
+
+        if not _is_bag(path, head):
+            return False
+        try:
+            return bag_kind(path) == kind
+        except DriverError:  # unreadable: the plain ROS bag format says why
+            return False
+
+    return matches
+
+
 def _open_k4a(path: Path) -> FrameSource:
     from drivers.k4a_mkv import K4aRecordingSource
 
@@ -66,6 +83,9 @@ def _open_k4a(path: Path) -> FrameSource:
 
 FORMATS: tuple[InputFormat, ...] = (
     InputFormat("tofd", "tofd recording (MCAP, profile tofd)", "recording", _is_tofd_recording),
+    InputFormat("realsense", "RealSense SDK recording (librealsense >= 2.57 ROS 2 .db3, <= 2.56 ROS 1 .bag)", "bag",
+                _bag_of("realsense")),
+    InputFormat("orbbec", "Orbbec SDK v2 recording (ROS 1 .bag)", "bag", _bag_of("orbbec")),
     InputFormat("rosbag", "ROS bag (ROS 1 .bag; ROS 2 directory, .db3 or .mcap)", "bag", _is_bag),
     InputFormat("k4a", "Azure Kinect / Orbbec Femto recording (Matroska .mkv)", "source",
                 lambda path, head: head.startswith(MATROSKA_MAGIC), _open_k4a),

@@ -26,20 +26,18 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from mcap.stream_reader import StreamReader
 
 from drivers.bag_scan import BagError, RawMessage
 from drivers.bag_source import BagSource, depth_metres
 from drivers.driver_layouts import CAMERA_INFO_TYPE, Layout, describe_topics, detect_layout, no_layout_error
 from drivers.frame import DeviceInfo, Frame, Registers
 from drivers.intrinsics import Intrinsics
-from drivers.recording.format import PROFILE
 from drivers.ros_camera_info import camera_info_intrinsics
 from drivers.ros_images import AMPLITUDE_ENCODINGS, IMAGE_TYPE, IMAGE_TYPES, RANGE_ENCODINGS, plane
 from drivers.usb import protocol
 
 __all__ = ["AMPLITUDE_ENCODINGS", "CAMERA_INFO_TYPE", "IMAGE_TYPE", "RANGE_ENCODINGS", "BagError", "RangeOptions",
-           "RosbagSource", "is_rosbag"]
+           "RosbagSource"]
 
 log = logging.getLogger(__name__)
 
@@ -86,22 +84,6 @@ class ResolvedOptions:
     mod_freq_mhz: float
     driver: str  # the layout's driver, "" when every topic was named
     amplitude: str  # what the amplitude image is
-
-
-def is_rosbag(path: str | Path) -> bool:
-    """Whether `path` is a ROS bag rather than a tofd recording: a .bag or .db3 file, a directory (a ROS 2 bag), or
-    an .mcap file whose MCAP profile is not tofd's (ROS 2 writes "ros2")."""
-    path = Path(path)
-    if path.suffix in (".bag", ".db3") or path.is_dir():
-        return True
-    if path.suffix != ".mcap":
-        return False
-    try:
-        with open(path, "rb") as f:
-            header = next(StreamReader(f, skip_magic=False).records)
-    except Exception:  # noqa: BLE001 (an unreadable file is left to the recording reader, which says why)
-        return False
-    return getattr(header, "profile", PROFILE) != PROFILE
 
 
 def range_plane(image: np.ndarray, options: ResolvedOptions, intrinsics: Intrinsics) -> np.ndarray:
