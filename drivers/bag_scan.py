@@ -189,17 +189,18 @@ class _Ros1Scan:
     def _records(self, topics: Collection[str] | None) -> Iterator[RawMessage]:
         """Messages of the wanted topics (None: count them all), following chunks, until the data ends."""
         try:
-            yield from self._walk(memoryview(self._data), len(ROS1_MAGIC), topics, outer=True)
-        except (ValueError, struct.error, OSError, EOFError) as exc:
+            yield from self._walk(memoryview(self._data), len(ROS1_MAGIC), topics)
+        except (ValueError, KeyError, struct.error, OSError, EOFError, RuntimeError) as exc:  # lz4: RuntimeError
             self.damage = f"{exc}"
 
-    def _walk(self, data: memoryview, pos: int, topics: Collection[str] | None, outer: bool) -> Iterator[RawMessage]:
+    def _walk(self, data: memoryview, pos: int, topics: Collection[str] | None) -> Iterator[RawMessage]:
         while pos < len(data):
-            start = pos
-            fields, body, pos = _record(data, pos)
+            fields, body, end = _record(data, pos)
             op = fields.get("op", b"\xff")[0]
             if op == OP_CHUNK:
-                yield from self._walk(_chunk(fields, body), 0, topics, outer=False)
+                yield from self._walk(_chunk(fields, body), 0, topics)
+            elif end > len(data):
+                raise ValueError(f"truncated at byte {pos} of {len(data)}: a record of {end - pos} bytes")
             elif op == OP_CONNECTION:
                 conn = struct.unpack("<I", fields["conn"])[0]
                 header, _, _ = _fields(body, 0, len(body))
@@ -213,15 +214,17 @@ class _Ros1Scan:
                 elif topic is not None and (not topics or topic in topics):
                     sec, nsec = struct.unpack("<II", fields["time"])
                     yield RawMessage(topic, sec * 1_000_000_000 + nsec, body)
-            if outer and pos <= start:
-                raise ValueError(f"no progress at byte {start}")
+            if end > len(data):  # an uncompressed chunk cut short: its whole records were read above
+                raise ValueError(f"truncated at byte {pos} of {len(data)}: a chunk of {end - pos} bytes")
+            pos = end
 
     def close(self) -> None:
         self._data = b""
 
 
 def _record(data: memoryview, pos: int) -> tuple[dict[str, bytes], memoryview, int]:
-    """(header fields, data, next position) of the ROS 1 record at `pos`."""
+    """(header fields, data, end) of the ROS 1 record at `pos`; a record cut short by the end of `data` has the
+    bytes that are there and an end beyond it."""
     if pos + 4 > len(data):
         raise ValueError(f"truncated at byte {pos} of {len(data)}: a record header length")
     (header_len,) = struct.unpack_from("<I", data, pos)
@@ -229,8 +232,6 @@ def _record(data: memoryview, pos: int) -> tuple[dict[str, bytes], memoryview, i
     if pos + 4 > len(data):
         raise ValueError(f"truncated at byte {pos} of {len(data)}: a record's data length")
     (data_len,) = struct.unpack_from("<I", data, pos)
-    if pos + 4 + data_len > len(data):
-        raise ValueError(f"truncated at byte {pos} of {len(data)}: a record of {data_len} bytes")
     return fields, data[pos + 4:pos + 4 + data_len], pos + 4 + data_len
 
 
@@ -252,16 +253,17 @@ def _fields(data: memoryview, pos: int, length: int) -> tuple[dict[str, bytes], 
 
 
 def _chunk(fields: dict[str, bytes], body: memoryview) -> memoryview:
-    """A chunk's records, decompressed (none, bz2 or lz4)."""
+    """A chunk's records, decompressed (none, bz2 or lz4) with streaming decompressors, so that a chunk cut short
+    gives the records of its complete blocks."""
     compression = fields.get("compression", b"none").decode()
-    if compression == "none":
+    if compression == "none":  # possibly cut short: the walk stops at its first incomplete record
         return body
     if compression == "bz2":
-        return memoryview(bz2.decompress(body))
+        return memoryview(bz2.BZ2Decompressor().decompress(body))
     if compression == "lz4":
         import lz4.frame
 
-        return memoryview(lz4.frame.decompress(bytes(body)))
+        return memoryview(lz4.frame.LZ4FrameDecompressor().decompress(bytes(body)))
     raise ValueError(f"chunk compression {compression!r} is not none, bz2 or lz4")
 
 
