@@ -19,6 +19,7 @@ from vendor_bag_helpers import (
     pinhole_errors,
     realsense_env,
     record_realsense,
+    replay_saving_rrd,
 )
 
 from drivers.bags import open_bag
@@ -72,14 +73,15 @@ def test_frames_carry_the_device_numbers_times_units_lens_and_identity(recording
 @pytest.mark.slow
 def test_replay_puts_the_foreground_on_the_sphere_through_the_lens(recording, tmp_path):
     kind, path, _ = recording
-    proc = tofd("replay", str(path), "--out", str(tmp_path / "out"))
+    stem = path.name.split(".")[0]
+    rrd = tmp_path / "out" / f"{stem}.rrd"
+    proc = replay_saving_rrd(path, tmp_path / "out")
     assert proc.returncode == 0, proc.stderr
     assert f"imported {N_FRAMES} frames of 256x192" in proc.stderr
-    stem = path.name.split(".")[0]
     rows = [json.loads(line) for line in (tmp_path / "out" / f"{stem}.results.jsonl").read_text().splitlines()]
     assert [r["frame_counter"] for r in rows] == list(range(100, 100 + N_FRAMES))
     _, _, sphere = render(RS_LIKE, RS_SCENE)
-    foreground = logged_foreground(tmp_path / "out" / f"{stem}.rrd")
+    foreground = logged_foreground(rrd)
     assert len(foreground) == N_FRAMES
     for points in foreground:
         assert_on_sphere(points, RS_SCENE, int(sphere.sum()))

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from bag_scenes import Scene, depth_units, render, sphere_errors
 from rrd_helpers import read_entities
+from test_cli import HANG_GUARD_S
 
 from drivers.intrinsics import Intrinsics
 from tofd.service.viewer import blueprint as bp
@@ -58,6 +59,13 @@ def record_realsense(out: Path, env: dict[str, str], intrinsics: Intrinsics, sce
     assert proc.returncode == 0 and out.exists(), proc.stderr[-2000:]
     frames.unlink()
     return out
+
+
+def replay_saving_rrd(path: Path, out: Path) -> subprocess.CompletedProcess:
+    """`tofd replay path --out out` with the viewer saving out/<stem>.rrd (the default when Rerun is on)."""
+    env = {k: v for k, v in os.environ.items() if k != "RERUN"} | {"RUST_LOG": "error"}
+    return subprocess.run([sys.executable, "-m", "tofd", "replay", str(path), "--out", str(out)], capture_output=True,
+                          text=True, timeout=HANG_GUARD_S, env=env)
 
 
 def logged_foreground(rrd: Path) -> list[np.ndarray]:
