@@ -1,21 +1,41 @@
-"""Pinhole camera model of a TOF camera and back-projection of radial range maps."""
+"""Camera model of a TOF camera (pinhole plus an optional lens distortion) and back-projection of range maps.
+
+The distortion models and the order of their coefficients are those of ROS sensor_msgs/CameraInfo (OpenCV's):
+"plumb_bob" D = (k1, k2, p1, p2, k3), "rational_polynomial" D = (k1, k2, p1, p2, k3, k4, k5, k6) (the
+Brown-Conrady model of the Azure Kinect), "equidistant" D = (k1, k2, k3, k4) (OpenCV's fisheye model).
+"""
 
 from __future__ import annotations
 
 import functools
 import math
+import numbers
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
 SR3000_WIDTH = 176
 SR3000_HEIGHT = 144
 SR3000_FOV_X_DEG = 47.5
+MAX_SIDE_PX = 8192
+
+DistortionModel = Literal["none", "plumb_bob", "rational_polynomial", "equidistant"]
+COEFFICIENT_COUNTS: dict[str, int] = {"none": 0, "plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
+"""Number of distortion coefficients (CameraInfo's D) of each distortion model."""
+
+UNDISTORT_MAX_ITERATIONS = 30
+UNDISTORT_TOLERANCE = 1e-12
+"""Newton iterations of undistortion stop when the residual in normalised image coordinates is below this."""
 
 
 @dataclass(frozen=True, slots=True)
 class Intrinsics:
-    """Pinhole intrinsics in pixels; pixel (u, v) = (column, row), centre of the top-left pixel is (0, 0)."""
+    """Camera intrinsics in pixels; pixel (u, v) = (column, row), centre of the top-left pixel is (0, 0).
+
+    distortion_model and distortion (CameraInfo's D, in its order) describe the lens; "none" is an ideal
+    pinhole. ValueError names the first field that is out of range.
+    """
 
     width: int = SR3000_WIDTH
     height: int = SR3000_HEIGHT
@@ -23,23 +43,63 @@ class Intrinsics:
     fy: float = (SR3000_WIDTH / 2) / math.tan(math.radians(SR3000_FOV_X_DEG / 2))
     cx: float = (SR3000_WIDTH - 1) / 2
     cy: float = (SR3000_HEIGHT - 1) / 2
+    distortion_model: DistortionModel = "none"
+    distortion: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Integral) or isinstance(value, bool) or not 1 <= int(value) <= MAX_SIDE_PX:
+                raise ValueError(f"intrinsics.{name}: expected an integer in 1..{MAX_SIDE_PX}, got {value!r}")
+            object.__setattr__(self, name, int(value))
+        for name in ("fx", "fy", "cx", "cy"):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Real) or isinstance(value, bool) or not math.isfinite(value) \
+                    or (name in ("fx", "fy") and value <= 0):
+                kind = "a finite number > 0" if name in ("fx", "fy") else "a finite number"
+                raise ValueError(f"intrinsics.{name}: expected {kind}, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        if self.distortion_model not in COEFFICIENT_COUNTS:
+            raise ValueError(f"intrinsics.distortion_model: expected one of {', '.join(COEFFICIENT_COUNTS)}, "
+                             f"got {self.distortion_model!r}")
+        try:
+            coefficients = tuple(float(c) for c in self.distortion)
+        except (TypeError, ValueError):
+            raise ValueError(f"intrinsics.distortion: expected a sequence of numbers, got {self.distortion!r}"
+                             ) from None
+        count = COEFFICIENT_COUNTS[self.distortion_model]
+        if len(coefficients) != count or not all(math.isfinite(c) for c in coefficients):
+            raise ValueError(f"intrinsics.distortion: model {self.distortion_model!r} takes {count} finite "
+                             f"coefficients, got {self.distortion!r}")
+        object.__setattr__(self, "distortion", coefficients)
 
     @property
     def shape(self) -> tuple[int, int]:
         """Image shape (rows, columns)."""
         return self.height, self.width
 
+    @property
+    def is_pinhole(self) -> bool:
+        """True when the lens has no distortion (model "none")."""
+        return self.distortion_model == "none"
+
     def unit_rays(self) -> np.ndarray:
-        """(H, W, 3) float64 unit direction of each pixel's ray in the camera frame (x right, y down, z forward).
+        """(H, W, 3) float64 unit direction of each pixel's ray in the camera frame (x right, y down, z forward);
+        NaN for a pixel no ray of the lens model reaches.
 
         Computed once per intrinsics and shared (read-only): segmentation and detection ask for it every frame.
         """
         return _unit_rays(self)
 
     def pixel_rays(self, u: np.ndarray | float, v: np.ndarray | float) -> np.ndarray:
-        """(..., 3) float64 unit rays through (sub)pixel coordinates u (column), v (row) of broadcastable shapes."""
+        """(..., 3) float64 unit rays through (sub)pixel coordinates u (column), v (row) of broadcastable shapes
+        (the lens distortion undone); NaN where the undistortion does not converge."""
         x = (np.asarray(u, dtype=np.float64) - self.cx) / self.fx
         y = (np.asarray(v, dtype=np.float64) - self.cy) / self.fy
+        if self.distortion_model == "equidistant":
+            return _fisheye_rays(*_broadcast(x, y), self.distortion)
+        if not self.is_pinhole:
+            x, y = _undistort_radial_tangential(*_broadcast(x, y), self._rational_coefficients())
         rays = np.stack(np.broadcast_arrays(x, y, np.ones_like(x)), axis=-1)
         return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
 
@@ -49,25 +109,138 @@ class Intrinsics:
             raise ValueError(f"range_m has shape {range_m.shape}, expected {self.shape}")
         return self.unit_rays() * range_m[..., None]
 
+    def radial_from_z(self, z: np.ndarray) -> np.ndarray:
+        """(H, W) radial range along each pixel's ray from a z-depth map (H, W) in the same unit."""
+        if z.shape != self.shape:
+            raise ValueError(f"z-depth map has shape {z.shape}, expected {self.shape}")
+        return z / self.unit_rays()[..., 2]
+
     def project(self, points: np.ndarray) -> np.ndarray:
-        """(..., 2) pixel coordinates (u, v) of camera-frame points (..., 3) in metres."""
+        """(..., 2) pixel coordinates (u, v) of camera-frame points (..., 3) in metres, through the lens."""
         points = np.asarray(points, dtype=np.float64)
+        if self.distortion_model == "equidistant":
+            x, y = _fisheye_distort(points, self.distortion)
+            return np.stack([self.fx * x + self.cx, self.fy * y + self.cy], axis=-1)
         z = points[..., 2]
+        if not self.is_pinhole:
+            x, y = _distort_radial_tangential(points[..., 0] / z, points[..., 1] / z, self._rational_coefficients())
+            return np.stack([self.fx * x + self.cx, self.fy * y + self.cy], axis=-1)
         return np.stack([self.fx * points[..., 0] / z + self.cx, self.fy * points[..., 1] / z + self.cy], axis=-1)
 
-    def to_dict(self) -> dict[str, float]:
-        return {"width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy}
+    def _rational_coefficients(self) -> tuple[float, ...]:
+        """(k1, k2, p1, p2, k3, k4, k5, k6) of a plumb_bob or rational_polynomial lens."""
+        return self.distortion + (0.0,) * (8 - len(self.distortion))
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready fields; a pinhole's dict has only width..cy (as before lens models existed)."""
+        d: dict[str, object] = {"width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
+                                "cx": self.cx, "cy": self.cy}
+        if not self.is_pinhole:
+            d.update(distortion_model=self.distortion_model, distortion=list(self.distortion))
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> Intrinsics:
-        unknown = set(d) - {"width", "height", "fx", "fy", "cx", "cy"}
+        """The Intrinsics of a to_dict() dict (a dict without distortion keys is a pinhole)."""
+        known = {"width", "height", "fx", "fy", "cx", "cy", "distortion_model", "distortion"}
+        unknown = set(d) - known
         if unknown:
             raise ValueError(f"unknown intrinsics key(s): {', '.join(sorted(unknown))}")
-        return cls(**d)
+        kwargs = dict(d)
+        if "distortion" in kwargs and not isinstance(kwargs["distortion"], str):
+            kwargs["distortion"] = tuple(kwargs["distortion"])
+        return cls(**kwargs)
 
 
 @functools.lru_cache(maxsize=8)
 def _unit_rays(intrinsics: Intrinsics) -> np.ndarray:
     rays = intrinsics.pixel_rays(np.arange(intrinsics.width)[None, :], np.arange(intrinsics.height)[:, None])
     rays.setflags(write=False)
+    return rays
+
+
+def _broadcast(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    bx, by = np.broadcast_arrays(x, y)
+    return bx, by
+
+
+def _distort_radial_tangential(x: np.ndarray, y: np.ndarray, d: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Distorted normalised coordinates of undistorted ones (x, y) = (X/Z, Y/Z), OpenCV's rational model."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = d
+    x2, y2, xy = x * x, y * y, x * y
+    r2 = x2 + y2
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    return (x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x2),
+            y * radial + p1 * (r2 + 2 * y2) + 2 * p2 * xy)
+
+
+def _undistort_radial_tangential(xd: np.ndarray, yd: np.ndarray, d: tuple[float, ...]
+                                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted normalised coordinates whose distortion is (xd, yd): Newton's method on the 2x2 system with
+    the analytic Jacobian, from (xd, yd); NaN where it does not converge to UNDISTORT_TOLERANCE."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = d
+    x, y = xd.astype(np.float64, copy=True), yd.astype(np.float64, copy=True)
+    for _ in range(UNDISTORT_MAX_ITERATIONS):
+        x2, y2, xy = x * x, y * y, x * y
+        r2 = x2 + y2
+        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        radial = num / den
+        d_radial = ((k1 + r2 * (2 * k2 + 3 * k3 * r2)) * den - (k4 + r2 * (2 * k5 + 3 * k6 * r2)) * num) / (den * den)
+        fx = x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x2) - xd
+        fy = y * radial + p1 * (r2 + 2 * y2) + 2 * p2 * xy - yd
+        # Jacobian; d(r2)/dx = 2x, d(r2)/dy = 2y
+        j11 = radial + 2 * x2 * d_radial + 2 * p1 * y + 6 * p2 * x
+        j12 = 2 * xy * d_radial + 2 * p1 * x + 2 * p2 * y
+        j21 = 2 * xy * d_radial + 2 * p1 * x + 2 * p2 * y
+        j22 = radial + 2 * y2 * d_radial + 6 * p1 * y + 2 * p2 * x
+        det = j11 * j22 - j12 * j21
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = x - (j22 * fx - j12 * fy) / det
+            y = y - (j11 * fy - j21 * fx) / det
+            if not np.nanmax(np.abs(fx) + np.abs(fy), initial=0.0) > UNDISTORT_TOLERANCE:
+                break
+    with np.errstate(invalid="ignore"):
+        rx, ry = _distort_radial_tangential(x, y, d)
+        # radial > 0 and det > 0: the solution is on the pixel's side of the axis and the lens maps its
+        # neighbourhood one to one (not a root folded back past the radius where the polynomial turns over)
+        bad = ~((np.hypot(rx - xd, ry - yd) <= UNDISTORT_TOLERANCE * np.maximum(1.0, np.hypot(xd, yd)))
+                & (radial > 0) & (det > 0))
+    x[bad] = np.nan
+    y[bad] = np.nan
+    return x, y
+
+
+def _fisheye_theta_d(theta: np.ndarray, d: tuple[float, ...]) -> np.ndarray:
+    k1, k2, k3, k4 = d
+    t2 = theta * theta
+    return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+
+def _fisheye_distort(points: np.ndarray, d: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Distorted normalised coordinates of camera-frame points (..., 3), OpenCV's fisheye (equidistant) model."""
+    r = np.hypot(points[..., 0], points[..., 1])
+    theta_d = _fisheye_theta_d(np.arctan2(r, points[..., 2]), d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(r > 0, theta_d / r, 0.0)
+    return points[..., 0] * scale, points[..., 1] * scale
+
+
+def _fisheye_rays(xd: np.ndarray, yd: np.ndarray, d: tuple[float, ...]) -> np.ndarray:
+    """(..., 3) unit rays of distorted normalised coordinates, OpenCV's fisheye (equidistant) model: Newton's
+    method for the angle theta from the axis with theta_d(theta) = |(xd, yd)|; NaN where it does not converge."""
+    k1, k2, k3, k4 = d
+    theta_d = np.hypot(xd, yd)
+    theta = theta_d.astype(np.float64, copy=True)
+    for _ in range(UNDISTORT_MAX_ITERATIONS):
+        t2 = theta * theta
+        slope = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            theta = theta - (_fisheye_theta_d(theta, d) - theta_d) / slope
+    with np.errstate(invalid="ignore"):
+        bad = ~((np.abs(_fisheye_theta_d(theta, d) - theta_d) <= UNDISTORT_TOLERANCE * np.maximum(1.0, theta_d))
+                & (theta >= 0) & (theta < np.pi))
+        scale = np.where(theta_d > 0, np.sin(theta) / np.where(theta_d > 0, theta_d, 1.0), 1.0)
+    rays = np.stack([xd * scale, yd * scale, np.cos(theta)], axis=-1)
+    rays[bad] = np.nan
     return rays

@@ -1,18 +1,20 @@
-"""ROS bags as a frame source: a range and an amplitude sensor_msgs/Image topic and a CameraInfo topic, paired by
-header stamp, become Frames. Reads ROS 1 .bag files and ROS 2 bags (a directory with metadata.yaml, or a bare
-.db3 or .mcap storage file) through the `rosbags` package.
+"""ROS bags of camera drivers as a frame source: a range and an amplitude image topic and a CameraInfo topic,
+paired by header stamp, become Frames. Reads ROS 1 .bag files and ROS 2 bags (a directory with metadata.yaml,
+or a bare .db3 or .mcap storage file) through the `rosbags` package (drivers.bag_scan).
 
-The defaults are what the SwissRanger ROS driver (swissranger_camera, launched as node "SwissRanger") publishes:
-distance/image_raw16 (mono16 in device units: raw / 65535 x c / (2 f_mod), 0xFFFF = no return),
-intensity/image_raw16 (mono16) and camera_info, all three with the same header stamp. Its distance/image_raw and
-intensity/image_raw are 8-bit display images (scaled by 255/65535) and are refused as range.
+The topics are those of the driver the bag's topics show (drivers.driver_layouts: swissranger_camera,
+orbbec_camera, azure_kinect_ros_driver, realsense2_camera, royale), each overridable by RangeOptions. The
+SwissRanger ROS driver publishes distance/image_raw16 (mono16 in device units: raw / 65535 x c / (2 f_mod),
+0xFFFF = no return), intensity/image_raw16 (mono16) and camera_info, all three with the same header stamp; its
+distance/image_raw and intensity/image_raw are 8-bit display images and are refused as range. The ROS 2 TOF
+drivers publish z-depth (REP 118: 16UC1 millimetres, 0 = no return, or 32FC1 metres) and an infrared or
+gray-value image (mono8, mono16 or 32FC1), raw or through image_transport's compressed / compressedDepth (PNG).
 
-Range: 32FC1 in metres as it is (REP 118); 16UC1/mono16 in device units (SwissRanger) or millimetres (REP 118,
-0 = no return), per RangeOptions.range_unit. Radial range (along each pixel's ray, as tofd and the SwissRanger
-measure) or z-depth (along the optical axis, REP 118's depth), converted with the intrinsics' unit rays:
-radial = z / ray_z. Amplitude: mono8/8UC1, mono16/16UC1 or 32FC1, as float32. Intrinsics: CameraInfo's K
-(ROS and tofd both put pixel centres at integer coordinates), width and height; distortion is not modelled by
-tofd and is ignored (logged). Any image size works: the intrinsics decide.
+Range: 32FC1 in metres as it is; 16-bit in device units (SwissRanger) or millimetres, per RangeOptions.range_unit
+(default: the driver's). Radial range (along each pixel's ray, as tofd and the SwissRanger measure) or z-depth,
+converted with the CameraInfo's undistorted unit rays: radial = z / ray_z. Amplitude: as float32 in the
+image's own units. Intrinsics: CameraInfo's K, size and lens (drivers.ros_camera_info: plumb_bob,
+rational_polynomial, equidistant). Any image size works: the intrinsics decide.
 """
 
 from __future__ import annotations
@@ -24,22 +26,21 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from mcap.stream_reader import StreamReader
 
+from drivers.bag_scan import BagError, RawMessage
+from drivers.bag_source import BagSource, depth_metres
+from drivers.driver_layouts import CAMERA_INFO_TYPE, Layout, describe_topics, detect_layout, no_layout_error
 from drivers.frame import DeviceInfo, Frame, Registers
 from drivers.intrinsics import Intrinsics
-from drivers.recording.format import PROFILE
-from drivers.source import DriverError, FrameSource
+from drivers.ros_camera_info import camera_info_intrinsics
+from drivers.ros_images import AMPLITUDE_ENCODINGS, IMAGE_TYPE, IMAGE_TYPES, RANGE_ENCODINGS, plane
 from drivers.usb import protocol
+
+__all__ = ["AMPLITUDE_ENCODINGS", "CAMERA_INFO_TYPE", "IMAGE_TYPE", "RANGE_ENCODINGS", "BagError", "RangeOptions",
+           "RosbagSource"]
 
 log = logging.getLogger(__name__)
 
-IMAGE_TYPE = "sensor_msgs/msg/Image"
-CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
-RANGE_ENCODINGS: dict[str, str] = {"32FC1": "f4", "16UC1": "u2", "mono16": "u2"}
-"""Range image encoding -> numpy dtype (byte order from the message's is_bigendian)."""
-AMPLITUDE_ENCODINGS: dict[str, str] = {**RANGE_ENCODINGS, "mono8": "u1", "8UC1": "u1"}
-"""Amplitude image encoding -> numpy dtype."""
 RANGE_UNITS = ("device", "mm")
 DEPTH_CONVENTIONS = ("radial", "z")
 MAX_PENDING_STAMPS = 256
@@ -47,202 +48,140 @@ MAX_PENDING_STAMPS = 256
 messages of one frame closely, so this only bounds memory)."""
 
 
-class BagError(DriverError):
-    """A bag that cannot be imported: unreadable, a topic missing or of the wrong type, an image tofd cannot use."""
-
-
 @dataclass(frozen=True, slots=True)
 class RangeOptions:
-    """Which topics hold a frame and how its range is encoded (defaults: the SwissRanger ROS driver)."""
+    """Which topics hold a frame and how its range is encoded; None = what the bag's driver publishes
+    (drivers.driver_layouts)."""
 
-    range_topic: str = "/SwissRanger/distance/image_raw16"
-    amplitude_topic: str = "/SwissRanger/intensity/image_raw16"
-    camera_info_topic: str = "/SwissRanger/camera_info"
-    range_unit: Literal["device", "mm"] = "device"  # 16-bit range images: SwissRanger device units or millimetres
-    depth: Literal["radial", "z"] = "radial"  # radial range along each pixel's ray, or z-depth along the axis
+    range_topic: str | None = None
+    amplitude_topic: str | None = None
+    camera_info_topic: str | None = None
+    range_unit: Literal["device", "mm"] | None = None  # 16-bit range: SwissRanger device units or millimetres
+    depth: Literal["radial", "z"] | None = None  # radial range along each pixel's ray, or z-depth along the axis
     mod_freq_mhz: float = 20.0  # device units: the modulation frequency (SR3000 power-up: 20 MHz -> 7.49 m)
 
     def validate(self) -> None:
-        if self.range_unit not in RANGE_UNITS:
+        if self.range_unit is not None and self.range_unit not in RANGE_UNITS:
             raise ValueError(f"range unit {self.range_unit!r} is not one of {', '.join(RANGE_UNITS)}")
-        if self.depth not in DEPTH_CONVENTIONS:
+        if self.depth is not None and self.depth not in DEPTH_CONVENTIONS:
             raise ValueError(f"depth {self.depth!r} is not one of {', '.join(DEPTH_CONVENTIONS)}")
         if not (np.isfinite(self.mod_freq_mhz) and self.mod_freq_mhz > 0):
             raise ValueError(f"modulation frequency {self.mod_freq_mhz!r} MHz must be > 0")
 
     @property
-    def topics(self) -> dict[str, str]:
-        """Role ("range", "amplitude", "camera_info") -> topic."""
+    def topics(self) -> dict[str, str | None]:
+        """Role ("range", "amplitude", "camera_info") -> topic (None: the driver's)."""
         return {"range": self.range_topic, "amplitude": self.amplitude_topic, "camera_info": self.camera_info_topic}
 
 
-def is_rosbag(path: str | Path) -> bool:
-    """Whether `path` is a ROS bag rather than a tofd recording: a .bag or .db3 file, a directory (a ROS 2 bag), or
-    an .mcap file whose MCAP profile is not tofd's (ROS 2 writes "ros2")."""
-    path = Path(path)
-    if path.suffix in (".bag", ".db3") or path.is_dir():
-        return True
-    if path.suffix != ".mcap":
-        return False
-    try:
-        with open(path, "rb") as f:
-            header = next(StreamReader(f, skip_magic=False).records)
-    except Exception:  # noqa: BLE001 (an unreadable file is left to the recording reader, which says why)
-        return False
-    return getattr(header, "profile", PROFILE) != PROFILE
+@dataclass(frozen=True, slots=True)
+class ResolvedOptions:
+    """The topics and encoding of one bag: RangeOptions over its driver's layout."""
+
+    topics: dict[str, str]
+    range_unit: Literal["device", "mm"]
+    depth: Literal["radial", "z"]
+    mod_freq_mhz: float
+    driver: str  # the layout's driver, "" when every topic was named
+    amplitude: str  # what the amplitude image is
 
 
-def _reader(path: Path) -> Any:
-    """An open rosbags AnyReader on `path` (a ROS 1 bag by its .bag suffix, else a ROS 2 bag)."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    if not path.exists():
-        raise BagError(f"{path}: no such file or directory")
-    try:
-        reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
-        reader.open()
-    except Exception as exc:  # noqa: BLE001 (whatever rosbags cannot parse is an unreadable bag)
-        raise BagError(f"{path}: not a readable ROS bag ({type(exc).__name__}: {exc})") from None
-    return reader
-
-
-def _field(msg: object, name: str) -> Any:
-    """A CameraInfo matrix by its ROS 2 name (k, d) or ROS 1 name (K, D)."""
-    return getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper())
-
-
-def image_plane(msg: Any, encodings: dict[str, str], topic: str) -> np.ndarray:
-    """(height, width) array of a sensor_msgs/Image in its own dtype (native byte order), rows of `step` bytes."""
-    dtype_code = encodings.get(msg.encoding)
-    if dtype_code is None:
-        raise BagError(f"{topic}: image encoding {msg.encoding!r} is not supported (supported: {', '.join(encodings)})")
-    dtype = np.dtype(dtype_code).newbyteorder(">" if msg.is_bigendian else "<")
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    row_bytes = w * dtype.itemsize
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if step < row_bytes or data.size < h * step:
-        raise BagError(f"{topic}: a {w}x{h} {msg.encoding} image has {data.size} bytes in rows of {step}, expected "
-                       f"{h} rows of at least {row_bytes} bytes")
-    rows = np.ascontiguousarray(data[:h * step].reshape(h, step)[:, :row_bytes])
-    return rows.view(dtype).reshape(h, w).astype(dtype.newbyteorder("="))
-
-
-def camera_intrinsics(msg: Any, topic: str) -> Intrinsics:
-    """Intrinsics of a sensor_msgs/CameraInfo: K's focal lengths and principal point, its width and height."""
-    k = np.asarray(_field(msg, "k"), dtype=np.float64)
-    fx, fy, cx, cy = float(k[0]), float(k[4]), float(k[2]), float(k[5])
-    if not (fx > 0 and fy > 0 and np.isfinite([fx, fy, cx, cy]).all()) or msg.width < 1 or msg.height < 1:
-        raise BagError(f"{topic}: no usable calibration (K = {k.tolist()}, {msg.width}x{msg.height}): tofd needs "
-                       "focal lengths > 0 and the image size")
-    return Intrinsics(int(msg.width), int(msg.height), fx, fy, cx, cy)
-
-
-def range_plane(image: np.ndarray, options: RangeOptions, intrinsics: Intrinsics) -> np.ndarray:
+def range_plane(image: np.ndarray, options: ResolvedOptions, intrinsics: Intrinsics) -> np.ndarray:
     """(H, W) float32 radial range in metres (NaN where no return) from a range image's array."""
-    if image.dtype == np.float32:
-        metres = image
-    elif options.range_unit == "device":
+    if image.dtype.kind != "f" and options.range_unit == "device":
         metres = protocol.raw_to_range_m(image, round(options.mod_freq_mhz * 1000))
     else:
-        metres = image.astype(np.float32) * np.float32(1e-3)
-        metres[image == 0] = np.nan
-    if options.depth == "z":
-        metres = (metres / intrinsics.unit_rays()[..., 2]).astype(np.float32)
-    return metres
+        metres = depth_metres(image, 1e-3)
+    return intrinsics.radial_from_z(metres).astype(np.float32) if options.depth == "z" else metres
 
 
-class RosbagSource(FrameSource):
-    """Frames of a ROS bag: each header stamp with a range image, an amplitude image and a CameraInfo.
+class RosbagSource(BagSource):
+    """Frames of a ROS driver's bag: each header stamp with a range image, an amplitude image and a CameraInfo.
 
     Frame counters count the paired frames from 0; the device timestamp is the header stamp, the host times are
-    the bag's receive time of the range image; the device is backend "rosbag", model = the header's frame_id.
-    Messages whose stamp never completes a frame are counted in counters["unpaired_<role>"]. Opening checks the
-    topics (BagError names a missing one and lists the bag's topics); iterating raises BagError at the first
-    image tofd cannot use.
+    the bag's receive time of the range image; the device is backend "rosbag", model = the driver (or the
+    header's frame_id when the topics were named). Messages whose stamp never completes a frame are counted in
+    counters["unpaired_<role>"]. Opening checks the topics (BagError names a missing one and lists the bag's
+    topics); iterating raises BagError at the first image tofd cannot use, and ends early (with `damage` set and
+    the rest ledgered as one rejected frame) where the bag is damaged.
     """
 
     def __init__(self, path: str | Path, options: RangeOptions | None = None) -> None:
-        super().__init__()
+        super().__init__(path)
         options = options or RangeOptions()
         options.validate()
-        self.path, self.options = Path(path), options
-        self._reader = _reader(self.path)
         try:
-            self.range_messages = self._check_topics()
+            self.options = self._resolve(options)
         except BagError:
-            self._reader.close()
+            self.bag.close()
             raise
+        self.range_messages = max(0, self.bag.topics[self.options.topics["range"]].count)
         index = protocol.mod_freq_index(round(options.mod_freq_mhz * 1000))
         self._registers = Registers() if index is None else Registers(mod_freq_index=index)
-        self.intrinsics: Intrinsics | None = None
-        """The calibration of every frame so far (None before the first)."""
-        self._distortion_logged = False
+        self.settings = {"driver": self.options.driver, "topics": self.options.topics,
+                         "range_unit": self.options.range_unit, "depth": self.options.depth,
+                         "amplitude": self.options.amplitude}
 
-    def _check_topics(self) -> int:
-        """Number of range messages, after checking that every topic is in the bag with its message type."""
-        topics = self._reader.topics
-        for role, topic in self.options.topics.items():
-            expected = CAMERA_INFO_TYPE if role == "camera_info" else IMAGE_TYPE
-            if topic not in topics:
-                have = ", ".join(f"{name} ({info.msgtype})" for name, info in sorted(topics.items())) or "none"
-                raise BagError(f"{self.path}: no {role} topic {topic}; the bag has: {have}")
-            if topics[topic].msgtype != expected:
-                raise BagError(f"{self.path}: {role} topic {topic} is {topics[topic].msgtype}, expected {expected}")
-        return int(topics[self.options.range_topic].msgcount)
+    def _resolve(self, options: RangeOptions) -> ResolvedOptions:
+        """The bag's topics and encoding: the options over the detected driver's, each topic checked to be in the
+        bag with its message type."""
+        topics = self.bag.topics
+        detected = detect_layout(topics)
+        layout: Layout | None = detected[0] if detected else None
+        found = detected[1] if detected else {}
+        chosen: dict[str, str] = {}
+        for role, topic in options.topics.items():
+            name = topic or found.get(role)
+            if name is None:
+                if layout is None:
+                    raise no_layout_error(self.path, topics)
+                raise BagError(f"{self.path}: the {layout.driver} driver's bag has no {role} topic (its "
+                               f"{layout.relative_topics[role] or role} under {layout.namespace or '/'}); "
+                               f"name one with --{role.replace('_', '-')}-topic; the bag has: "
+                               f"{describe_topics(topics)}")
+            if name not in topics:
+                raise BagError(f"{self.path}: no {role} topic {name}; the bag has: {describe_topics(topics)}")
+            expected = (CAMERA_INFO_TYPE,) if role == "camera_info" else IMAGE_TYPES
+            if topics[name].msgtype not in expected:
+                raise BagError(f"{self.path}: {role} topic {name} is {topics[name].msgtype}, expected "
+                               f"{' or '.join(expected)}")
+            chosen[role] = name
+        named = all(options.topics.values())
+        return ResolvedOptions(chosen, options.range_unit or (layout.range_unit if layout else "mm"),
+                               options.depth or (layout.depth if layout else "z"), options.mod_freq_mhz,
+                               "" if named or layout is None else layout.driver,
+                               layout.amplitude if layout and not named else "amplitude")
 
-    def close(self) -> None:
-        super().close()
-        if self._reader.stack is not None:
-            self._reader.close()
-
-    def _frame(self, counter: int, parts: dict[str, tuple[Any, int]]) -> Frame:
-        """The Frame of one stamp's range image, amplitude image and CameraInfo (each with its receive time)."""
-        (rng, log_ns), (amp, _), (info, _) = parts["range"], parts["amplitude"], parts["camera_info"]
-        intrinsics = camera_intrinsics(info, self.options.camera_info_topic)
-        if self.intrinsics is None:
-            self.intrinsics = intrinsics
-        elif intrinsics != self.intrinsics:
-            raise BagError(f"{self.options.camera_info_topic}: the calibration changes at stamp {_seconds(info)} "
-                           f"({self.intrinsics} -> {intrinsics}); a tofd recording holds one camera calibration")
-        if not self._distortion_logged and np.any(np.asarray(_field(info, "d")) != 0):
-            log.warning("%s: distortion %s is ignored (tofd uses a pinhole model)", self.options.camera_info_topic,
-                        np.asarray(_field(info, "d")).tolist())
-            self._distortion_logged = True
-        range_image = image_plane(rng, RANGE_ENCODINGS, self.options.range_topic)
-        amplitude = image_plane(amp, AMPLITUDE_ENCODINGS, self.options.amplitude_topic).astype(np.float32)
-        sizes = {"range image": range_image.shape, "amplitude image": amplitude.shape,
-                 "camera_info": intrinsics.shape}
-        if len(set(sizes.values())) > 1:
-            raise BagError(f"stamp {_seconds(rng)}: sizes differ: "
-                           + ", ".join(f"{name} {w}x{h}" for name, (h, w) in sizes.items()))
+    def _frame(self, counter: int, parts: dict[str, tuple[Any, RawMessage]]) -> Frame:
+        """The Frame of one stamp's range image, amplitude image and CameraInfo."""
+        topics = self.options.topics
+        (rng, raw_range), (amp, _), (info, _) = parts["range"], parts["amplitude"], parts["camera_info"]
+        intrinsics = self.check_calibration(camera_info_intrinsics(info, topics["camera_info"]),
+                                            topics["camera_info"], f"at stamp {_seconds(info)}")
+        range_image = plane(rng, self.bag.topics[topics["range"]].msgtype, RANGE_ENCODINGS, topics["range"])
+        amplitude = plane(amp, self.bag.topics[topics["amplitude"]].msgtype, AMPLITUDE_ENCODINGS,
+                          topics["amplitude"]).astype(np.float32)
+        self.check_sizes(f"stamp {_seconds(rng)}", range_image=range_image.shape, amplitude_image=amplitude.shape,
+                         camera_info=intrinsics.shape)
+        log_ns = raw_range.log_ns
         return Frame(range_m=range_plane(range_image, self.options, intrinsics), amplitude=amplitude,
                      frame_counter=counter, timestamp_us=_stamp(rng) // 1000, host_monotonic_s=log_ns / 1e9,
                      host_wall_s=log_ns / 1e9, intrinsics=intrinsics,
-                     device=DeviceInfo(serial="", backend="rosbag", model=rng.header.frame_id),
+                     device=DeviceInfo(serial="", backend="rosbag", model=self.options.driver or rng.header.frame_id),
                      registers=self._registers)
 
-    def _messages(self, roles: dict[str, str]) -> Iterator[tuple[str, Any, int]]:
-        """(role, decoded message, receive time ns) of the topics' messages in bag order."""
-        connections = [c for c in self._reader.connections if c.topic in roles]
-        try:
-            for connection, log_ns, raw in self._reader.messages(connections=connections):
-                yield roles[connection.topic], self._reader.deserialize(raw, connection.msgtype), log_ns
-        except Exception as exc:  # noqa: BLE001 (a message rosbags cannot read or decode is a damaged bag)
-            raise BagError(f"{self.path}: unreadable message ({type(exc).__name__}: {exc})") from None
-
-    def __iter__(self) -> Iterator[Frame]:
+    def frames(self) -> Iterator[Frame]:
         """Frames in the order their last message arrives in the bag."""
         roles = {topic: role for role, topic in self.options.topics.items()}
-        pending: dict[int, dict[str, tuple[Any, int]]] = {}
+        types = {topic: self.bag.topics[topic].msgtype for topic in roles}
+        pending: dict[int, dict[str, tuple[Any, RawMessage]]] = {}
         counter = 0
-        for role, msg, log_ns in self._messages(roles):
-            if self.closed:
-                return
+        for message in self.messages(set(roles)):
+            msg, role = self.decode(message, types[message.topic]), roles[message.topic]
             parts = pending.setdefault(_stamp(msg), {})
             if role in parts:  # a second message of this role and stamp: the first one stays unpaired
                 self.counters[f"unpaired_{role}"] += 1
-            parts[role] = (msg, log_ns)
+            parts[role] = (msg, message)
             if len(parts) == len(roles):
                 del pending[_stamp(msg)]
                 yield self._frame(counter, parts)
@@ -252,7 +191,7 @@ class RosbagSource(FrameSource):
         for parts in pending.values():
             self._unpaired(parts)
 
-    def _unpaired(self, parts: dict[str, tuple[Any, int]]) -> None:
+    def _unpaired(self, parts: dict[str, Any]) -> None:
         for role in parts:
             self.counters[f"unpaired_{role}"] += 1
 

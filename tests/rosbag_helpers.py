@@ -13,13 +13,14 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
+from drivers.driver_layouts import LAYOUTS
 from drivers.frame import Frame
-from drivers.rosbag import CAMERA_INFO_TYPE, IMAGE_TYPE, RangeOptions
+from drivers.rosbag import CAMERA_INFO_TYPE, IMAGE_TYPE
 from drivers.usb import protocol
 
 BagKind = Literal["ros1", "sqlite3", "mcap"]
 BAG_KINDS: tuple[BagKind, ...] = ("ros1", "sqlite3", "mcap")
-TOPICS = RangeOptions().topics
+TOPICS: dict[str, str] = LAYOUTS[0].topics  # type: ignore[assignment]  (the SwissRanger driver's)
 
 
 def typestore(kind: BagKind) -> Any:

@@ -45,24 +45,26 @@ def serial(text: str) -> str:
 
 
 def add_bag_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options saying how a ROS bag holds frames (drivers.rosbag.RangeOptions; defaults: the SwissRanger driver)."""
+    """The options saying how a ROS bag holds frames (drivers.rosbag.RangeOptions; defaults: the bag's driver's)."""
+    from drivers.driver_layouts import LAYOUTS
     from drivers.rosbag import AMPLITUDE_ENCODINGS, DEPTH_CONVENTIONS, RANGE_ENCODINGS, RANGE_UNITS, RangeOptions
 
     d = RangeOptions()
-    group = parser.add_argument_group("ROS bags", "topics and range encoding of a ROS 1 or ROS 2 bag")
-    group.add_argument("--range-topic", default=d.range_topic, metavar="TOPIC",
-                       help=f"sensor_msgs/Image of range: {', '.join(RANGE_ENCODINGS)} (default: %(default)s)")
-    group.add_argument("--amplitude-topic", default=d.amplitude_topic, metavar="TOPIC",
-                       help=f"sensor_msgs/Image of amplitude/intensity: {', '.join(AMPLITUDE_ENCODINGS)} "
-                            "(default: %(default)s)")
-    group.add_argument("--camera-info-topic", default=d.camera_info_topic, metavar="TOPIC",
-                       help="sensor_msgs/CameraInfo with the intrinsics (default: %(default)s)")
-    group.add_argument("--range-unit", choices=RANGE_UNITS, default=d.range_unit,
+    group = parser.add_argument_group(
+        "ROS bags", "topics and range encoding of a ROS 1 or ROS 2 bag; by default those of the driver its topics "
+        f"show ({', '.join(layout.driver for layout in LAYOUTS)})")
+    group.add_argument("--range-topic", metavar="TOPIC",
+                       help=f"sensor_msgs/Image or CompressedImage of range: {', '.join(RANGE_ENCODINGS)}")
+    group.add_argument("--amplitude-topic", metavar="TOPIC",
+                       help=f"sensor_msgs/Image or CompressedImage of amplitude/IR: {', '.join(AMPLITUDE_ENCODINGS)}")
+    group.add_argument("--camera-info-topic", metavar="TOPIC",
+                       help="sensor_msgs/CameraInfo with the intrinsics and lens model")
+    group.add_argument("--range-unit", choices=RANGE_UNITS,
                        help="unit of 16-bit range images: SwissRanger device units or millimetres; 32FC1 is always "
-                            "metres (default: %(default)s)")
-    group.add_argument("--depth", choices=DEPTH_CONVENTIONS, default=d.depth,
+                            "metres (default: the driver's)")
+    group.add_argument("--depth", choices=DEPTH_CONVENTIONS,
                        help="range along each pixel's ray (radial) or along the optical axis (z) "
-                            "(default: %(default)s)")
+                            "(default: the driver's)")
     group.add_argument("--mod-freq-mhz", type=positive_float, default=d.mod_freq_mhz, metavar="MHZ",
                        help="modulation frequency for --range-unit device, MHz (default: %(default)s)")
 

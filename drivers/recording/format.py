@@ -139,10 +139,14 @@ def _header(frame: Frame, codecs: dict[str, tuple[float, int | None]]) -> bytes:
         raise ValueError(f"frame counter {frame.frame_counter!r} or timestamp {frame.timestamp_us!r} us is not "
                          f"a 64-bit integer: {exc}") from None
     msg.host_monotonic_s, msg.host_wall_s = frame.host_monotonic_s, frame.host_wall_s
-    for name in ("intrinsics", "device", "registers"):
+    for name, fields in (("intrinsics", frame.intrinsics.to_dict()), ("device", dataclasses.asdict(frame.device)),
+                         ("registers", dataclasses.asdict(frame.registers))):
         getattr(msg, name).SetInParent()
-        for key, value in dataclasses.asdict(getattr(frame, name)).items():
-            setattr(getattr(msg, name), key, value)
+        for key, value in fields.items():
+            if isinstance(value, list):
+                getattr(getattr(msg, name), key).extend(value)
+            else:
+                setattr(getattr(msg, name), key, value)
     if (gt := frame.ground_truth) is not None:
         msg.ground_truth.nose_u, msg.ground_truth.nose_v = gt.nose_px
         msg.ground_truth.visible = gt.visible
@@ -161,11 +165,18 @@ def _timestamp(ns: int) -> dict[str, int]:
     return {"seconds": ns // 1_000_000_000, "nanos": ns % 1_000_000_000}
 
 
+FOXGLOVE_DISTORTION_MODELS = {"none": "plumb_bob", "plumb_bob": "plumb_bob",
+                              "rational_polynomial": "rational_polynomial", "equidistant": "kannala_brandt"}
+"""foxglove.CameraCalibration's name of each lens model (a pinhole: plumb_bob with zero coefficients)."""
+
+
 def _calibration(intr: Intrinsics, ns: int) -> bytes:
     fx, fy, cx, cy = intr.fx, intr.fy, intr.cx, intr.cy
     return schemas.CameraCalibration(
         timestamp=_timestamp(ns), frame_id=IMAGE_FRAME_ID, width=intr.width, height=intr.height,
-        distortion_model="plumb_bob", D=[0.0] * 5, K=[fx, 0, cx, 0, fy, cy, 0, 0, 1], R=[1, 0, 0, 0, 1, 0, 0, 0, 1],
+        distortion_model=FOXGLOVE_DISTORTION_MODELS[intr.distortion_model],
+        D=list(intr.distortion) if not intr.is_pinhole else [0.0] * 5,
+        K=[fx, 0, cx, 0, fy, cy, 0, 0, 1], R=[1, 0, 0, 0, 1, 0, 0, 0, 1],
         P=[fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0]).SerializeToString()
 
 
@@ -210,8 +221,10 @@ def decode_frame(header_data: bytes, range_data: bytes, amplitude_data: bytes) -
             xyz = (g.nose_xyz_m.x, g.nose_xyz_m.y, g.nose_xyz_m.z) if g.HasField("nose_xyz_m") else None
             gt = GroundTruth(nose_px=(g.nose_u, g.nose_v), visible=g.visible, nose_xyz_m=xyz)
         fields = {name: {f.name: getattr(getattr(h, name), f.name) for f in getattr(h, name).DESCRIPTOR.fields}
-                  for name in ("intrinsics", "device", "registers")}
-        intrinsics = Intrinsics(**fields["intrinsics"])
+                  for name in ("device", "registers")}
+        # the fields present: headers written before lens models have none of the distortion fields (a pinhole)
+        intrinsics = Intrinsics.from_dict({f.name: v if isinstance(v, (str, int, float)) else list(v)
+                                           for f, v in h.intrinsics.ListFields()})
         return Frame(
             range_m=_plane(range_data, h.range, intrinsics.shape, "range"),
             amplitude=_plane(amplitude_data, h.amplitude, intrinsics.shape, "amplitude"),
@@ -246,16 +259,17 @@ def check_metadata(name: str, data: dict[str, str]) -> dict[str, str]:
 
 
 def to_metadata(obj: object) -> dict[str, str]:
-    """A dataclass as a sealed MCAP metadata map (every value a string; floats in repr, exact)."""
-    return seal_metadata({f.name: repr(v) if isinstance(v, float) else str(v) for f in dataclasses.fields(obj)
-                          for v in [getattr(obj, f.name)]})
+    """A dataclass as a sealed MCAP metadata map (every value a string; floats in repr, exact; tuples as JSON)."""
+    return seal_metadata({f.name: repr(v) if isinstance(v, float) else json.dumps(v) if isinstance(v, tuple)
+                          else str(v) for f in dataclasses.fields(obj) for v in [getattr(obj, f.name)]})
 
 
 def from_metadata(cls: type, data: dict[str, str]) -> object:
     """The dataclass `cls` an MCAP metadata map written by to_metadata stands for."""
     hints = typing.get_type_hints(cls)
     try:
-        kwargs = {k: hints[k](v) if hints[k] in (int, float) else v for k, v in data.items()}
+        kwargs = {k: hints[k](v) if hints[k] in (int, float) else
+                  tuple(json.loads(v)) if typing.get_origin(hints[k]) is tuple else v for k, v in data.items()}
         return cls(**kwargs)
     except (KeyError, TypeError, ValueError) as exc:
         raise FormatError(f"metadata for {cls.__name__} does not decode: {exc}") from None

@@ -7,7 +7,8 @@ tofd.FrameHeader (proto2, built here rather than from a .proto so that no protoc
       optional int64 timestamp_us = 2;       // device clock at end of exposure, microseconds
       optional double host_monotonic_s = 3;  // host monotonic clock at receive, seconds
       optional double host_wall_s = 4;       // host wall clock (Unix time) at receive, seconds
-      optional Intrinsics intrinsics = 5;    // width, height (pixels), fx, fy, cx, cy (pixels)
+      optional Intrinsics intrinsics = 5;    // width, height (pixels), fx, fy, cx, cy (pixels), distortion_model
+                                             // (absent: "none"), repeated double distortion (CameraInfo's D)
       optional Device device = 6;            // serial, firmware, backend, model
       optional Registers registers = 7;      // int_time_code, mod_freq_index, acq_mode, data_source, amp_threshold
       optional GroundTruth ground_truth = 8; // absent: no ground truth; nose_u, nose_v (pixels), visible,
@@ -36,7 +37,7 @@ _TYPES = {"int64": FieldProto.TYPE_INT64, "uint32": FieldProto.TYPE_UINT32, "dou
           "string": FieldProto.TYPE_STRING, "bool": FieldProto.TYPE_BOOL}
 _MESSAGES: dict[str, list[tuple[str, str]]] = {  # message -> fields (name, type) numbered from 1
     "Intrinsics": [("width", "int64"), ("height", "int64"), ("fx", "double"), ("fy", "double"), ("cx", "double"),
-                   ("cy", "double")],
+                   ("cy", "double"), ("distortion_model", "string"), ("distortion", "double*")],
     "Device": [("serial", "string"), ("firmware", "string"), ("backend", "string"), ("model", "string")],
     "Registers": [("int_time_code", "int64"), ("mod_freq_index", "int64"), ("acq_mode", "int64"),
                   ("data_source", "int64"), ("amp_threshold", "int64")],
@@ -49,6 +50,8 @@ _MESSAGES: dict[str, list[tuple[str, str]]] = {  # message -> fields (name, type
                     ("amplitude", "PlaneCodec")],
 }
 PACKAGE = "tofd"
+REPEATED = "*"
+"""A field kind ending in REPEATED is a repeated field of that kind."""
 
 
 def _header_file() -> descriptor_pb2.FileDescriptorProto:
@@ -56,7 +59,10 @@ def _header_file() -> descriptor_pb2.FileDescriptorProto:
     for name, fields in _MESSAGES.items():
         message = proto.message_type.add(name=name)
         for number, (field, kind) in enumerate(fields, start=1):
-            f = message.field.add(name=field, number=number, label=FieldProto.LABEL_OPTIONAL)
+            repeated = kind.endswith(REPEATED)
+            kind = kind.removesuffix(REPEATED)
+            f = message.field.add(name=field, number=number,
+                                  label=FieldProto.LABEL_REPEATED if repeated else FieldProto.LABEL_OPTIONAL)
             if kind in _TYPES:
                 f.type = _TYPES[kind]
             else:

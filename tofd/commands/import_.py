@@ -1,4 +1,5 @@
-"""Import a ROS bag (ROS 1 .bag; ROS 2 directory, .db3 or .mcap) as a tofd recording that `tofd replay` takes.
+"""Import a ROS bag (ROS 1 .bag; ROS 2 directory, .db3 or .mcap) or an Azure Kinect / Orbbec Femto .mkv as a tofd
+recording that `tofd replay` takes (inputs are recognised by content: drivers.opener).
 
 Each header stamp with a range image, an amplitude image and a CameraInfo becomes one frame; the intrinsics come
 from the CameraInfo, so any image size works. Defaults are the topics of the SwissRanger ROS driver
@@ -22,10 +23,12 @@ from tofd import arguments
 
 if TYPE_CHECKING:
     from drivers.rosbag import RangeOptions
+    from drivers.source import FrameSource
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("bag", type=Path, help="ROS 1 .bag file, or ROS 2 bag directory, .db3 or .mcap file")
+    parser.add_argument("bag", type=Path, help="ROS 1 .bag file, ROS 2 bag directory, .db3 or .mcap file, or Azure "
+                                               "Kinect / Orbbec Femto .mkv")
     parser.add_argument("out", type=Path, help="tofd recording to write (.mcap; replaced if it exists)")
     arguments.add_bag_arguments(parser)
 
@@ -33,18 +36,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import") -> str:
     """Write the frames of `bag` to the recording `out` (renamed into place when complete) with a progress bar;
     returns what was written, e.g. "12 frames of 176x144". UsageError names a bad bag."""
+    from drivers.bags import open_bag
+    from drivers.opener import identify, open_source
     from drivers.recording.writer import RecordingWriter
-    from drivers.rosbag import BagError, RosbagSource
+    from drivers.rosbag import BagError, RangeOptions
+    from drivers.source import DriverError
     from tofd.errors import UsageError
     from tofd.outputs import AtomicFile
     from tofd.progress import Progress
 
     try:
-        source = RosbagSource(bag, options)
-    except BagError as exc:
+        fmt = identify(bag)
+        if fmt.read_as == "recording":
+            raise UsageError(f"{bag} is already a tofd recording: replay it as it is")
+        source: FrameSource = open_bag(bag, options) if fmt.read_as == "bag" else open_source(bag)
+    except (BagError, DriverError, ValueError) as exc:
         raise UsageError(str(exc)) from None
-    provenance = {"import": {"bag": str(bag), **dataclasses.asdict(options)}}
-    progress = Progress(command, source.range_messages)
+    if fmt.read_as != "bag" and options != RangeOptions():
+        raise UsageError(f"{bag} is a {fmt.description}: the ROS bag options are for ROS bags")
+    provenance = {"import": {"bag": str(bag), **dataclasses.asdict(options),
+                             "source": getattr(source, "settings", {})} if fmt.read_as == "bag"
+                  else {"file": str(bag), "format": fmt.name}}
+    progress = Progress(command, getattr(source, "range_messages", None))
     # the writer opens the temp file by name; AtomicFile renames it to `out` only when every frame is in
     with source, AtomicFile(out, "wb") as target:
         try:
@@ -52,16 +65,23 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
                 for frame in source:
                     writer.write(frame)
                     progress.update(writer.frames_written)
-        except BagError as exc:
+        except (BagError, DriverError) as exc:
             raise UsageError(str(exc)) from None
         finally:
             progress.done()
         unpaired = _unpaired(source.counters)
-        if source.intrinsics is None:
+        intrinsics = getattr(source, "intrinsics", None)
+        damage = getattr(source, "damage", None)
+        if intrinsics is None or not writer.frames_written:
+            why = f"; {damage}" if damage else ""
             raise UsageError(f"{bag}: no header stamp has a range image, an amplitude image and a camera_info "
-                             f"({unpaired or 'its topics are empty'}); nothing written")
-    size = f"{source.intrinsics.width}x{source.intrinsics.height}"
-    return f"{writer.frames_written} frames of {size}" + (f"; skipped {unpaired}" if unpaired else "")
+                             f"({unpaired or 'its topics are empty'}{why}); nothing written" if fmt.read_as == "bag"
+                             else f"{bag}: no frame could be read; nothing written")
+    lost = len(source.take_rejected())
+    skipped = "; ".join(filter(None, [unpaired, f"{lost} frames lost or damaged (see the log)" if lost else ""]))
+    size = f"{intrinsics.width}x{intrinsics.height}"
+    damaged = f"; damaged, the rest unread: {damage}" if damage else ""
+    return f"{writer.frames_written} frames of {size}" + (f"; skipped {skipped}" if skipped else "") + damaged
 
 
 def main(args: argparse.Namespace) -> int:

@@ -8,7 +8,8 @@ and 3-D point, score, the nose track beside it, stage timings in ms; with --loop
 ground truth also gets an accuracy line (detection and track) and <stem>.accuracy.png (nose error and score over
 frames). --rerun adds or replaces the viewer sink.
 --check GOLDEN compares the per-frame results with a golden file (docs/BATCH.md) and exits 1 on a regression.
-A ROS 1 or ROS 2 bag is imported to a temporary recording first (as `tofd import` does, with the same options).
+Inputs are recognised by content (drivers.opener): a ROS 1 or ROS 2 bag is imported to a temporary recording first
+(as `tofd import` does, with the same options); an Azure Kinect / Orbbec Femto .mkv is read directly (lossless).
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from tofd.config import Config
 from tofd.service.daemon import RERUN_SPEC_HELP
 
 if TYPE_CHECKING:
+    from drivers.intrinsics import Intrinsics
+    from drivers.source import FrameSource
     from tofd.algorithm.detector import NoseModel
 
 log = logging.getLogger(__name__)
@@ -33,8 +36,9 @@ EXIT_AT_ONCE = True  # tofd.cli.main: no interpreter teardown after the service 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", type=Path, help="recording made by `tofd record` (e.g. replay_data/*.mcap), or a "
-                                                "ROS 1 or ROS 2 bag, imported on the fly (see `tofd import`)")
+    parser.add_argument("file", type=Path, help="recording made by `tofd record` (e.g. replay_data/*.mcap), a "
+                                                "ROS 1 or ROS 2 bag, imported on the fly (see `tofd import`), or an "
+                                                "Azure Kinect / Orbbec Femto .mkv")
     parser.add_argument("--out", type=Path, default=Path("replay_out"), help="output directory (default: %(default)s)")
     parser.add_argument("--config", type=Path, default=None, help="config file (default: the bundled tofd.toml)")
     parser.add_argument("--realtime", action="store_true", help="replay at the recorded frame rate")
@@ -66,16 +70,23 @@ def _report_accuracy(results: Path, plot: Path) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.rosbag import RangeOptions, is_rosbag
+    from drivers.opener import identify
+    from drivers.rosbag import RangeOptions
     from tofd.errors import UsageError
 
     if args.speed is not None and not args.realtime:
         raise UsageError("--speed needs --realtime (a lossless replay runs as fast as the pipeline goes)")
     stem = args.file.name.split(".")[0]
-    if not is_rosbag(args.file):
-        if arguments.bag_options(args) != RangeOptions():
-            raise UsageError(f"{args.file} is a tofd recording: the ROS bag options are for ROS bags")
+    try:
+        fmt = identify(args.file)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if fmt.read_as != "bag" and arguments.bag_options(args) != RangeOptions():
+        raise UsageError(f"{args.file} is a {fmt.description}: the ROS bag options are for ROS bags")
+    if fmt.read_as == "recording":
         return _replay(args, args.file, stem)
+    if fmt.read_as == "source":
+        return _replay_source(args, stem)
     import tempfile
 
     from tofd.commands.import_ import convert
@@ -91,20 +102,10 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     """Replay the tofd recording `recording` (args.file, or the recording a bag was imported to)."""
     from drivers.recording.replay import ReplaySource
     from drivers.source import DriverError
-    from tofd.batch.golden import GoldenRecorder
     from tofd.config import load_config
     from tofd.errors import UsageError
-    from tofd.outputs import prepare_output_dir
-    from tofd.progress import Progress
-    from tofd.service.daemon import parse_rerun_spec, serve
-    from tofd.service.pipeline import PipelineError, ResultsWriter
-    from tofd.service.pipeline.queues import run_policy
-    from tofd.service.viewer import ViewerError
 
-    cfg = load_config(args.config)
-    cfg = parse_rerun_spec(args.rerun or f"save:{args.out / (stem + '.rrd')}", cfg)
-    cfg = replace(cfg, health=replace(cfg.health, enabled=False))
-    policy = run_policy(cfg.pipeline.policy, live_source=False)
+    cfg = _replay_config(args, load_config(args.config), stem)
     try:
         source = ReplaySource(recording, mode="realtime" if args.realtime else "lossless", speed=args.speed or 1.0,
                               loop=args.loop, seek=args.seek)
@@ -117,10 +118,52 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
         reached, last = source.counters_reach(args.seek)
         if not reached:
             raise UsageError(f"--seek {args.seek}: past the end (last frame counter {last})")
+    return _serve(args, cfg, source, info.intrinsics, args.frames or (None if args.loop else info.frame_count), stem)
+
+
+def _replay_source(args: argparse.Namespace, stem: str) -> int:
+    """Replay a file a FrameSource reads directly (drivers.opener), lossless, from its first frame."""
+    from drivers.opener import open_source
+    from drivers.source import DriverError
+    from tofd.config import load_config
+    from tofd.errors import UsageError
+
+    for flag, given in (("--realtime", args.realtime), ("--loop", args.loop), ("--seek", args.seek is not None)):
+        if given:
+            raise UsageError(f"{flag} replays tofd recordings: `tofd import {args.file} OUT.mcap` first")
+    cfg = _replay_config(args, load_config(args.config), stem)
+    try:
+        source = open_source(args.file)
+    except (DriverError, OSError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+    return _serve(args, cfg, source, getattr(source, "intrinsics", None), args.frames, stem)
+
+
+def _replay_config(args: argparse.Namespace, cfg: Config, stem: str) -> Config:
+    from tofd.service.daemon import parse_rerun_spec
+
+    cfg = parse_rerun_spec(args.rerun or f"save:{args.out / (stem + '.rrd')}", cfg)
+    return replace(cfg, health=replace(cfg.health, enabled=False))
+
+
+def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsics: Intrinsics | None,
+           total: int | None, stem: str) -> int:
+    """Run the pipeline over `source` and write the outputs; the source may say where a damaged file stopped
+    (stopped_reason, last_good_counter, stop_detail, as ReplaySource does)."""
+    from drivers.source import DriverError
+    from tofd.batch.golden import GoldenRecorder
+    from tofd.outputs import prepare_output_dir
+    from tofd.progress import Progress
+    from tofd.service.daemon import serve
+    from tofd.service.pipeline import PipelineError, ResultsWriter
+    from tofd.service.viewer import ViewerError
+
+    from tofd.service.pipeline.queues import run_policy
+
+    policy = run_policy(cfg.pipeline.policy, live_source=False)
     out = prepare_output_dir(args.out)
-    if info.intrinsics is not None:
-        cfg = replace(cfg, intrinsics=info.intrinsics)
-    total = args.frames or (None if args.loop else info.frame_count)
+    if intrinsics is not None:
+        cfg = replace(cfg, intrinsics=intrinsics)
     results_path = out / f"{stem}.results.jsonl"
     writer = ResultsWriter(results_path, loops=args.loop)
     golden = GoldenRecorder() if args.check or args.write_golden else None
@@ -138,9 +181,10 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
         raise
     writer.close()
     s = result.summary
-    if source.stopped_reason not in (None, "end"):
-        print(f"tofd replay: the recording is {source.stopped_reason} after frame {source.last_good_counter}: "
-              f"{source.stop_detail}", file=sys.stderr)
+    stopped = getattr(source, "stopped_reason", None)
+    if stopped not in (None, "end"):
+        print(f"tofd replay: the recording is {stopped} after frame {getattr(source, 'last_good_counter', None)}: "
+              f"{getattr(source, 'stop_detail', '')}", file=sys.stderr)
     _report_accuracy(results_path, out / f"{stem}.accuracy.png")
     written = ["results.jsonl", "summary.json"] + (["rrd"] if cfg.rerun.sink == "save" else [])
     skipped = source.counters["replay_dropped"]

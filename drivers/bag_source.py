@@ -1,0 +1,100 @@
+"""What every bag-backed frame source shares: the open bag, the range conversions, the calibration check, the
+account of a damaged tail, and what the file says about the device and its settings."""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.bag_scan import BagError, BagReader, RawMessage
+from drivers.frame import Frame
+from drivers.intrinsics import Intrinsics
+from drivers.source import FrameSource
+
+
+def depth_metres(raw: np.ndarray, metres_per_unit: float) -> np.ndarray:
+    """(H, W) float32 metres of integer depth values (0 = no return -> NaN) or of float metres as they are."""
+    if raw.dtype.kind == "f":
+        return raw.astype(np.float32, copy=False)
+    metres = (raw.astype(np.float64) * metres_per_unit).astype(np.float32)
+    metres[raw == 0] = np.nan
+    return metres
+
+
+class BagSource(FrameSource):
+    """A FrameSource reading a bag through drivers.bag_scan.BagReader.
+
+    After iteration, `intrinsics` is the calibration of the frames (None when none was delivered), `damage` says
+    why reading stopped early (None: the whole bag was read) and `settings` holds what the file says about the
+    device and how it was set (units, rates, options), for the provenance of an imported recording.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__()
+        self.path = Path(path)
+        self.bag = BagReader(self.path)
+        self.intrinsics: Intrinsics | None = None
+        self.settings: dict[str, Any] = {}
+        self.range_messages = 0
+        """Range images in the bag (an upper bound on the frames; 0 when unknown)."""
+
+    @property
+    def damage(self) -> str | None:
+        return self.bag.damage
+
+    def close(self) -> None:
+        super().close()
+        self.bag.close()
+
+    def messages(self, topics: set[str]) -> Iterator[RawMessage]:
+        """The raw messages of `topics` until the end, the bag's damage, or close()."""
+        for message in self.bag.messages(topics):
+            if self.closed:
+                return
+            yield message
+
+    def decode(self, message: RawMessage, msgtype: str) -> Any:
+        try:
+            return self.bag.deserialize(message.raw, msgtype)
+        except BagError as exc:
+            raise BagError(f"{self.path}: {message.topic}: {exc}") from None
+
+    def check_calibration(self, intrinsics: Intrinsics, where: str, when: str) -> Intrinsics:
+        """`intrinsics` if it is the first calibration or the same as before; BagError (naming the topic or stream
+        `where` and e.g. `when` = "at stamp 1.000000000") when it changes."""
+        if self.intrinsics is None:
+            self.intrinsics = intrinsics
+        elif intrinsics != self.intrinsics:
+            raise BagError(f"{where}: the calibration changes {when} ({self.intrinsics} -> {intrinsics}); a tofd "
+                           "recording holds one camera calibration")
+        return intrinsics
+
+    def check_sizes(self, where: str, **planes: tuple[int, int]) -> None:
+        """BagError when the named (H, W) shapes differ."""
+        if len(set(planes.values())) > 1:
+            raise BagError(f"{where}: sizes differ: " + ", ".join(
+                f"{name.replace('_', ' ')} {w}x{h}" for name, (h, w) in planes.items()))
+
+    @abstractmethod
+    def frames(self) -> Iterator[Frame]:
+        """The bag's frames in order (BagError at the first one tofd cannot use)."""
+
+    def __iter__(self) -> Iterator[Frame]:
+        """`frames()`, then the unreadable rest of a damaged bag ledgered as one rejected frame after the last one
+        delivered. In a bag read record by record after damage, a message that does not decode is part of the
+        damage (its bytes may be the zeros standing in for a missing page), not an error."""
+        counter = 0
+        try:
+            for frame in self.frames():
+                counter = frame.frame_counter + 1
+                yield frame
+        except BagError as exc:
+            if not self.bag.recovering:
+                raise
+            self.bag.damage = f"{self.bag.damage or 'damaged'}; {exc}"
+        if self.bag.damage is not None:
+            self.reject(counter, f"damaged: {self.path}: the rest is unreadable ({self.bag.damage})")

@@ -1,0 +1,39 @@
+"""Opens any ROS bag tofd takes as the frame source its content calls for: a RealSense SDK recording, an Orbbec
+SDK v2 recording, or a camera driver's bag (drivers.rosbag, topics from drivers.driver_layouts or the options).
+
+The vendor recordings are recognised by their topics (RealSense: /file_version and /device_<d>/sensor_<s>/Depth_*;
+Orbbec: /cam/sensor_3/frameType_*), so a renamed file is read all the same.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from drivers.bag_scan import BagError, BagReader
+from drivers.bag_source import BagSource
+from drivers.orbbec_bag import OrbbecSource, is_orbbec
+from drivers.realsense_bag import RealSenseSource, is_realsense
+from drivers.rosbag import RangeOptions, RosbagSource
+
+
+def bag_kind(path: str | Path) -> str:
+    """"realsense", "orbbec" or "driver" (a camera driver's bag) by the bag's topics; BagError if unreadable."""
+    reader = BagReader(path)
+    try:
+        topics = reader.topics
+    finally:
+        reader.close()
+    return "realsense" if is_realsense(topics) else "orbbec" if is_orbbec(topics) else "driver"
+
+
+def open_bag(path: str | Path, options: RangeOptions | None = None) -> BagSource:
+    """The frame source of the bag at `path`. Topic and range options apply to driver bags only: a vendor SDK
+    recording says itself where its frames are and in what unit (BagError if options are given for one)."""
+    options = options or RangeOptions()
+    kind = bag_kind(path)
+    if kind == "driver":
+        return RosbagSource(path, options)
+    if options != RangeOptions(mod_freq_mhz=options.mod_freq_mhz):
+        raise BagError(f"{path}: a {'RealSense' if kind == 'realsense' else 'Orbbec'} SDK recording says where its "
+                       "frames are and their units; the topic and range options are for camera drivers' bags")
+    return RealSenseSource(path) if kind == "realsense" else OrbbecSource(path)

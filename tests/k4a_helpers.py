@@ -1,0 +1,171 @@
+"""Microsoft's Azure Kinect libraries (libk4a, libk4arecord from the pyk4a-bundle wheel) through ctypes, for tests:
+recordings written by the SDK's own recorder and the SDK's calibration as the reference for tofd's lens model.
+
+tofd never imports this module or pyk4a-bundle; `k4a_libraries()` skips the calling test when the wheel or its
+libraries are missing (pyk4a-bundle ships Linux x86-64 and Windows builds only).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import glob
+import importlib.util
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+CALIBRATION_JSON = Path(__file__).parent / "data" / "k4a_calibration.json"
+"""Factory calibration of a real Azure Kinect (serial 001514394512), as pyk4a's test assets ship it."""
+
+DEPTH_MODES = {"NFOV_2X2BINNED": 1, "NFOV_UNBINNED": 2, "WFOV_2X2BINNED": 3, "WFOV_UNBINNED": 4}
+"""k4a_depth_mode_t values of the depth modes with a depth image."""
+IMAGE_FORMAT_DEPTH16, IMAGE_FORMAT_IR16 = 4, 5
+FPS = {5: 0, 15: 1, 30: 2}
+CALIBRATION_TYPE_DEPTH = 0
+
+
+class DeviceConfiguration(ctypes.Structure):
+    """k4a_device_configuration_t."""
+
+    _fields_ = [("color_format", ctypes.c_int), ("color_resolution", ctypes.c_int), ("depth_mode", ctypes.c_int),
+                ("camera_fps", ctypes.c_int), ("synchronized_images_only", ctypes.c_bool),
+                ("depth_delay_off_color_usec", ctypes.c_int32), ("wired_sync_mode", ctypes.c_int),
+                ("subordinate_delay_off_master_usec", ctypes.c_uint32),
+                ("disable_streaming_indicator", ctypes.c_bool)]
+
+
+class Extrinsics(ctypes.Structure):
+    _fields_ = [("rotation", ctypes.c_float * 9), ("translation", ctypes.c_float * 3)]
+
+
+class CameraCalibration(ctypes.Structure):
+    """k4a_calibration_camera_t: parameters = cx, cy, fx, fy, k1..k6, codx, cody, p2, p1, metric_radius."""
+
+    _fields_ = [("extrinsics", Extrinsics), ("model_type", ctypes.c_int), ("parameter_count", ctypes.c_uint),
+                ("parameters", ctypes.c_float * 15), ("resolution_width", ctypes.c_int),
+                ("resolution_height", ctypes.c_int), ("metric_radius", ctypes.c_float)]
+
+
+class Calibration(ctypes.Structure):
+    _fields_ = [("depth", CameraCalibration), ("color", CameraCalibration), ("extrinsics", Extrinsics * 16),
+                ("depth_mode", ctypes.c_int), ("color_resolution", ctypes.c_int)]
+
+
+class K4A:
+    """The loaded libk4a and libk4arecord with the prototypes of the functions the tests call."""
+
+    def __init__(self, k4a: ctypes.CDLL, record: ctypes.CDLL) -> None:
+        self.k4a, self.record = k4a, record
+        vp, c = ctypes.c_void_p, ctypes
+        for lib, name, args, res in (
+            (record, "k4a_record_create", [c.c_char_p, vp, DeviceConfiguration, c.POINTER(vp)], c.c_int),
+            (record, "k4a_record_add_tag", [vp, c.c_char_p, c.c_char_p], c.c_int),
+            (record, "k4a_record_add_attachment", [vp, c.c_char_p, c.c_char_p, c.c_size_t], c.c_int),
+            (record, "k4a_record_write_header", [vp], c.c_int),
+            (record, "k4a_record_write_capture", [vp, vp], c.c_int),
+            (record, "k4a_record_flush", [vp], c.c_int),
+            (record, "k4a_record_close", [vp], None),
+            (k4a, "k4a_capture_create", [c.POINTER(vp)], c.c_int),
+            (k4a, "k4a_capture_release", [vp], None),
+            (k4a, "k4a_capture_set_depth_image", [vp, vp], None),
+            (k4a, "k4a_capture_set_ir_image", [vp, vp], None),
+            (k4a, "k4a_image_create", [c.c_int, c.c_int, c.c_int, c.c_int, c.POINTER(vp)], c.c_int),
+            (k4a, "k4a_image_get_buffer", [vp], c.POINTER(c.c_uint8)),
+            (k4a, "k4a_image_set_device_timestamp_usec", [vp, c.c_uint64], None),
+            (k4a, "k4a_image_release", [vp], None),
+            (k4a, "k4a_calibration_get_from_raw", [c.c_char_p, c.c_size_t, c.c_int, c.c_int,
+                                                   c.POINTER(Calibration)], c.c_int),
+            (k4a, "k4a_calibration_2d_to_3d", [c.POINTER(Calibration), c.POINTER(c.c_float * 2), c.c_float, c.c_int,
+                                               c.c_int, c.POINTER(c.c_float * 3), c.POINTER(c.c_int)], c.c_int),
+        ):
+            fn = getattr(lib, name)
+            fn.argtypes, fn.restype = args, res
+
+    def calibration(self, raw: bytes, depth_mode: str) -> Calibration:
+        """k4a_calibration_get_from_raw for a depth mode (colour camera off)."""
+        cal = Calibration()
+        buf = ctypes.create_string_buffer(raw)
+        assert self.k4a.k4a_calibration_get_from_raw(buf, len(raw) + 1, DEPTH_MODES[depth_mode], 0,
+                                                     ctypes.byref(cal)) == 0, depth_mode
+        return cal
+
+    def unproject(self, cal: Calibration, uv: np.ndarray, depth_mm: float = 1000.0) -> np.ndarray:
+        """(N, 3) k4a_calibration_2d_to_3d of (N, 2) pixels at `depth_mm` (mm; NaN where the SDK says invalid)."""
+        out = np.full((len(uv), 3), np.nan)
+        point, p3, valid = (ctypes.c_float * 2)(), (ctypes.c_float * 3)(), ctypes.c_int()
+        for i, (u, v) in enumerate(uv):
+            point[0], point[1] = u, v
+            assert self.k4a.k4a_calibration_2d_to_3d(ctypes.byref(cal), ctypes.byref(point), depth_mm,
+                                                     CALIBRATION_TYPE_DEPTH, CALIBRATION_TYPE_DEPTH,
+                                                     ctypes.byref(p3), ctypes.byref(valid)) == 0
+            if valid.value:
+                out[i] = list(p3)
+        return out
+
+    def _image(self, fmt: int, plane: np.ndarray, timestamp_us: int) -> ctypes.c_void_p:
+        h, w = plane.shape
+        image = ctypes.c_void_p()
+        assert self.k4a.k4a_image_create(fmt, w, h, w * 2, ctypes.byref(image)) == 0
+        ctypes.memmove(self.k4a.k4a_image_get_buffer(image), np.ascontiguousarray(plane, "<u2").ctypes.data, h * w * 2)
+        self.k4a.k4a_image_set_device_timestamp_usec(image, timestamp_us)
+        return image
+
+    def write_recording(self, path: Path, depth_mode: str, depth: list[np.ndarray], ir: list[np.ndarray],
+                        timestamps_us: list[int], *, fps: int = 30, calibration: bytes | None = None,
+                        serial: str | None = None) -> Path:
+        """A recording by libk4arecord: one capture (uint16 depth in mm, uint16 IR) per timestamp; the raw
+        calibration as the calibration.json attachment and the serial as tag, as the recorder adds a device's."""
+        config = DeviceConfiguration(color_format=0, color_resolution=0, depth_mode=DEPTH_MODES[depth_mode],
+                                     camera_fps=FPS[fps], wired_sync_mode=0)
+        handle = ctypes.c_void_p()
+        assert self.record.k4a_record_create(str(path).encode(), None, config, ctypes.byref(handle)) == 0
+        try:
+            if serial is not None:
+                assert self.record.k4a_record_add_tag(handle, b"K4A_DEVICE_SERIAL_NUMBER", serial.encode()) == 0
+            if calibration is not None:
+                assert self.record.k4a_record_add_attachment(handle, b"calibration.json", calibration,
+                                                             len(calibration)) == 0
+                assert self.record.k4a_record_add_tag(handle, b"K4A_CALIBRATION_FILE", b"calibration.json") == 0
+            assert self.record.k4a_record_write_header(handle) == 0
+            for d, i, t in zip(depth, ir, timestamps_us, strict=True):
+                capture = ctypes.c_void_p()
+                assert self.k4a.k4a_capture_create(ctypes.byref(capture)) == 0
+                images = [self._image(IMAGE_FORMAT_DEPTH16, d, t), self._image(IMAGE_FORMAT_IR16, i, t)]
+                self.k4a.k4a_capture_set_depth_image(capture, images[0])
+                self.k4a.k4a_capture_set_ir_image(capture, images[1])
+                for image in images:
+                    self.k4a.k4a_image_release(image)
+                assert self.record.k4a_record_write_capture(handle, capture) == 0
+                self.k4a.k4a_capture_release(capture)
+            assert self.record.k4a_record_flush(handle) == 0
+        finally:
+            self.record.k4a_record_close(handle)
+        return path
+
+
+@functools.cache
+def _load() -> K4A | str:
+    spec = importlib.util.find_spec("pyk4a")
+    if spec is None or not spec.submodule_search_locations:
+        return "pyk4a-bundle is not installed (pip install -e '.[test]')"
+    libs = Path(next(iter(spec.submodule_search_locations))).parent / "pyk4a_bundle.libs"
+    k4a = sorted(glob.glob(str(libs / "libk4a-*.so*")))
+    record = sorted(glob.glob(str(libs / "libk4arecord-*.so*")))
+    if not k4a or not record:
+        return f"no libk4a / libk4arecord in {libs} (pyk4a-bundle ships them for Linux x86-64 only)"
+    try:
+        mode = os.RTLD_GLOBAL  # libk4arecord resolves libk4a's symbols
+        return K4A(ctypes.CDLL(k4a[0], mode=mode), ctypes.CDLL(record[0], mode=mode))
+    except OSError as exc:
+        return f"libk4a / libk4arecord do not load: {exc}"
+
+
+def k4a_libraries() -> K4A:
+    """The loaded libraries; skips the test (saying why) where pyk4a-bundle's libraries are unavailable."""
+    loaded = _load()
+    if isinstance(loaded, str):
+        pytest.skip(loaded)
+    return loaded
