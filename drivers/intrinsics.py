@@ -206,9 +206,7 @@ def _undistort_radial_tangential(xd: np.ndarray, yd: np.ndarray, d: tuple[float,
         # neighbourhood one to one (not a root folded back past the radius where the polynomial turns over)
         bad = ~((np.hypot(rx - xd, ry - yd) <= UNDISTORT_TOLERANCE * np.maximum(1.0, np.hypot(xd, yd)))
                 & (radial > 0) & (det > 0))
-    x[bad] = np.nan
-    y[bad] = np.nan
-    return x, y
+    return np.where(bad, np.nan, x), np.where(bad, np.nan, y)
 
 
 def _fisheye_theta_d(theta: np.ndarray, d: tuple[float, ...]) -> np.ndarray:
@@ -242,5 +240,4 @@ def _fisheye_rays(xd: np.ndarray, yd: np.ndarray, d: tuple[float, ...]) -> np.nd
                 & (theta >= 0) & (theta < np.pi))
         scale = np.where(theta_d > 0, np.sin(theta) / np.where(theta_d > 0, theta_d, 1.0), 1.0)
     rays = np.stack([xd * scale, yd * scale, np.cos(theta)], axis=-1)
-    rays[bad] = np.nan
-    return rays
+    return np.where(bad[..., None], np.nan, rays)

@@ -73,6 +73,7 @@ def test_project_applies_the_distortion_like_opencv_and_inverts_the_rays(name):
     np.testing.assert_allclose(i.project(i.unit_rays() * 1.3), pixel_grid(i), rtol=0, atol=1e-8)
     uv = np.array([[3.25, 7.5], [161.0, 100.25]])
     np.testing.assert_allclose(i.project(i.pixel_rays(uv[:, 0], uv[:, 1])), uv, atol=1e-8)
+    np.testing.assert_allclose(i.project(i.pixel_rays(3.25, 7.5)), uv[0], atol=1e-8)  # scalars too
 
 
 def test_radial_range_from_z_depth_goes_along_the_lens_rays():
