@@ -124,7 +124,7 @@ def recorded_feature_settings(recorded: dict) -> dict:
     """
     if "patch_width_m" in recorded or "patch_height_m" in recorded:
         return dict(recorded)
-    e = recorded.get("equivalence_range_m", FeatureConfig.equivalence_range_m)
+    e = recorded.get("equivalence_range_m", FeatureConfig().equivalence_range_m)
     if not isinstance(e, (int, float)):
         return dict(recorded)  # the comparison names the bad value
     return {**recorded, "patch_width_m": _SR3000.width / _SR3000.fx * e,
