@@ -5,7 +5,7 @@ import pytest
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import FFTFeatures, NFFTFeatures
-from tofd.algorithm.features.transfer import transfer_functions, unit_square_m
+from tofd.algorithm.features.transfer import transfer_functions
 from tofd.config import FeatureConfig
 from tofd.lab import shapes as synthetic
 
@@ -16,8 +16,7 @@ CFG = FeatureConfig()
 def _reference_points(range_m, mask, cfg):
     """Paper section 2.2 steps 1-2, written independently of the implementation."""
     pts = INTR.backproject(range_m)[mask]
-    lx, ly = unit_square_m(INTR, cfg.equivalence_range_m)
-    assert lx == pytest.approx(2 * cfg.equivalence_range_m * np.tan(np.radians(47.5 / 2)))
+    lx, ly = cfg.patch_width_m, cfg.patch_height_m
     x, y = pts[:, 0] / lx, pts[:, 1] / ly
     x, y = x - x.mean(), y - y.mean()
     keep = (x < 0.5) & (x >= -0.5) & (y >= -0.5) & (y < 0.5)
@@ -27,9 +26,10 @@ def _reference_points(range_m, mask, cfg):
 
 @pytest.mark.parametrize("distance", [0.45, 0.7])
 def test_nfft_matches_dense_ndft_solution(distance):
-    """Small grid, tight CG: eps0/eps2 equal those of the exactly solved damped problem (dense NDFT)."""
-    cfg = dataclasses.replace(CFG, grid_size=16, cg_tolerance=1e-13, cg_max_iterations=5000, nufft_eps=1e-12,
-                              cg_precision="double")
+    """Small grid (a band it holds), tight CG: eps0/eps2 equal those of the exactly solved damped problem (dense
+    NDFT)."""
+    cfg = dataclasses.replace(CFG, grid_size=16, tuning_frequency_per_m=7.0, lowpass_sigma_per_m=12.0,
+                              cg_tolerance=1e-13, cg_max_iterations=5000, nufft_eps=1e-12, cg_precision="double")
     nf = NFFTFeatures(INTR, cfg)
     scene = synthetic.sphere(INTR, distance, 0.08, apex_px=(70.0, 80.0))
     mask = scene.mask
@@ -41,12 +41,12 @@ def test_nfft_matches_dense_ndft_solution(distance):
     k = np.arange(-h + 1, h)
     kx, ky = (g.ravel() for g in np.meshgrid(k, k))
     a = np.exp(2j * np.pi * (np.outer(x, kx) + np.outer(y, ky)))
-    footprint = np.mean(INTR.backproject(scene.range_m)[mask][keep, 2] ** 2) / (INTR.fx * INTR.fy * np.prod(
-        unit_square_m(INTR, cfg.equivalence_range_m)))
+    footprint = np.mean(INTR.backproject(scene.range_m)[mask][keep, 2] ** 2) / (
+        INTR.fx * INTR.fy * cfg.patch_width_m * cfg.patch_height_m)
     lam = cfg.damping / footprint
     amp = scene.amplitude[mask][keep]
     amp = (amp - amp.min()) / np.median(amp)  # the amplitude surface: FFT path's normalisation, background 0
-    lx, ly = unit_square_m(INTR, cfg.equivalence_range_m)
+    lx, ly = cfg.patch_width_m, cfg.patch_height_m
     for values, got in ((z, maps), (amp, amp_maps)):
         coeffs = np.linalg.solve(a.conj().T @ a + lam * np.eye(k.size**2), a.conj().T @ values)
         c0, c2, s2 = (a @ (t * coeffs) for t in transfer_functions(kx / lx, ky / ly, cfg.tuning_frequency_per_m,
@@ -76,7 +76,7 @@ def test_single_precision_cg_matches_double(distance):
 def test_points_outside_the_square_are_dropped_and_nan():
     """A wide plane: points beyond +-1/2 after centring get NaN features, the rest finite."""
     nf = NFFTFeatures(INTR, CFG)
-    p = synthetic.tilted_plane(INTR, 0.9, 0.0, 0.0)  # field of view at 0.9 m: 1.8 x the unit square
+    p = synthetic.tilted_plane(INTR, 0.9, 0.0, 0.0)  # field of view at 0.9 m: 1.8 x the patch
     mask = p.mask
     pts = nf.unit_square_points(p.range_m, mask)
     assert 0 < pts.index.size < mask.sum()

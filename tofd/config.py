@@ -228,8 +228,10 @@ def _build(cls: type, table: dict, prefix: str) -> object:
     kwargs = {k: _convert(v, hints[k], f"{prefix}.{k}" if prefix else k) for k, v in table.items()}
     try:
         obj = cls(**kwargs)
-    except (TypeError, ValueError) as exc:
+    except TypeError as exc:
         raise ConfigError(f"{prefix or 'config'}: {exc}") from None
+    except ValueError as exc:  # a section that validates when constructed names the key first
+        raise ConfigError(f"{prefix}.{exc}" if prefix else f"config: {exc}") from None
     validate = getattr(obj, "validate", None)
     if validate is not None:
         try:

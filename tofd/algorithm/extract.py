@@ -8,12 +8,13 @@ with distance; the NFFT ones are also scale-invariant (same physical filter at e
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.features import FFTFeatures, NFFTFeatures
+from tofd.algorithm.features import Eccentricities, FFTFeatures, NFFTFeatures, SamplingError
 from tofd.algorithm.names import FAMILIES
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
 from tofd.algorithm.segmentation import segment_face
@@ -61,11 +62,22 @@ class FeatureExtractor:
         if fft_families:
             timings["fft"] = (t2 - t1) * 1e3
         if self._nfft is not None:  # range and amplitude share the points and the Toeplitz kernel
-            rng, amp = self._nfft.features(range_m, mask, fg.rotation,
-                                           amplitude if "amp_nfft" in self.families else None)
+            rng, amp = self._nfft_features(self._nfft, range_m, mask, fg.rotation, amplitude)
             for nfft_family, nfm in (("range_nfft", rng), ("amp_nfft", amp)):
                 if nfft_family in self.families and nfm is not None:
                     out.maps[f"{nfft_family}_eps0"], out.maps[f"{nfft_family}_eps2"] = nfm.eps0, nfm.eps2
             out.nfft_iterations, out.nfft_residual = rng.iterations, rng.residual
             timings["nfft"] = (time.perf_counter() - t2) * 1e3
         return out
+
+    def _nfft_features(self, nfft: NFFTFeatures, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray,
+                       amplitude: np.ndarray) -> tuple[Eccentricities, Eccentricities | None]:
+        """The NFFT maps; NaN (no NFFT detection) with a warning where the camera cannot carry the band at the
+        foreground's range: wrong numbers would give wrong noses."""
+        amplitude_or_none = amplitude if "amp_nfft" in self.families else None
+        try:
+            return nfft.features(range_m, mask, rotation, amplitude_or_none)
+        except SamplingError as exc:
+            warnings.warn(f"NFFT features left out: {exc}", RuntimeWarning, stacklevel=2)
+            empty = Eccentricities.empty(self.intrinsics.shape)
+            return empty, (None if amplitude_or_none is None else Eccentricities.empty(self.intrinsics.shape))

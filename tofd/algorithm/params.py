@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.band import band_edge_per_m
 from tofd.algorithm.names import VARIANTS
+
+_SR3000 = Intrinsics()
+SR3000_PATCH_M = (_SR3000.width / _SR3000.fx * 0.5, _SR3000.height / _SR3000.fy * 0.5)
+"""The SR3000's field of view at 0.5 m: the NFFT patch of the shipped model (and of tofd before the patch was set in
+metres), so SR3000 features are unchanged."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,25 +54,50 @@ class SegmentationConfig:
 
 @dataclass(frozen=True, slots=True)
 class FeatureConfig:
-    """Generalized-eccentricity features (FFT and NFFT paths, tofd.algorithm.features); frequencies in cycles/metre."""
+    """Generalized-eccentricity features (FFT and NFFT paths, tofd.algorithm.features); frequencies in cycles/metre.
 
-    equivalence_range_m: float = 0.5  # e: the NFFT features equal the FFT features of an object at e
+    The NFFT path is set in metres only: a patch_width_m x patch_height_m patch centred on the foreground carries a
+    grid_size x grid_size grid of modes k / patch (cycles per metre), so its features do not depend on the camera.
+    Validated when constructed (ValueError naming the field).
+    """
+
+    equivalence_range_m: float = 0.5  # e: FFT path: the pixel grid is read at this range (cycles/pixel * f / e)
     tuning_frequency_per_m: float = 30.0  # rho0: peak of the radial tuning A(rho), cycles/m
     lowpass_sigma_per_m: float = 50.0  # Gaussian low-pass width, cycles/m (anti-aliasing for the NFFT grid)
     fft_padding_px: int = 16  # FFT path: background margin per side against wrap-around, pixels
-    grid_size: int = 64  # NFFT path: N, frequency grid N x N (even)
-    damping: float = 0.01  # NFFT path: lambda = damping * points per unit area, (A^H A + lambda I) f = A^H z
+    grid_size: int = 64  # NFFT path: N, frequency grid N x N (even); must reach the band edge over the patch
+    patch_width_m: float = SR3000_PATCH_M[0]  # NFFT path: patch width (x), metres; mode k is k / width cycles/m
+    patch_height_m: float = SR3000_PATCH_M[1]  # NFFT path: patch height (y), metres
+    damping: float = 0.01  # NFFT path: relative shrinkage; lambda = damping * points per patch area (see nfft.py)
     cg_tolerance: float = 7e-5  # NFFT path: stop CG at this relative band-weighted residual
     cg_max_iterations: int = 100  # NFFT path: CG iteration cap
     nufft_eps: float = 1e-4  # NFFT path: finufft requested relative precision
     cg_precision: Literal["single", "double"] = "single"  # NFFT path: float width of NUFFTs and CG
 
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @property
+    def band_edge_per_m(self) -> float:
+        """Cycles per metre above which the filters' radial tuning is below tofd.algorithm.band.BAND_FLOOR of its
+        peak."""
+        return band_edge_per_m(self.tuning_frequency_per_m, self.lowpass_sigma_per_m)
+
+    @property
+    def grid_nyquist_per_m(self) -> tuple[float, float]:
+        """(x, y) highest frequency of the NFFT grid, N / 2 / patch side, cycles per metre."""
+        return self.grid_size / 2 / self.patch_width_m, self.grid_size / 2 / self.patch_height_m
+
     def validate(self) -> None:
         positive = ("equivalence_range_m", "tuning_frequency_per_m", "lowpass_sigma_per_m", "damping",
-                    "cg_tolerance", "nufft_eps")
+                    "cg_tolerance", "nufft_eps", "patch_width_m", "patch_height_m")
         for key in positive:
-            if not getattr(self, key) > 0:
-                raise ValueError(f"{key}: {getattr(self, key)} must be > 0")
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or value == math.inf:
+                raise ValueError(f"{key}: {value!r} must be a finite number > 0")
+        for key in ("grid_size", "fft_padding_px", "cg_max_iterations"):
+            if isinstance(getattr(self, key), bool) or not isinstance(getattr(self, key), int):
+                raise ValueError(f"{key}: {getattr(self, key)!r} must be an integer")
         if self.grid_size < 8 or self.grid_size % 2:
             raise ValueError(f"grid_size: {self.grid_size} must be even and >= 8")
         if self.fft_padding_px < 0:
@@ -73,6 +106,29 @@ class FeatureConfig:
             raise ValueError(f"cg_max_iterations: {self.cg_max_iterations} must be >= 1")
         if not 1e-14 <= self.nufft_eps < 1e-1:
             raise ValueError(f"nufft_eps: {self.nufft_eps} is not in [1e-14, 0.1)")
+        if self.cg_precision not in ("single", "double"):
+            raise ValueError(f"cg_precision: {self.cg_precision!r} is not one of 'single', 'double'")
+        edge, reach = self.band_edge_per_m, min(self.grid_nyquist_per_m)
+        if reach < edge:
+            raise ValueError(f"grid_size: {self.grid_size} modes over a {self.patch_width_m:.3g} x "
+                             f"{self.patch_height_m:.3g} m patch reach {reach:.1f} cycles/m, short of the filters' "
+                             f"band edge {edge:.1f} cycles/m (raise grid_size to at least "
+                             f"{2 * math.ceil(edge * max(self.patch_width_m, self.patch_height_m))})")
+
+
+def recorded_feature_settings(recorded: dict) -> dict:
+    """Feature settings recorded with a model (dataclasses.asdict(FeatureConfig) at training time) in today's keys.
+
+    Settings recorded before the NFFT patch was set in metres have no patch keys: their patch was the camera's field
+    of view at the equivalence range, and tofd trained on the SR3000 only, so it is the SR3000's.
+    """
+    if "patch_width_m" in recorded or "patch_height_m" in recorded:
+        return dict(recorded)
+    e = recorded.get("equivalence_range_m", FeatureConfig().equivalence_range_m)
+    if not isinstance(e, (int, float)):
+        return dict(recorded)  # the comparison names the bad value
+    return {**recorded, "patch_width_m": _SR3000.width / _SR3000.fx * e,
+            "patch_height_m": _SR3000.height / _SR3000.fy * e}
 
 
 @dataclass(frozen=True, slots=True)

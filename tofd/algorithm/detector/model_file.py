@@ -10,7 +10,7 @@ from pathlib import Path
 
 from tofd.algorithm.detector.box import Box
 from tofd.algorithm.names import VARIANTS
-from tofd.algorithm.params import FeatureConfig, SegmentationConfig
+from tofd.algorithm.params import FeatureConfig, SegmentationConfig, recorded_feature_settings
 from tofd.errors import UsageError
 from tofd.outputs import write_text
 
@@ -55,7 +55,8 @@ class NoseModel:
 
     def check_compatible(self, feature_config: FeatureConfig, segmentation_config: SegmentationConfig) -> None:
         """Raise ModelMismatch naming every setting that differs from the model's."""
-        diffs = _diff("features", self.feature_config, dataclasses.asdict(feature_config)) + _diff(
+        diffs = _diff("features", recorded_feature_settings(self.feature_config),
+                      dataclasses.asdict(feature_config)) + _diff(
             "segmentation", self.segmentation_config, dataclasses.asdict(segmentation_config))
         if diffs:
             raise ModelMismatch("model was trained with other feature settings: " + "; ".join(diffs))

@@ -11,9 +11,9 @@ import numpy as np
 class Eccentricities:
     """Generalized eccentricities of one frame.
 
-    eps0, eps2: (H, W) float32 images (metres^2 for range features), NaN outside the foreground (and, for
-    NFFT, at foreground points dropped outside the unit square). iterations: CG iterations (0 for FFT);
-    residual: final relative CG residual (NaN for FFT or an empty foreground).
+    eps0, eps2: (H, W) float32 images (metres^2 for range features), NaN outside the foreground, at holes (range
+    NaN, inf or <= 0) and, for NFFT, at foreground points outside the patch. iterations: CG iterations (0 for
+    FFT); residual: final relative CG residual (NaN for FFT or an empty foreground).
     """
 
     eps0: np.ndarray

@@ -3,20 +3,24 @@
 Per frame:
 1. back-project the foreground pixels (radial range) to camera-frame points x, y, z (metres), turned into
    the segmentation's face frame when given (segmentation.Foreground.rotation: z along the face's normal);
-2. scale x, y by the field of view at the equivalence range e (width W e / fx, height H e / fy), so that
-   the field of view at e maps onto [-1/2, 1/2)^2; shift the centroid to 0; drop points outside (their
-   features are NaN); offset z so its maximum is 0;
+2. scale x, y by the patch (FeatureConfig.patch_width_m Lx, patch_height_m Ly, metres), so that a patch centred
+   on the points' centroid maps onto [-1/2, 1/2)^2; drop points outside (their features are NaN) and points
+   without a finite positive range (holes); offset z so its maximum is 0;
 3. solve for Fourier coefficients f on the N x N frequency grid with z_j ~ sum_k f_k exp(2 pi i k.x_j);
-4. multiply by the transfer functions (transfer.py, mode k <-> k / L cycles per metre) and evaluate the
+4. multiply by the transfer functions (operators.py, mode k <-> k / L cycles per metre) and evaluate the
    filtered fields c0, c2, s2 back at the points with a forward NUFFT; eps0 = c0^2, eps2 = c2^2 + s2^2.
+
+Everything is set in metres, nothing in pixels or fields of view, so every camera that samples the surface finely
+enough gives the same features; one that does not (sampling.py) is refused with SamplingError.
 
 Regularisation (step 3). The paper's minimum-norm inverse is ill-posed on a face patch (the modes outside the
 patch are undetermined), so we solve the damped normal equations
     (A^H A + lambda I) f = A^H z,   lambda = damping * (points per unit area of the square),
-the points per unit area being 1 / mean pixel footprint, (z/fx)(z/fy) / (Lx Ly). Well-sampled modes of A^H A
-have eigenvalues ~ that density, so `damping` is the same relative shrinkage for every patch size and distance
-(scale-invariant), and the field is pulled to 0 (= max z, like the FFT path's background) where there are no
-points. The sphere experiment (`tofd experiment sphere`) measures what larger damping costs in invariance.
+the points per unit area being Lx Ly / mean pixel footprint (z/fx)(z/fy). Well-sampled modes of A^H A have
+eigenvalues ~ that density, so `damping` is the same relative shrinkage for every camera, patch and distance: the
+problem is min |z - f|^2 + damping |f|^2, both integrated over the patch in square metres, and the field is
+pulled to 0 (= max z, like the FFT path's background) where there are no points.
+The sphere experiment (`tofd experiment sphere`) measures what larger damping costs in invariance.
 
 Solver (normal_equations.py). One finufft type-1 per frame gives K_m = sum_j exp(-2 pi i m.x_j) on the
 2N x 2N grid and A^H z with it, both from the one complex transform of 1 + i z (spectra of real data are
@@ -24,8 +28,9 @@ Hermitian, so the two separate: real_pair_spectra); A^H A is Toeplitz with kerne
 circulant convolution (one pruned real FFT pair of size 2N) on the half spectrum (kx >= 0; the unpaired
 Nyquist row and column held at zero keep unknowns and fields Hermitian/real). CG stops on the residual
 weighted by A(rho) (cg_tolerance; the default keeps eps0 within 1 % of the converged value wherever it is
-at least a tenth of its peak: bench/bench_features.py). A forward type-2 NUFFT (n_trans=2) evaluates
-c0 + i c2 and s2. finufft plans are made once (nthreads=1) and only get new points per frame.
+at least a tenth of its peak: bench/bench_features.py). A forward type-2 NUFFT evaluates the fields, two real ones
+per complex transform where the operators are Hermitian (c0 + i c2 and s2). finufft plans are made once
+(nthreads=1) and only get new points per frame.
 
 Amplitude (`features(..., amplitude=...)`): the amplitude at the same points, normalised like the FFT path's,
 is a second surface on the same kernel (a second right-hand side in the same CG batch): scale-invariant
@@ -42,10 +47,12 @@ import numpy as np
 import scipy.fft as sfft
 
 from drivers.intrinsics import Intrinsics
+from tofd.algorithm.band import radial_tuning
 from tofd.algorithm.features.eccentricity import Eccentricities
-from tofd.algorithm.features.fft import check_frame
+from tofd.algorithm.features.fft import check_frame, usable
 from tofd.algorithm.features.normal_equations import DampedNormalEquations, load_kernels, norm_weights, solve
-from tofd.algorithm.features.transfer import transfer_functions, unit_square_m
+from tofd.algorithm.features.operators import Transfer, eccentricity_transfer, evaluate
+from tofd.algorithm.features.sampling import check_sampling
 from tofd.algorithm.params import FeatureConfig
 
 SINGLE_NUFFT_EPS = 2e-5  # finufft's float32 precision floor at upsampfac 1.25 (below it narrows its kernel and warns)
@@ -66,6 +73,17 @@ class UnitSquarePoints:
     z: np.ndarray
     index: np.ndarray  # flat pixel index of each kept point
     damping: float  # lambda for these points
+    rms_range_m: float  # root mean square of the points' depth, metres (their pixel pitch is this / f)
+
+
+@dataclass(frozen=True, slots=True)
+class SurfaceFields:
+    """One surface's filtered fields at the points: values (K, M), float64 for Hermitian operators else complex;
+    iterations: CG iterations; residual: final relative band-weighted CG residual."""
+
+    values: np.ndarray
+    iterations: int
+    residual: float
 
 
 @functools.lru_cache(maxsize=4)
@@ -103,25 +121,35 @@ def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int) -> np
 
 
 class NFFTFeatures:
-    """Plans, transfer grids and buffers for one camera geometry and config; call per frame."""
+    """Plans, transfer grids and buffers for one camera geometry and config; call per frame.
 
-    def __init__(self, intrinsics: Intrinsics, cfg: FeatureConfig):
+    transfer: the operators to apply (tofd.algorithm.features.operators; default the eccentricity filters
+    [C0, C2, S2], which range_features and features need), at the mode frequencies k / patch side.
+    """
+
+    def __init__(self, intrinsics: Intrinsics, cfg: FeatureConfig, transfer: Transfer | None = None):
         self.intrinsics, self.cfg = intrinsics, cfg
         n = cfg.grid_size
         self._n, self._h = n, n // 2
         self._ray_columns = np.ascontiguousarray(intrinsics.unit_rays().reshape(-1, 3).T)  # (3, H W): takes are fast
-        self._square = unit_square_m(intrinsics, cfg.equivalence_range_m)
+        self._square = (cfg.patch_width_m, cfg.patch_height_m)
         k = sfft.fftfreq(n, 1.0 / n)  # integer modes in FFT order (finufft modeord=1)
-        c0, c2, s2 = transfer_functions(k[None, :] / self._square[0], k[:, None] / self._square[1],
-                                        cfg.tuning_frequency_per_m, cfg.lowpass_sigma_per_m)
-        self._filters = np.stack([c0 + 1j * c2, s2 + 0j])  # (2, N, N) rows ky, columns kx
-        # stopping weight: A(rho) (= |C0|) on the compact half spectrum, rows ky, columns kx = 0 .. N/2 - 1
-        band = np.concatenate((c0[: self._h, : self._h], c0[n - self._h + 1:, : self._h]))
+        kx, ky = k[None, :] / self._square[0], k[:, None] / self._square[1]
+        self._eccentricity = transfer is None
+        operators = evaluate(transfer or eccentricity_transfer(cfg), kx, ky)  # (K, N, N) rows ky, columns kx
+        self._hermitian, self._count = operators.hermitian, len(operators)
+        v = operators.values
+        # Hermitian operators give real fields: two per complex transform (v0 + i v1, v2 + i v3, ...)
+        filters = np.stack([v[i] + 1j * v[i + 1] if i + 1 < len(v) else v[i] + 0j for i in range(0, len(v), 2)]
+                           ) if self._hermitian else v.astype(np.complex128)
+        # stopping weight: A(rho) on the compact half spectrum, rows ky, columns kx = 0 .. N/2 - 1
+        a = radial_tuning(np.hypot(kx, ky), cfg.tuning_frequency_per_m, cfg.lowpass_sigma_per_m)
+        band = np.concatenate((a[: self._h, : self._h], a[n - self._h + 1:, : self._h]))
         single = cfg.cg_precision == "single"
         self._real: type[np.floating] = np.float32 if single else np.float64
         self._complex: type[np.complexfloating] = np.complex64 if single else np.complex128
         self._norm_weights = norm_weights(band.astype(self._real))  # CG's, made once rather than every frame
-        self._filters = self._filters.astype(self._complex)
+        self._filters = filters.astype(self._complex)
         self._neg_rows = (-np.arange(n)) % n
         self._neg_cols_src = n - np.arange(n - self._h + 1, n)
         eps = max(cfg.nufft_eps, SINGLE_NUFFT_EPS) if single else cfg.nufft_eps
@@ -134,14 +162,14 @@ class NFFTFeatures:
     def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
         """finufft plans (made once) for `surfaces` value sets on shared points: type 1 onto the 2N grid (the
         kernel and each right-hand side, two real sets per complex transform), type 2 back to the points
-        (c0 + i c2 and s2 of each)."""
+        (the packed operators of each)."""
         if surfaces not in self._plans:
             n, opts, eps = self._n, self._plan_options, self._nufft_eps
             pairs = (2 + surfaces) // 2
             type1 = finufft.Plan(1, (2 * n, 2 * n), n_trans=pairs, isign=-1, eps=eps, upsampfac=_upsampfac(1, eps),
                                  **opts)
-            type2 = finufft.Plan(2, (n, n), n_trans=2 * surfaces, isign=1, eps=eps, upsampfac=_upsampfac(2, eps),
-                                 **opts)
+            type2 = finufft.Plan(2, (n, n), n_trans=len(self._filters) * surfaces, isign=1, eps=eps,
+                                 upsampfac=_upsampfac(2, eps), **opts)
             self._plans[surfaces] = (type1, type2)
         return self._plans[surfaces]
 
@@ -149,31 +177,49 @@ class NFFTFeatures:
                            rotation: np.ndarray | None = None) -> UnitSquarePoints:
         """Steps 1-2: the kept points in [-1/2, 1/2)^2 with max z = 0, and the damping for them.
 
-        rotation: camera -> face frame (tofd.algorithm.segmentation.Foreground), applied to the points first.
+        Pixels of the mask whose range is NaN, inf or <= 0 are left out (holes). rotation: camera -> face frame
+        (tofd.algorithm.segmentation.Foreground), applied to the points first.
         """
         flat = np.flatnonzero(mask)
+        ranges = np.take(range_m.reshape(-1), flat)
+        with np.errstate(invalid="ignore"):
+            good = np.isfinite(ranges) & (ranges > 0)
+        if not good.all():
+            flat, ranges = flat[good], ranges[good]
         pts = np.take(self._ray_columns, flat, axis=1)  # (3, M)
-        pts *= np.take(range_m.reshape(-1), flat)
+        pts *= ranges
         if rotation is not None:
             pts = rotation @ pts
         x = pts[0] / self._square[0]
         y = pts[1] / self._square[1]
-        x -= x.mean()
-        y -= y.mean()
+        x -= x.mean() if x.size else 0.0
+        y -= y.mean() if y.size else 0.0
         keep = (x >= -0.5) & (x < 0.5) & (y >= -0.5) & (y < 0.5)
         if not keep.all():
             flat, x, y, pts = flat[keep], x[keep], y[keep], pts[:, keep]
         z = pts[2]
+        if not z.size:
+            return UnitSquarePoints(x, y, z, flat, 0.0, float("nan"))
         # points per unit area of the square: 1 / mean pixel footprint, (z/fx)(z/fy) m^2 over Lx Ly
-        footprint = np.mean(z * z) / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
-        return UnitSquarePoints(x, y, z - z.max() if z.size else z, flat,
-                                self.cfg.damping / footprint if z.size else 0.0)
+        mean_z2 = float(np.mean(z * z))
+        footprint = mean_z2 / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
+        return UnitSquarePoints(x, y, z - z.max(), flat, self.cfg.damping / footprint, mean_z2**0.5)
 
     def range_features(self, range_m: np.ndarray, mask: np.ndarray,
                        rotation: np.ndarray | None = None) -> Eccentricities:
-        """eps0, eps2 (metres^2) per foreground pixel of a radial range map; NaN elsewhere (rotation: see
-        unit_square_points)."""
+        """eps0, eps2 (metres^2) per foreground pixel of a radial range map; NaN elsewhere and at holes (rotation:
+        see unit_square_points)."""
         return self.features(range_m, mask, rotation)[0]
+
+    def filtered(self, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray | None = None) -> np.ndarray:
+        """(K, H, W) fields of the operators on the surface of a radial range map, float64 where the operators are
+        Hermitian, else complex128; NaN outside the mask, at holes and at points outside the patch."""
+        check_frame(range_m, mask, self.intrinsics, "range_m")
+        pts = self._checked_points(range_m, mask, rotation)
+        out = np.full((self._count, *self.intrinsics.shape), np.nan, np.float64 if self._hermitian else np.complex128)
+        if pts.index.size:
+            out.reshape(self._count, -1)[:, pts.index] = self.fields(pts.x, pts.y, pts.z[None], pts.damping)[0].values
+        return out
 
     def features(self, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray | None = None,
                  amplitude: np.ndarray | None = None) -> tuple[Eccentricities, Eccentricities | None]:
@@ -182,37 +228,52 @@ class NFFTFeatures:
         Amplitude: divided by its median over the points and offset so its minimum is 0 (the FFT path's
         normalisation and background, tofd.algorithm.features.fft.FFTFeatures.amplitude_features), then filtered like
         z(x, y): scale-invariant like the range features, where the FFT amplitude features change with distance.
-        Both surfaces share the points, hence one Toeplitz kernel; each has its own CG solve.
+        Both surfaces share the points, hence one Toeplitz kernel; each has its own CG solve. Points whose
+        amplitude is not finite are left out of both.
+
+        Raises SamplingError (a ValueError) if the pixels at the foreground's range cannot carry the band
+        (tofd.algorithm.features.sampling).
         """
+        if not self._eccentricity:
+            raise ValueError("eccentricities need the default operators; this instance applies a user transfer "
+                             "(use filtered)")
         check_frame(range_m, mask, self.intrinsics, "range_m")
         if amplitude is not None:
             check_frame(amplitude, mask, self.intrinsics, "amplitude")
-        empty = Eccentricities.empty(self.intrinsics.shape)
-        pts = self.unit_square_points(range_m, mask, rotation) if mask.any() else None
-        if pts is None or pts.index.size == 0:
+            mask = usable(amplitude, mask, positive=False)
+        pts = self._checked_points(range_m, mask, rotation)
+        if pts.index.size == 0:
+            empty = Eccentricities.empty(self.intrinsics.shape)
             return empty, (None if amplitude is None else Eccentricities.empty(self.intrinsics.shape))
         values = [pts.z]
         if amplitude is not None:
             a = amplitude.reshape(-1)[pts.index].astype(np.float64)
             scale = float(np.median(a))
             values.append((a - a.min()) / scale if scale > 0 else np.zeros_like(a))
-        fields = self.fields(pts.x, pts.y, np.stack(values), pts.damping)
-        maps = [self._maps(pts.index, *f) for f in fields]
+        maps = [self._maps(pts.index, f) for f in self.fields(pts.x, pts.y, np.stack(values), pts.damping)]
         return maps[0], (maps[1] if amplitude is not None else None)
 
-    def _maps(self, index: np.ndarray, c0: np.ndarray, c2: np.ndarray, s2: np.ndarray, iterations: int,
-              residual: float) -> Eccentricities:
-        """(H, W) eps0, eps2 maps from the fields at the points `index` (flat pixel indices); NaN elsewhere."""
+    def _checked_points(self, range_m: np.ndarray, mask: np.ndarray,
+                        rotation: np.ndarray | None) -> UnitSquarePoints:
+        """unit_square_points, refused (SamplingError) where the pixels cannot carry the band."""
+        pts = self.unit_square_points(range_m, mask, rotation)
+        if pts.index.size:
+            check_sampling(pts.rms_range_m, self.intrinsics, self.cfg)
+        return pts
+
+    def _maps(self, index: np.ndarray, fields: SurfaceFields) -> Eccentricities:
+        """(H, W) eps0, eps2 maps from the fields [c0, c2, s2] at the points `index` (flat pixel indices); NaN
+        elsewhere."""
+        c0, c2, s2 = fields.values
         eps0 = np.full(self.intrinsics.shape, np.nan, np.float32)
         eps2 = np.full(self.intrinsics.shape, np.nan, np.float32)
         eps0.reshape(-1)[index] = c0 * c0
         eps2.reshape(-1)[index] = c2 * c2 + s2 * s2
-        return Eccentricities(eps0, eps2, iterations, residual)
+        return Eccentricities(eps0, eps2, fields.iterations, fields.residual)
 
-    def fields(self, x: np.ndarray, y: np.ndarray, values: np.ndarray,
-               lam: float) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int, float]]:
+    def fields(self, x: np.ndarray, y: np.ndarray, values: np.ndarray, lam: float) -> list[SurfaceFields]:
         """Steps 3-4 for each row of `values` (V, M) sampled at the points x, y in [-1/2, 1/2)^2, damping lam:
-        per row (c0, c2, s2 at the points, CG iterations, final relative residual)."""
+        per row the K operators' fields at the points, CG iterations and final relative residual."""
         n, h = self._n, self._h
         values = np.atleast_2d(values)
         type1, type2 = self._plans_for(len(values))
@@ -225,8 +286,15 @@ class NFFTFeatures:
         solved = solve(system, rhs, self._norm_weights, self.cfg.cg_tolerance, self.cfg.cg_max_iterations)
         type2.setpts(ty, tx)
         out = type2.execute(np.concatenate([self._filters * self._hermitian_full(s.f) for s in solved]))
-        return [(out[2 * i].real, out[2 * i].imag, out[2 * i + 1].real, s.iterations, s.residual)
+        packed = len(self._filters)
+        return [SurfaceFields(self._unpack(out[i * packed:(i + 1) * packed]), s.iterations, s.residual)
                 for i, s in enumerate(solved)]
+
+    def _unpack(self, packed: np.ndarray) -> np.ndarray:
+        """(K, M) fields from one surface's transforms (P, M): Hermitian operators were packed two per transform."""
+        if not self._hermitian:
+            return packed.astype(np.complex128)
+        return np.stack([part for p in packed for part in (p.real, p.imag)][: self._count])
 
     def _hermitian_full(self, half: np.ndarray) -> np.ndarray:
         """(N, N) FFT-ordered spectrum from the compact half (kx >= 0) by Hermitian symmetry."""

@@ -6,14 +6,14 @@ i^n is real (+1, -1), so all three non-trivial filters are real and even in k: C
 S2 = -A sin 2theta (S0 = 0). Filtering a real surface with them gives real fields c0, c2, s2 and
 eps0 = c0^2, eps2 = c2^2 + s2^2 (metres^2 on range, squared input units otherwise).
 
-A(rho) = T(rho) G(rho): the radial tuning T(rho) = (rho/rho0)^2 exp(1 - rho^2 / rho0^2) (peak 1 at rho0) times
-a Gaussian low-pass G(rho) = exp(-rho^2 / (2 sigma^2)) that keeps the filter inside the band of the NFFT grid.
-T ~ rho^2 near 0 (a Laplacian of Gaussian in space) makes the filter local: any plane gives exactly 0 and a
-sphere's apex response depends only on its curvature, which is what makes the NFFT features scale-invariant.
+A(rho) is the radial tuning of tofd.algorithm.band (a tuning peak at rho0 times a Gaussian low-pass that keeps the
+filter inside the band of the NFFT grid). It goes as rho^2 near 0 (a Laplacian of Gaussian in space), so the filter
+is local: any plane gives exactly 0 and a sphere's apex response depends only on its curvature, which is what makes
+the NFFT features scale-invariant.
 
 Both feature paths call `transfer_functions` with physical frequencies, so they apply the same filter:
 - FFT path: pixel frequency (cycles/pixel) times f/e (a pixel spans e/f metres at the equivalence range);
-- NFFT path: mode index k divided by the width of the unit square in metres, L = (image width / f) * e.
+- NFFT path: mode index k divided by the side of the patch in metres (FeatureConfig.patch_width_m, patch_height_m).
 """
 
 from __future__ import annotations
@@ -21,13 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.intrinsics import Intrinsics
-
-
-def radial_tuning(rho_per_m: np.ndarray | float, rho0_per_m: float, sigma_per_m: float) -> np.ndarray:
-    """A(rho) = (rho/rho0)^2 exp(1 - (rho/rho0)^2) exp(-rho^2 / (2 sigma^2)); all frequencies in cycles per metre."""
-    r2 = (np.asarray(rho_per_m, dtype=np.float64) / rho0_per_m) ** 2
-    lowpass = np.exp(-0.5 * (np.asarray(rho_per_m) / sigma_per_m) ** 2)
-    return r2 * np.exp(1.0 - r2) * lowpass
+from tofd.algorithm.band import radial_tuning
 
 
 def transfer_functions(kx_per_m: np.ndarray, ky_per_m: np.ndarray, rho0_per_m: float,
@@ -40,14 +34,18 @@ def transfer_functions(kx_per_m: np.ndarray, ky_per_m: np.ndarray, rho0_per_m: f
     return np.stack([a, -a * np.cos(theta2), -a * np.sin(theta2)])
 
 
+def eccentricity_filters(kx_per_m: np.ndarray, ky_per_m: np.ndarray, n: int, rho0_per_m: float,
+                         sigma_per_m: float) -> np.ndarray:
+    """(2, ...) complex filters [C_n, S_n] = i^n A(rho) [cos(n theta), sin(n theta)] at physical frequencies (kx, ky)
+    in cycles per metre (broadcast); eps_n = c_n^2 + s_n^2 of the fields they give (S_0 = 0)."""
+    kx, ky = np.broadcast_arrays(np.asarray(kx_per_m, dtype=np.float64), np.asarray(ky_per_m, dtype=np.float64))
+    a = (1j ** n) * radial_tuning(np.hypot(kx, ky), rho0_per_m, sigma_per_m)
+    theta = np.arctan2(ky, kx)
+    return np.stack([a * np.cos(n * theta), a * np.sin(n * theta)])
+
+
 def pixel_frequencies_per_m(pixel_freq_x: np.ndarray, pixel_freq_y: np.ndarray, intrinsics: Intrinsics,
                             equivalence_range_m: float) -> tuple[np.ndarray, np.ndarray]:
     """FFT path: cycles/pixel -> cycles/metre at the equivalence range (times f/e per axis)."""
     return (np.asarray(pixel_freq_x) * intrinsics.fx / equivalence_range_m,
             np.asarray(pixel_freq_y) * intrinsics.fy / equivalence_range_m)
-
-
-def unit_square_m(intrinsics: Intrinsics, equivalence_range_m: float) -> tuple[float, float]:
-    """NFFT path: width and height in metres of the field of view at e, mapped onto [-1/2, 1/2)^2."""
-    return (intrinsics.width / intrinsics.fx * equivalence_range_m,
-            intrinsics.height / intrinsics.fy * equivalence_range_m)

@@ -1,0 +1,35 @@
+"""Whether a camera's pixels at an object's range can carry the NFFT path's band on its grid.
+
+Pixels spaced p metres apart sample at fs = 1/p cycles per metre, so a grid mode k and k - fs fit the same samples.
+The fit stays unique on the band (where the filters respond, up to the band edge, tofd.algorithm.band) while no
+alias of a band mode falls on the grid, i.e. while grid Nyquist + band edge <= fs on each axis. Past that, the damped
+solve shares the surface between aliases and the features shrink while CG still converges.
+"""
+
+from __future__ import annotations
+
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.params import FeatureConfig
+
+
+class SamplingError(ValueError):
+    """The pixels at the object's range are too coarse for the band on the NFFT grid (the message says by how much)."""
+
+
+def farthest_range_m(intrinsics: Intrinsics, cfg: FeatureConfig) -> float:
+    """The range in metres beyond which the camera's pixel pitch cannot carry the band on the NFFT grid."""
+    edge = cfg.band_edge_per_m
+    nyq_x, nyq_y = cfg.grid_nyquist_per_m
+    return min(intrinsics.fx / (nyq_x + edge), intrinsics.fy / (nyq_y + edge))
+
+
+def check_sampling(range_m: float, intrinsics: Intrinsics, cfg: FeatureConfig) -> None:
+    """Raise SamplingError unless points at `range_m` (the foreground's RMS range, metres) carry the band."""
+    limit = farthest_range_m(intrinsics, cfg)
+    if range_m > limit:
+        pitch_mm = 1e3 * range_m / min(intrinsics.fx, intrinsics.fy)
+        raise SamplingError(
+            f"range_m: the foreground at {range_m:.3g} m is sampled every {pitch_mm:.3g} mm, too coarse for the "
+            f"band (edge {cfg.band_edge_per_m:.1f} cycles/m) on the NFFT grid (Nyquist "
+            f"{max(cfg.grid_nyquist_per_m):.1f} cycles/m); with these intrinsics and features the object must be "
+            f"nearer than {limit:.3g} m (or lower grid_size, tuning_frequency_per_m or lowpass_sigma_per_m)")
