@@ -137,3 +137,21 @@ def test_a_face_gives_the_same_features_from_every_camera_that_resolves_it():
         np.testing.assert_allclose(values[:, 1], ref[:, 1], atol=0.02 * ref[0, 0], err_msg=name)
     far = tip_eccentricities(CAMERAS["640x576"], 0.8)
     np.testing.assert_allclose(far, tip_eccentricities(CAMERAS["1024x1024"], 0.8), rtol=0.02)
+
+
+def test_the_pipeline_leaves_nfft_maps_nan_with_a_warning_where_the_camera_is_too_coarse():
+    """The feature extractor (the pipeline's workers) does not stop on such a frame: its FFT maps are computed, its
+    NFFT maps are NaN (no NFFT detection from wrong numbers) and a RuntimeWarning says why."""
+    from tofd.algorithm.extract import FeatureExtractor
+
+    intr = CAMERAS["sr3000"]
+    wall = synthetic.tilted_plane(intr, 2.5, 0.0, 0.0)
+    extractor = FeatureExtractor(intr, CFG, SegmentationConfig())
+    near = synthetic.sphere(intr, 0.5, 0.1).over(wall)
+    maps = extractor(near.range_m, near.amplitude).maps
+    assert np.isfinite(maps["range_nfft_eps0"]).any()
+    far = synthetic.sphere(intr, farthest_range_m(intr, CFG) + 0.1, 0.1).over(wall)
+    with pytest.warns(RuntimeWarning, match="NFFT features left out: range_m: the foreground at"):
+        features = extractor(far.range_m, far.amplitude)
+    assert np.isfinite(features.maps["range_fft_eps0"]).any()
+    assert np.isnan(features.maps["range_nfft_eps0"]).all() and np.isnan(features.maps["amp_nfft_eps2"]).all()

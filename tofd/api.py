@@ -111,8 +111,7 @@ def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transf
         raise ValueError(f"transfer must be a callable transfer(kx, ky), got {type(transfer).__name__}")
     features = (FFTFeatures if method == "fft" else NFFTFeatures)(intrinsics, cfg, transfer)
     fields = features.filtered(range_m, mask)
-    single = np.ndim(transfer(np.zeros(1), np.zeros(1))) == 1
-    return fields[0] if single else fields
+    return fields if features.stacked else fields[0]
 
 
 def eccentricity_transfer(n: int, config: FeatureConfig | None = None) -> Transfer:

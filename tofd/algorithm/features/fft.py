@@ -69,7 +69,7 @@ class FFTFeatures:
         self._window = (slice(pad, pad + h), slice(pad, pad + w))
         self._eccentricity = transfer is None
         operators = self._operators(transfer or eccentricity_transfer(cfg), sfft.rfftfreq(self._shape[1]), cfg)
-        self._real = operators.hermitian
+        self._real, self.stacked = operators.hermitian, operators.stacked
         # (K, rows, cols // 2 + 1) on the real transform's half spectrum if Hermitian, else (K, rows, cols)
         self._transfer = operators.values
         self._buffer = np.empty(self._shape)

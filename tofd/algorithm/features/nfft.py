@@ -137,7 +137,7 @@ class NFFTFeatures:
         kx, ky = k[None, :] / self._square[0], k[:, None] / self._square[1]
         self._eccentricity = transfer is None
         operators = evaluate(transfer or eccentricity_transfer(cfg), kx, ky)  # (K, N, N) rows ky, columns kx
-        self._hermitian, self._count = operators.hermitian, len(operators)
+        self._hermitian, self._count, self.stacked = operators.hermitian, len(operators), operators.stacked
         v = operators.values
         # Hermitian operators give real fields: two per complex transform (v0 + i v1, v2 + i v3, ...)
         filters = np.stack([v[i] + 1j * v[i + 1] if i + 1 < len(v) else v[i] + 0j for i in range(0, len(v), 2)]
