@@ -56,7 +56,7 @@ def test_sphere_apex_eps0_is_the_same_from_every_camera(distance):
         assert value == pytest.approx(ref, rel=0.02), name
 
 
-@pytest.mark.parametrize("distance", [0.35, 0.8])
+@pytest.mark.parametrize("distance", [0.35, 0.5, 0.8])
 def test_ellipsoid_apex_eps0_and_eps2_are_the_same_from_every_camera(distance):
     """Curvatures 1/0.1 and 1/0.05 along x and y at the apex: eps2 is far from 0 (a sphere's is ~0)."""
     values = {name: [apex_value(intr, ellipsoid(intr, distance, (0.1, math.sqrt(0.1 * 0.05), 0.1)), n)
