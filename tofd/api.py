@@ -26,10 +26,11 @@ def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndar
                    method: Method = "nfft", config: FeatureConfig | None = None) -> Eccentricities:
     """Generalized eccentricities eps0 and eps2 of a range image (Haker et al. 2008).
 
-    eps0 responds to the surface's curvature (a sphere of radius R gives about (2/R)^2 times the filter's gain at its
-    apex), eps2 to its anisotropy (0 on a sphere's apex, large on a ridge). With ``method="nfft"`` they are computed on
-    the back-projected 3-D surface and do not depend on the distance or the camera; ``method="fft"`` filters the pixel
-    grid as if the object were at ``config.equivalence_range_m``.
+    eps0 responds to the surface's curvature (at the apex of a sphere of radius R it is about
+    (2/R)^2 (e / (2 pi rho0)^2)^2, e = exp(1), rho0 = ``config.tuning_frequency_per_m``: the squared Laplacian at the
+    filter's scale), eps2 to its anisotropy (0 on a sphere's apex, large on a ridge). With ``method="nfft"`` they are
+    computed on the back-projected 3-D surface and do not depend on the distance or the camera; ``method="fft"``
+    filters the pixel grid as if the object were at ``config.equivalence_range_m``.
 
     Parameters
     ----------
