@@ -150,10 +150,14 @@ class FFTFeatures:
         np.copyto(buf[self._window], image, where=mask)
         if gain != 1.0:
             buf *= gain
+        out = np.empty((self.operators, *self.intrinsics.shape), np.float64 if self._real else np.complex128)
         if self._real:
             spectrum = sfft.rfft2(buf, workers=1)
-            fields = [sfft.irfft2(spectrum * t, s=self._shape, workers=1)[self._window] for t in self._transfer]
+            for field, t in zip(out, self._transfer, strict=True):
+                field[...] = sfft.irfft2(spectrum * t, s=self._shape, workers=1)[self._window]
         else:
             spectrum = sfft.fft2(buf, workers=1)
-            fields = [sfft.ifft2(spectrum * t, workers=1)[self._window] for t in self._transfer]
-        return np.where(valid, np.stack(fields), np.nan)
+            for field, t in zip(out, self._transfer, strict=True):
+                field[...] = sfft.ifft2(spectrum * t, workers=1)[self._window]
+        np.copyto(out, np.nan, where=~valid)
+        return out
