@@ -106,6 +106,8 @@ def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transf
     ------
     ValueError
         As `eccentricities`, and naming `transfer` when it fails or returns values of the wrong shape or non-finite.
+        The NFFT path's sampling check uses the config's band (``tuning_frequency_per_m``, ``lowpass_sigma_per_m``)
+        and grid: set them to the band your operator needs.
     """
     cfg, mask = _checked(range_m, intrinsics, mask, method, config)
     if not callable(transfer):
