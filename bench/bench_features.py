@@ -10,9 +10,12 @@ converged solution (CG to a 1e-9 band residual, NUFFTs to 1e-9, in double precis
 converged eps0 is at least a tenth of its peak (the pixels a detector box can accept). Goal: NFFT / FFT <= 4 on CPU
 time. CG cpu: the part of the NFFT CPU time spent in the conjugate-gradient solve (the rest: points, type-1 and type-2
 NUFFTs), and per CG iteration (one Toeplitz product, a real FFT pair of size 2N, plus the CG updates).
+--cameras: the camera geometries to run (CAMERAS: the SR3000 and three current ones), each with its own FFT baseline
+measured in the same run, so the ratios compare per geometry; and the cross-camera check: the NFFT eps0 at a 0.1 m
+sphere's apex for every camera at 0.35, 0.5 and 0.8 m, and its spread (goal <= 2 %).
 Prints a table and writes JSON (bench/results/bench_features.json or --out).
 
-    .venv/bin/python bench/bench_features.py [--repeats 50] [--processes 3] [--out PATH]
+    .venv/bin/python bench/bench_features.py [--repeats 50] [--processes 3] [--cameras sr3000,640x576] [--out PATH]
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import math
 import multiprocessing as mp
 import platform
 import time
@@ -39,6 +43,19 @@ from tofd.lab import shapes as synthetic
 from tofd.lab import sphere_experiment
 
 DISTANCES_M = (0.35, 0.5, 0.7)
+SPHERE_CHECK_M = (0.35, 0.5, 0.8)  # the cross-camera check's apex distances, metres
+
+
+def _pinhole(width: int, height: int, f: float) -> Intrinsics:
+    return Intrinsics(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
+
+
+CAMERAS = {
+    "sr3000": Intrinsics(),  # 176x144, 47.5 degrees across
+    "320x240": _pinhole(320, 240, 160 / math.tan(math.radians(35.0))),  # 70 degrees across
+    "640x576": _pinhole(640, 576, 504.0),  # Azure Kinect / Femto NFOV unbinned
+    "1024x1024": _pinhole(1024, 1024, 500.0),  # Azure Kinect WFOV-like
+}
 GOAL_RATIO = 4.0  # NFFT / FFT range-feature CPU time per frame (issue 19)
 CONVERGED = {"cg_tolerance": 1e-9, "cg_max_iterations": 3000, "cg_precision": "double", "nufft_eps": 1e-9}
 FACE_DEPTH_M = 0.08  # metres: segmentation depth margin for the face scenes, the whole face (a worst case: 1,700-5,600
@@ -54,7 +71,7 @@ def scenes(intrinsics: Intrinsics) -> list[tuple[str, float, np.ndarray, np.ndar
         s = synthetic.sphere(intrinsics, d, 0.15)
         out.append(("sphere", d, s.range_m.astype(np.float32), s.mask))
         r = render_face(face, Pose(distance_m=d, yaw_deg=15.0, pitch_deg=5.0), intrinsics, np.random.default_rng(1))
-        out.append(("face", d, r.range_m, segment(r.range_m, r.amplitude, seg)))
+        out.append(("face", d, r.range_m, segment(r.range_m, r.amplitude, seg, intrinsics)))
     return out
 
 
@@ -80,14 +97,14 @@ def count_solve_cpu(totals: list[float]) -> None:
     nfft_module.solve = timed
 
 
-def time_frames(cfg_dict: dict, repeats: int) -> list[dict]:
+def time_frames(cfg_dict: dict, repeats: int, camera: str = "sr3000") -> list[dict]:
     """Per scene: FFT and NFFT range-feature times (ms, wall and CPU) over `repeats` frames, the NFFT's CG CPU
     time, CG iterations and the eps0 error against the converged solution; the heap set up as in the pipeline's
     feature workers."""
     keep_arrays_on_the_heap()
     cg_total = [0.0]
     count_solve_cpu(cg_total)
-    intrinsics = Intrinsics()
+    intrinsics = CAMERAS[camera]
     cfg = FeatureConfig(**cfg_dict)
     fft, nfft = FFTFeatures(intrinsics, cfg), NFFTFeatures(intrinsics, cfg)
     converged = NFFTFeatures(intrinsics, dataclasses.replace(cfg, **CONVERGED))
@@ -108,8 +125,8 @@ def time_frames(cfg_dict: dict, repeats: int) -> list[dict]:
             cpu_fft.append((c1 - c0) * 1e3)
             cpu_nfft.append((c2 - c1) * 1e3)
             its.append(maps.iterations)
-        rows.append({"scene": name, "distance_m": d, "points": int(mask.sum()), "fft_ms": t_fft, "nfft_ms": t_nfft,
-                     "fft_cpu_ms": cpu_fft, "nfft_cpu_ms": cpu_nfft, "cg_cpu_ms": cpu_cg,
+        rows.append({"camera": camera, "scene": name, "distance_m": d, "points": int(mask.sum()), "fft_ms": t_fft,
+                     "nfft_ms": t_nfft, "fft_cpu_ms": cpu_fft, "nfft_cpu_ms": cpu_nfft, "cg_cpu_ms": cpu_cg,
                      "iterations": int(np.median(its)),
                      "eps0_error": error})
     return rows
@@ -125,7 +142,8 @@ def stats(rows: list[dict], threads: int, wall_s: float | None = None) -> list[d
     out = []
     for r in rows:
         fft, nfft = np.array(r["fft_ms"]), np.array(r["nfft_ms"])
-        out.append({"threads": threads, "scene": r["scene"], "distance_m": r["distance_m"], "points": r["points"],
+        out.append({"camera": r["camera"], "threads": threads, "scene": r["scene"], "distance_m": r["distance_m"],
+                    "points": r["points"],
                     "fft_median_ms": float(np.median(fft)), "fft_p95_ms": float(np.percentile(fft, 95)),
                     "nfft_median_ms": float(np.median(nfft)), "nfft_p95_ms": float(np.percentile(nfft, 95)),
                     "fft_cpu_median_ms": float(np.median(r["fft_cpu_ms"])),
@@ -138,59 +156,97 @@ def stats(rows: list[dict], threads: int, wall_s: float | None = None) -> list[d
     return out
 
 
+def sphere_apex_eps0(cfg: FeatureConfig) -> dict[str, list[float]]:
+    """Per camera, the NFFT eps0 (m^2) at the apex of a 0.1 m sphere at each of SPHERE_CHECK_M."""
+    out = {}
+    for name, intrinsics in CAMERAS.items():
+        nfft, apex = NFFTFeatures(intrinsics, cfg), (int(round(intrinsics.cy)), int(round(intrinsics.cx)))
+        out[name] = [float(nfft.range_features(s.range_m, s.mask).eps0[apex])
+                     for s in (synthetic.sphere(intrinsics, d, 0.1) for d in SPHERE_CHECK_M)]
+    return out
+
+
+def measure(cfg: dict, camera: str, repeats: int, processes: int) -> tuple[list[dict], list[float], float]:
+    """One camera: rows of 1-thread (pooled over `processes` fresh processes) and 2-process stats, each process's
+    worst NFFT/FFT CPU ratio, and the 2-process wall time per frame (ms)."""
+    ctx = mp.get_context("spawn")
+    runs = []
+    for _ in range(processes):  # one after another, each in a fresh process
+        with ctx.Pool(1) as pool:
+            runs.append(pool.apply(time_frames, (cfg, repeats, camera)))
+    process_worst = [max(r["nfft_over_fft_cpu"] for r in stats(run, 1)) for run in runs]
+    with ctx.Pool(2) as pool:
+        pool.starmap(time_frames, [(cfg, 2, camera)] * 2)  # warm up imports and plans
+        t0 = time.perf_counter()
+        both = pool.starmap(time_frames, [(cfg, repeats, camera)] * 2)
+        wall = time.perf_counter() - t0
+    frames = 2 * repeats * len(both[0])
+    return stats(pooled(runs), 1) + stats(pooled(both), 2), process_worst, wall * 1e3 / frames
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=50, help="frames per scene and path")
     parser.add_argument("--processes", type=int, default=3,
                         help="fresh processes the 1-thread times are measured in, one after another (the FFT path's "
                              "time varies between processes)")
+    parser.add_argument("--cameras", default="sr3000", type=lambda text: text.split(","),
+                        help=f"comma-separated camera geometries to time (of: {', '.join(CAMERAS)}); default sr3000")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_features.json"))
     args = parser.parse_args()
+    unknown = [c for c in args.cameras if c not in CAMERAS]
+    if unknown:
+        parser.error(f"--cameras: unknown {', '.join(unknown)} (known: {', '.join(CAMERAS)})")
     cfg = dataclasses.asdict(FeatureConfig())
 
-    ctx = mp.get_context("spawn")
-    runs = []
-    for _ in range(args.processes):  # one after another, each in a fresh process
-        with ctx.Pool(1) as pool:
-            runs.append(pool.apply(time_frames, (cfg, args.repeats)))
-    single = stats(pooled(runs), 1)
-    process_worst = [max(r["nfft_over_fft_cpu"] for r in stats(run, 1)) for run in runs]
-    with ctx.Pool(2) as pool:
-        pool.starmap(time_frames, [(cfg, 2)] * 2)  # warm up imports and plans
-        t0 = time.perf_counter()
-        both = pool.starmap(time_frames, [(cfg, args.repeats)] * 2)
-        wall = time.perf_counter() - t0
-    dual = stats(pooled(both), 2)
-    frames = 2 * args.repeats * len(both[0])
-    throughput_ms = wall * 1e3 / frames  # per frame (FFT + NFFT) with two processes working
+    rows, per_camera = [], {}
+    for camera in args.cameras:
+        camera_rows, process_worst, throughput_ms = measure(cfg, camera, args.repeats, args.processes)
+        rows += camera_rows
+        single = [r for r in camera_rows if r["threads"] == 1]
+        per_camera[camera] = {"worst_nfft_over_fft_cpu": max(r["nfft_over_fft_cpu"] for r in single),
+                              "worst_nfft_over_fft_cpu_per_process": process_worst,
+                              "worst_eps0_error_pct": max(r["eps0_error_pct"] for r in single),
+                              "two_process_wall_ms_per_frame": throughput_ms}
 
-    header = (f"{'thr':>3} {'scene':>6} {'dist':>5} {'points':>6} {'FFT med':>8} {'FFT p95':>8} {'FFT cpu':>8} "
-              f"{'NFFT med':>9} {'NFFT p95':>9} {'NFFT cpu':>9} {'CG cpu':>7} {'CG it':>6} {'ms/it':>6} "
+    header = (f"{'camera':>9} {'thr':>3} {'scene':>6} {'dist':>5} {'points':>6} {'FFT med':>8} {'FFT p95':>8} "
+              f"{'FFT cpu':>8} {'NFFT med':>9} {'NFFT p95':>9} {'NFFT cpu':>9} {'CG cpu':>7} {'CG it':>6} {'ms/it':>6} "
               f"{'eps0 err%':>9} {'NFFT/FFT':>9} {'cpu ratio':>9}")
     print(header)
-    for r in single + dual:
-        print(f"{r['threads']:>3} {r['scene']:>6} {r['distance_m']:5.2f} {r['points']:6d} {r['fft_median_ms']:8.2f} "
-              f"{r['fft_p95_ms']:8.2f} {r['fft_cpu_median_ms']:8.2f} {r['nfft_median_ms']:9.2f} "
-              f"{r['nfft_p95_ms']:9.2f} {r['nfft_cpu_median_ms']:9.2f} {r['cg_cpu_median_ms']:7.2f} "
-              f"{r['cg_iterations']:6d} {r['cg_cpu_per_iteration_ms']:6.3f} {r['eps0_error_pct']:9.2f} "
-              f"{r['nfft_over_fft']:9.1f} {r['nfft_over_fft_cpu']:9.1f}")
-    worst = max(r["nfft_over_fft_cpu"] for r in single)
-    print(f"worst NFFT/FFT CPU ratio (1 thread, frames of {args.processes} processes) {worst:.1f} (goal <= "
-          f"{GOAL_RATIO:.0f}: {'met' if worst <= GOAL_RATIO else 'not met'}; each process alone: "
-          f"{', '.join(f'{w:.1f}' for w in process_worst)}); "
-          f"worst eps0 error {max(r['eps0_error_pct'] for r in single):.2f} % (goal <= 1 %)")
+    for r in rows:
+        print(f"{r['camera']:>9} {r['threads']:>3} {r['scene']:>6} {r['distance_m']:5.2f} {r['points']:6d} "
+              f"{r['fft_median_ms']:8.2f} {r['fft_p95_ms']:8.2f} {r['fft_cpu_median_ms']:8.2f} "
+              f"{r['nfft_median_ms']:9.2f} {r['nfft_p95_ms']:9.2f} {r['nfft_cpu_median_ms']:9.2f} "
+              f"{r['cg_cpu_median_ms']:7.2f} {r['cg_iterations']:6d} {r['cg_cpu_per_iteration_ms']:6.3f} "
+              f"{r['eps0_error_pct']:9.2f} {r['nfft_over_fft']:9.1f} {r['nfft_over_fft_cpu']:9.1f}")
+    for camera, c in per_camera.items():
+        worst = c["worst_nfft_over_fft_cpu"]
+        print(f"{camera}: worst NFFT/FFT CPU ratio (1 thread, frames of {args.processes} processes) {worst:.1f} (goal "
+              f"<= {GOAL_RATIO:.0f}: {'met' if worst <= GOAL_RATIO else 'not met'}; each process alone: "
+              f"{', '.join(f'{w:.1f}' for w in c['worst_nfft_over_fft_cpu_per_process'])}); worst eps0 error "
+              f"{c['worst_eps0_error_pct']:.2f} % (goal <= 1 %); 2 processes: "
+              f"{c['two_process_wall_ms_per_frame']:.2f} ms wall per frame (FFT + NFFT range features)")
     sphere = sphere_experiment.summary(sphere_experiment.run(Intrinsics(), FeatureConfig(**cfg)),
                                        cfg["equivalence_range_m"])
     print(f"sphere experiment (tofd experiment sphere): NFFT eps0 spread {100 * sphere['nfft_eps0_spread']:.2f} % "
           f"over {sphere_experiment.DISTANCES_M[0]:g}-{sphere_experiment.DISTANCES_M[-1]:g} m (goal <= 2 %)")
-    print(f"2 processes: {throughput_ms:.2f} ms wall per frame (FFT + NFFT range features), "
-          f"{1e3 / throughput_ms:.0f} frames/s")
+    apex = sphere_apex_eps0(FeatureConfig(**cfg))
+    values = [v for vs in apex.values() for v in vs]
+    spread = max(values) / min(values) - 1
+    print(f"cross-camera: NFFT eps0 at a 0.1 m sphere's apex, {len(CAMERAS)} cameras x "
+          f"{', '.join(f'{d:g}' for d in SPHERE_CHECK_M)} m: spread {100 * spread:.2f} % (goal <= 2 %)")
+    first = per_camera[args.cameras[0]]
     write_json(args.out, {"machine": platform.platform(), "cpu_count": mp.cpu_count(), "repeats": args.repeats,
                           "feature_config": cfg, "face_depth_margin_m": FACE_DEPTH_M,
-                          "rows": single + dual, "two_process_wall_ms_per_frame": throughput_ms,
-                          "worst_nfft_over_fft_cpu": worst, "worst_nfft_over_fft_cpu_per_process": process_worst,
+                          "cameras": {c: CAMERAS[c].to_dict() for c in args.cameras}, "rows": rows,
+                          "per_camera": per_camera,
+                          "two_process_wall_ms_per_frame": first["two_process_wall_ms_per_frame"],
+                          "worst_nfft_over_fft_cpu": first["worst_nfft_over_fft_cpu"],
+                          "worst_nfft_over_fft_cpu_per_process": first["worst_nfft_over_fft_cpu_per_process"],
                           "goal_nfft_over_fft": GOAL_RATIO,
-                          "sphere_nfft_eps0_spread_pct": 100 * sphere["nfft_eps0_spread"]})
+                          "sphere_nfft_eps0_spread_pct": 100 * sphere["nfft_eps0_spread"],
+                          "cross_camera_apex_eps0_m2": {"distances_m": list(SPHERE_CHECK_M), "values": apex,
+                                                        "spread_pct": 100 * spread}})
     return 0
 
 

@@ -56,7 +56,7 @@ def test_sphere_apex_eps0_is_the_same_from_every_camera(distance):
         assert value == pytest.approx(ref, rel=0.02), name
 
 
-@pytest.mark.parametrize("distance", [0.35, 0.8])
+@pytest.mark.parametrize("distance", [0.35, 0.5, 0.8])
 def test_ellipsoid_apex_eps0_and_eps2_are_the_same_from_every_camera(distance):
     """Curvatures 1/0.1 and 1/0.05 along x and y at the apex: eps2 is far from 0 (a sphere's is ~0)."""
     values = {name: [apex_value(intr, ellipsoid(intr, distance, (0.1, math.sqrt(0.1 * 0.05), 0.1)), n)
@@ -137,3 +137,21 @@ def test_a_face_gives_the_same_features_from_every_camera_that_resolves_it():
         np.testing.assert_allclose(values[:, 1], ref[:, 1], atol=0.02 * ref[0, 0], err_msg=name)
     far = tip_eccentricities(CAMERAS["640x576"], 0.8)
     np.testing.assert_allclose(far, tip_eccentricities(CAMERAS["1024x1024"], 0.8), rtol=0.02)
+
+
+def test_the_pipeline_leaves_nfft_maps_nan_with_a_warning_where_the_camera_is_too_coarse():
+    """The feature extractor (the pipeline's workers) does not stop on such a frame: its FFT maps are computed, its
+    NFFT maps are NaN (no NFFT detection from wrong numbers) and a RuntimeWarning says why."""
+    from tofd.algorithm.extract import FeatureExtractor
+
+    intr = CAMERAS["sr3000"]
+    wall = synthetic.tilted_plane(intr, 2.5, 0.0, 0.0)
+    extractor = FeatureExtractor(intr, CFG, SegmentationConfig())
+    near = synthetic.sphere(intr, 0.5, 0.1).over(wall)
+    maps = extractor(near.range_m, near.amplitude).maps
+    assert np.isfinite(maps["range_nfft_eps0"]).any()
+    far = synthetic.sphere(intr, farthest_range_m(intr, CFG) + 0.1, 0.1).over(wall)
+    with pytest.warns(RuntimeWarning, match="NFFT features left out: range_m: the foreground at"):
+        features = extractor(far.range_m, far.amplitude)
+    assert np.isfinite(features.maps["range_fft_eps0"]).any()
+    assert np.isnan(features.maps["range_nfft_eps0"]).all() and np.isnan(features.maps["amp_nfft_eps2"]).all()

@@ -13,9 +13,9 @@ INTR = Intrinsics()
 CFG = FeatureConfig()
 
 
-def _reference_points(range_m, mask, cfg):
+def _reference_points(range_m, mask, cfg, intr=INTR):
     """Paper section 2.2 steps 1-2, written independently of the implementation."""
-    pts = INTR.backproject(range_m)[mask]
+    pts = intr.backproject(range_m)[mask]
     lx, ly = cfg.patch_width_m, cfg.patch_height_m
     x, y = pts[:, 0] / lx, pts[:, 1] / ly
     x, y = x - x.mean(), y - y.mean()
@@ -24,25 +24,28 @@ def _reference_points(range_m, mask, cfg):
     return x[keep], y[keep], z - z.max(), keep
 
 
-@pytest.mark.parametrize("distance", [0.45, 0.7])
-def test_nfft_matches_dense_ndft_solution(distance):
+WIDE = Intrinsics(320, 240, 228.5, 228.5, 159.5, 119.5)  # 70 degrees across: another camera, the same metric patch
+
+
+@pytest.mark.parametrize("intr, distance", [(INTR, 0.45), (INTR, 0.7), (WIDE, 0.45)])
+def test_nfft_matches_dense_ndft_solution(intr, distance):
     """Small grid (a band it holds), tight CG: eps0/eps2 equal those of the exactly solved damped problem (dense
     NDFT)."""
     cfg = dataclasses.replace(CFG, grid_size=16, tuning_frequency_per_m=7.0, lowpass_sigma_per_m=12.0,
                               cg_tolerance=1e-13, cg_max_iterations=5000, nufft_eps=1e-12, cg_precision="double")
-    nf = NFFTFeatures(INTR, cfg)
-    scene = synthetic.sphere(INTR, distance, 0.08, apex_px=(70.0, 80.0))
+    nf = NFFTFeatures(intr, cfg)
+    scene = synthetic.sphere(intr, distance, 0.08, apex_px=(intr.cx - 17.5, intr.cy + 8.5))  # (70, 80) on the SR3000
     mask = scene.mask
     maps, amp_maps = nf.features(scene.range_m, mask, amplitude=scene.amplitude)
-    x, y, z, keep = _reference_points(scene.range_m, mask, cfg)
+    x, y, z, keep = _reference_points(scene.range_m, mask, cfg, intr)
     pts = nf.unit_square_points(scene.range_m, mask)
     np.testing.assert_allclose(pts.z, z, atol=1e-12)
     h = cfg.grid_size // 2
     k = np.arange(-h + 1, h)
     kx, ky = (g.ravel() for g in np.meshgrid(k, k))
     a = np.exp(2j * np.pi * (np.outer(x, kx) + np.outer(y, ky)))
-    footprint = np.mean(INTR.backproject(scene.range_m)[mask][keep, 2] ** 2) / (
-        INTR.fx * INTR.fy * cfg.patch_width_m * cfg.patch_height_m)
+    footprint = np.mean(intr.backproject(scene.range_m)[mask][keep, 2] ** 2) / (
+        intr.fx * intr.fy * cfg.patch_width_m * cfg.patch_height_m)
     lam = cfg.damping / footprint
     amp = scene.amplitude[mask][keep]
     amp = (amp - amp.min()) / np.median(amp)  # the amplitude surface: FFT path's normalisation, background 0

@@ -26,10 +26,11 @@ def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndar
                    method: Method = "nfft", config: FeatureConfig | None = None) -> Eccentricities:
     """Generalized eccentricities eps0 and eps2 of a range image (Haker et al. 2008).
 
-    eps0 responds to the surface's curvature (a sphere of radius R gives about (2/R)^2 times the filter's gain at its
-    apex), eps2 to its anisotropy (0 on a sphere's apex, large on a ridge). With ``method="nfft"`` they are computed on
-    the back-projected 3-D surface and do not depend on the distance or the camera; ``method="fft"`` filters the pixel
-    grid as if the object were at ``config.equivalence_range_m``.
+    eps0 responds to the surface's curvature (at the apex of a sphere of radius R it is about
+    (2/R)^2 (e / (2 pi rho0)^2)^2, e = exp(1), rho0 = ``config.tuning_frequency_per_m``: the squared Laplacian at the
+    filter's scale), eps2 to its anisotropy (0 on a sphere's apex, large on a ridge). With ``method="nfft"`` they are
+    computed on the back-projected 3-D surface and do not depend on the distance or the camera; ``method="fft"``
+    filters the pixel grid as if the object were at ``config.equivalence_range_m``.
 
     Parameters
     ----------
@@ -105,14 +106,15 @@ def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transf
     ------
     ValueError
         As `eccentricities`, and naming `transfer` when it fails or returns values of the wrong shape or non-finite.
+        The NFFT path's sampling check uses the config's band (``tuning_frequency_per_m``, ``lowpass_sigma_per_m``)
+        and grid: set them to the band your operator needs.
     """
     cfg, mask = _checked(range_m, intrinsics, mask, method, config)
     if not callable(transfer):
         raise ValueError(f"transfer must be a callable transfer(kx, ky), got {type(transfer).__name__}")
     features = (FFTFeatures if method == "fft" else NFFTFeatures)(intrinsics, cfg, transfer)
     fields = features.filtered(range_m, mask)
-    single = np.ndim(transfer(np.zeros(1), np.zeros(1))) == 1
-    return fields[0] if single else fields
+    return fields if features.stacked else fields[0]
 
 
 def eccentricity_transfer(n: int, config: FeatureConfig | None = None) -> Transfer:

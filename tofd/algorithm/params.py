@@ -12,8 +12,7 @@ from tofd.algorithm.names import VARIANTS
 
 _SR3000 = Intrinsics()
 SR3000_PATCH_M = (_SR3000.width / _SR3000.fx * 0.5, _SR3000.height / _SR3000.fy * 0.5)
-"""The SR3000's field of view at 0.5 m: the NFFT patch of the shipped model (and of tofd before the patch was set in
-metres), so SR3000 features are unchanged."""
+"""The SR3000's field of view at 0.5 m (width, height), metres: the NFFT patch the shipped model was trained with."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,8 +118,8 @@ class FeatureConfig:
 def recorded_feature_settings(recorded: dict) -> dict:
     """Feature settings recorded with a model (dataclasses.asdict(FeatureConfig) at training time) in today's keys.
 
-    Settings recorded before the NFFT patch was set in metres have no patch keys: their patch was the camera's field
-    of view at the equivalence range, and tofd trained on the SR3000 only, so it is the SR3000's.
+    Settings without the patch keys (model files written before they existed) used the camera's field of view at the
+    equivalence range as the NFFT patch; those models were trained on the SR3000, so it is the SR3000's.
     """
     if "patch_width_m" in recorded or "patch_height_m" in recorded:
         return dict(recorded)

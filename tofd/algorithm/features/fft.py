@@ -69,7 +69,7 @@ class FFTFeatures:
         self._window = (slice(pad, pad + h), slice(pad, pad + w))
         self._eccentricity = transfer is None
         operators = self._operators(transfer or eccentricity_transfer(cfg), sfft.rfftfreq(self._shape[1]), cfg)
-        self._real = operators.hermitian
+        self._real, self.stacked = operators.hermitian, operators.stacked
         # (K, rows, cols // 2 + 1) on the real transform's half spectrum if Hermitian, else (K, rows, cols)
         self._transfer = operators.values
         self._buffer = np.empty(self._shape)
@@ -150,10 +150,14 @@ class FFTFeatures:
         np.copyto(buf[self._window], image, where=mask)
         if gain != 1.0:
             buf *= gain
+        out = np.empty((self.operators, *self.intrinsics.shape), np.float64 if self._real else np.complex128)
         if self._real:
             spectrum = sfft.rfft2(buf, workers=1)
-            fields = [sfft.irfft2(spectrum * t, s=self._shape, workers=1)[self._window] for t in self._transfer]
+            for field, t in zip(out, self._transfer, strict=True):
+                field[...] = sfft.irfft2(spectrum * t, s=self._shape, workers=1)[self._window]
         else:
             spectrum = sfft.fft2(buf, workers=1)
-            fields = [sfft.ifft2(spectrum * t, workers=1)[self._window] for t in self._transfer]
-        return np.where(valid, np.stack(fields), np.nan)
+            for field, t in zip(out, self._transfer, strict=True):
+                field[...] = sfft.ifft2(spectrum * t, workers=1)[self._window]
+        np.copyto(out, np.nan, where=~valid)
+        return out

@@ -73,7 +73,7 @@ class UnitSquarePoints:
     z: np.ndarray
     index: np.ndarray  # flat pixel index of each kept point
     damping: float  # lambda for these points
-    rms_range_m: float  # root mean square of the points' depth, metres (their pixel pitch is this / f)
+    rms_range_m: float  # root mean square of the points' range, metres (their pixel pitch is about this / f)
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,7 +137,7 @@ class NFFTFeatures:
         kx, ky = k[None, :] / self._square[0], k[:, None] / self._square[1]
         self._eccentricity = transfer is None
         operators = evaluate(transfer or eccentricity_transfer(cfg), kx, ky)  # (K, N, N) rows ky, columns kx
-        self._hermitian, self._count = operators.hermitian, len(operators)
+        self._hermitian, self._count, self.stacked = operators.hermitian, len(operators), operators.stacked
         v = operators.values
         # Hermitian operators give real fields: two per complex transform (v0 + i v1, v2 + i v3, ...)
         filters = np.stack([v[i] + 1j * v[i + 1] if i + 1 < len(v) else v[i] + 0j for i in range(0, len(v), 2)]
@@ -196,14 +196,14 @@ class NFFTFeatures:
         y -= y.mean() if y.size else 0.0
         keep = (x >= -0.5) & (x < 0.5) & (y >= -0.5) & (y < 0.5)
         if not keep.all():
-            flat, x, y, pts = flat[keep], x[keep], y[keep], pts[:, keep]
+            flat, x, y, pts, ranges = flat[keep], x[keep], y[keep], pts[:, keep], ranges[keep]
         z = pts[2]
         if not z.size:
             return UnitSquarePoints(x, y, z, flat, 0.0, float("nan"))
         # points per unit area of the square: 1 / mean pixel footprint, (z/fx)(z/fy) m^2 over Lx Ly
-        mean_z2 = float(np.mean(z * z))
-        footprint = mean_z2 / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
-        return UnitSquarePoints(x, y, z - z.max(), flat, self.cfg.damping / footprint, mean_z2**0.5)
+        footprint = np.mean(z * z) / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
+        return UnitSquarePoints(x, y, z - z.max(), flat, self.cfg.damping / footprint,
+                                float(np.sqrt(np.mean(ranges * ranges))))
 
     def range_features(self, range_m: np.ndarray, mask: np.ndarray,
                        rotation: np.ndarray | None = None) -> Eccentricities:

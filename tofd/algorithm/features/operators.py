@@ -29,10 +29,12 @@ def eccentricity_transfer(cfg: FeatureConfig) -> Transfer:
 @dataclass(frozen=True, slots=True)
 class OperatorGrid:
     """K operators on a frequency grid: values (K, *grid), float64 where all are real, else complex128; hermitian:
-    every operator satisfies H(-k) = conj(H(k)), so it maps real surfaces to real fields."""
+    every operator satisfies H(-k) = conj(H(k)), so it maps real surfaces to real fields; stacked: the transfer
+    returned a stack (K, *grid) rather than one operator (*grid)."""
 
     values: np.ndarray
     hermitian: bool
+    stacked: bool
 
     def __len__(self) -> int:
         return len(self.values)
@@ -42,21 +44,23 @@ def evaluate(transfer: Transfer, kx_per_m: np.ndarray, ky_per_m: np.ndarray) -> 
     """`transfer` on the grid (kx, ky) (broadcasting, cycles per metre); ValueError naming `transfer` unless it
     returns finite values of the grid's shape, or a stack of them."""
     kx, ky = np.broadcast_arrays(np.asarray(kx_per_m, dtype=np.float64), np.asarray(ky_per_m, dtype=np.float64))
-    values, mirrored = (_call(transfer, kx, ky), _call(transfer, -kx, -ky))
+    (values, stacked), (mirrored, _) = _call(transfer, kx, ky), _call(transfer, -kx, -ky)
     scale = float(np.max(np.abs(values), initial=0.0))
     hermitian = bool(np.allclose(mirrored, np.conj(values), rtol=1e-9, atol=1e-12 * scale))
     if not np.iscomplexobj(values) or not np.any(values.imag):
         values = np.ascontiguousarray(values.real, dtype=np.float64)
-    return OperatorGrid(values, hermitian)
+    return OperatorGrid(values, hermitian, stacked)
 
 
-def _call(transfer: Transfer, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
+def _call(transfer: Transfer, kx: np.ndarray, ky: np.ndarray) -> tuple[np.ndarray, bool]:
+    """(K, *shape) values of `transfer` at (kx, ky) of one shape, and whether it returned a stack."""
     try:
         values = np.asarray(transfer(kx, ky))
     except Exception as exc:  # the user's callable: name it in one clear error
         raise ValueError(f"transfer raised {type(exc).__name__} on frequency arrays of shape {kx.shape}: "
                          f"{exc}") from exc
-    if values.shape == kx.shape:
+    stacked = values.shape != kx.shape
+    if not stacked:
         values = values[None]
     if values.ndim != kx.ndim + 1 or values.shape[1:] != kx.shape or len(values) == 0:
         raise ValueError(f"transfer must return an array of shape {kx.shape} or (K, *{kx.shape}) for frequency arrays "
@@ -66,4 +70,4 @@ def _call(transfer: Transfer, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
     values = values.astype(np.complex128 if np.iscomplexobj(values) else np.float64, copy=False)
     if not np.all(np.isfinite(values)):
         raise ValueError("transfer returned non-finite values (NaN or inf)")
-    return values
+    return values, stacked

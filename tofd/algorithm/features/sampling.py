@@ -32,4 +32,5 @@ def check_sampling(range_m: float, intrinsics: Intrinsics, cfg: FeatureConfig) -
             f"range_m: the foreground at {range_m:.3g} m is sampled every {pitch_mm:.3g} mm, too coarse for the "
             f"band (edge {cfg.band_edge_per_m:.1f} cycles/m) on the NFFT grid (Nyquist "
             f"{max(cfg.grid_nyquist_per_m):.1f} cycles/m); with these intrinsics and features the object must be "
-            f"nearer than {limit:.3g} m (or lower grid_size, tuning_frequency_per_m or lowpass_sigma_per_m)")
+            f"nearer than {limit:.3g} m: mask a nearer object, or lower the band (tuning_frequency_per_m, "
+            f"lowpass_sigma_per_m) or grid_size")
