@@ -112,6 +112,7 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     from tofd.config import load_config
     from tofd.errors import UsageError
     from tofd.outputs import prepare_output_dir
+    from tofd.process_setup import prepare_service_process
     from tofd.progress import Progress
     from tofd.service.daemon import parse_rerun_spec, serve
     from tofd.service.pipeline import PipelineError, ResultsWriter
@@ -137,6 +138,7 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     results_path = out / f"{stem}.results.jsonl"
     writer = ResultsWriter(results_path, loops=args.loop)
     golden = GoldenRecorder() if args.check or args.write_golden else None
+    prepare_service_process()
     try:
         with source:
             result = serve(cfg, source, policy, live_source=False, writers=(writer,) + ((golden,) if golden else ()),
