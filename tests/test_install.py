@@ -130,3 +130,13 @@ def test_the_wheels_core_requirements_are_the_algorithms_only(wheel):
     with zipfile.ZipFile(wheel) as zf:
         tops = {n.split("/")[0] for n in zf.namelist()}
     assert "tofd_testing" not in tops and "tests" not in tops  # test support stays in the checkout
+
+
+def test_ci_runs_exactly_the_readmes_test_command_and_the_readme_installs_every_extra_for_the_main_job():
+    commands = re.findall(r"^    (python3 -m venv .+)$", (ROOT / "README.md").read_text(), re.MULTILINE)
+    assert len(commands) == 2, commands
+    main_job, tests = commands
+    assert "pip install '.[all]' && .venv/bin/tofd replay" in main_job
+    assert "pip install '.[test]'" in tests
+    ci = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line.startswith("python3 -m venv")]
+    assert ci == [tests]
