@@ -36,11 +36,11 @@ from drivers.emulator.render import Pose, load_face, render_face
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import FFTFeatures, NFFTFeatures
 from tofd.algorithm.features import nfft as nfft_module
-from tofd.algorithm.heap import keep_arrays_on_the_heap
 from tofd.algorithm.segmentation import segment
 from tofd.config import FeatureConfig, SegmentationConfig
 from tofd.lab import shapes as synthetic
 from tofd.lab import sphere_experiment
+from tofd.process_setup import keep_arrays_on_the_heap
 
 DISTANCES_M = (0.35, 0.5, 0.7)
 SPHERE_CHECK_M = (0.35, 0.5, 0.8)  # the cross-camera check's apex distances, metres

@@ -41,6 +41,7 @@ from report import write_json
 from drivers.emulator.backend import open_emulated_camera
 from drivers.recording.replay import ReplaySource
 from tofd.config import load_config
+from tofd.process_setup import prepare_service_process
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline, maps_read
 from tofd.service.viewer import blueprint as bp
@@ -49,6 +50,7 @@ from tofd.service.viewer.process import ViewerProcess
 from tofd.service.viewer.targets import file_footer
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # the checkout's tofd_testing package (test support, not installed)
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
 
 
@@ -146,7 +148,7 @@ def per_process(pipeline: Pipeline, viewer: ViewerProcess | None, lat: Latencies
 
 def with_detector(cfg, tmp: Path):
     """The config, with a nose model learned on rendered frames for the current feature settings
-    (tests/pipeline_sources.py) if the shipped model does not load, so detection is always in the loop."""
+    (tofd_testing/pipeline_sources.py) if the shipped model does not load, so detection is always in the loop."""
     from tofd.config import ConfigError
 
     try:
@@ -155,8 +157,7 @@ def with_detector(cfg, tmp: Path):
         reason = "no shipped model"
     except ConfigError as exc:
         reason = str(exc)
-    sys.path.insert(0, str(ROOT / "tests"))
-    from pipeline_sources import write_test_model
+    from tofd_testing.pipeline_sources import write_test_model
 
     print(f"note: {reason}; using a model learned for the current settings")
     model = write_test_model(tmp / "nose_model.json", cfg)
@@ -291,6 +292,7 @@ def main() -> None:
                     help="replay runs with and without Rerun, back to back; the ratios are their medians")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "bench_pipeline.json")
     args = ap.parse_args()
+    prepare_service_process()  # as `tofd run` / `tofd replay` set up their process
     cfg = load_config()
     live_s = args.minutes * 60 if args.minutes else 20.0
     results = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),

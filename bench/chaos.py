@@ -35,10 +35,13 @@ from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))  # the checkout's tofd_testing package (test support, not installed)
 
 import numpy as np  # noqa: E402
-from chaos_helpers import (  # noqa: E402
+from proc_stats import rss_mb  # noqa: E402
+from report import write_json  # noqa: E402
+
+from tofd_testing.chaos_helpers import (  # noqa: E402
     BlackHole,
     alive,
     free_port,
@@ -50,10 +53,8 @@ from chaos_helpers import (  # noqa: E402
     wait_for,
     workers_of,
 )
-from pipeline_sources import write_config  # noqa: E402
-from proc_stats import rss_mb  # noqa: E402
-from recording_helpers import RECORDING_FAULTS, excerpt, faulty_copy, mutate  # noqa: E402
-from report import write_json  # noqa: E402
+from tofd_testing.pipeline_sources import write_config  # noqa: E402
+from tofd_testing.recording_helpers import RECORDING_FAULTS, excerpt, faulty_copy, mutate  # noqa: E402
 
 BUNDLED = ROOT / "replay_data" / "emulated_face_035_070.mcap"
 SHUTDOWN_S = 4.0  # shutdown_timeout_s of the live faults: SIGTERM must end tofd within it

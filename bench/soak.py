@@ -22,12 +22,13 @@ from collections import Counter
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))  # the checkout's tofd_testing package (test support, not installed)
 
 from chaos import tree_rss_mb  # noqa: E402
-from chaos_helpers import free_port, metric, metrics, tofd, wait_for  # noqa: E402
-from pipeline_sources import write_config  # noqa: E402
 from report import write_json  # noqa: E402
+
+from tofd_testing.chaos_helpers import free_port, metric, metrics, tofd, wait_for  # noqa: E402
+from tofd_testing.pipeline_sources import write_config  # noqa: E402
 
 CAMERA_FPS = 30.0  # the emulated camera's frame rate (INT_TIME register code 30)
 MAX_DRIFT_PCT = 5.0

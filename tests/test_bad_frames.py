@@ -6,13 +6,13 @@ import dataclasses
 
 import numpy as np
 import pytest
-from pipeline_sources import RenderedSource, rendered_frames, write_config
 
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.config import Config, load_config
 from tofd.lab.evaluation import frame_samples
 from tofd.service.model import load_detector
 from tofd.service.pipeline import Pipeline
+from tofd_testing.pipeline_sources import RenderedSource, rendered_frames, write_config
 
 R, A, NOSE = rendered_frames(1)[0]
 RNG = np.random.default_rng(1)

@@ -24,7 +24,6 @@ import pytest
 
 from drivers.frame import Frame, GroundTruth
 from drivers.recording.index import frame_index
-from tofd.algorithm.threads import THREAD_ENV
 from tofd.batch.golden import compare, load_golden
 from tofd.batch.rows import frame_row, pipeline_fields
 from tofd.batch.runner import CLUSTER_CONFIG, RunOptions, batch_client, prepare, read_rows, run_plan
@@ -33,6 +32,7 @@ from tofd.config import load_config
 from tofd.lab.dataset import load_dataset, save_dataset, sidecar_path
 from tofd.lab.evaluation import distance_bins
 from tofd.lab.faces import generate
+from tofd.process_setup import THREAD_ENV
 from tofd.service.model import load_service_model
 from tofd.service.pipeline.slots import local_slot
 from tofd.service.pipeline.stages import FeatureStage, process_frame

@@ -10,11 +10,11 @@ import time
 from pathlib import Path
 
 import pytest
-from pipeline_sources import write_config
 from rrd_helpers import check_rrd, has_footer
 
 from drivers.recording.reader import read_recording_info
 from tofd.service.viewer import blueprint as bp
+from tofd_testing.pipeline_sources import write_config
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"

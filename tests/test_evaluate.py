@@ -173,15 +173,32 @@ def test_labels_follow_the_noise_free_surface_closer_than_the_raw_range():
     assert flips["labels"] < 0.8 * flips["raw"], flips
 
 
+PROBE_THREADS = ("import json, os, cv2\n"
+                 "print(json.dumps([cv2.getNumThreads(), os.environ.get('OMP_NUM_THREADS'),"
+                 " os.environ.get('OPENBLAS_NUM_THREADS')]))")
+
+
 def test_evaluation_workers_follow_the_one_thread_rule():
-    """A spawned extraction worker of `tofd evaluate`/`train` runs OpenCV and BLAS/OpenMP on one thread."""
-    code = ("import os, cv2\n"
-            "from drivers.intrinsics import Intrinsics\n"
-            "from tofd.config import Config\n"
-            "from tofd.lab.evaluation import _init_worker\n"
-            "cfg = Config()\n"
-            "_init_worker(Intrinsics(), cfg.features, cfg.segmentation)\n"
-            "print(cv2.getNumThreads(), os.environ['OMP_NUM_THREADS'], os.environ['OPENBLAS_NUM_THREADS'])")
+    """A spawned extraction worker of `tofd evaluate`/`train` (set up by the pool's initializer,
+    tofd.process_setup.prepare_compute_process) runs OpenCV and BLAS/OpenMP on one thread."""
+    code = "from tofd.process_setup import prepare_compute_process\nprepare_compute_process()\n" + PROBE_THREADS
     env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
-    assert out.split() == ["1", "1", "1"]
+    assert json.loads(out) == [1, "1", "1"]
+
+
+def test_extraction_in_the_callers_process_leaves_its_settings_alone():
+    """extract_samples(workers=1) computes in the caller's process without changing its environment or OpenCV's
+    threads (process set-up belongs to the processes tofd starts)."""
+    code = ("import json, os, cv2\n"
+            "from tofd.config import Config\n"
+            "from tofd.lab.evaluation import extract_samples\n"
+            "from tofd.lab.faces import generate\n"
+            "before = [cv2.getNumThreads(), os.environ.get('OMP_NUM_THREADS')]\n"
+            "cfg = Config()\n"
+            "samples = extract_samples(generate('test', 2, 3), cfg.features, cfg.segmentation, workers=1)\n"
+            "print(json.dumps([before, [cv2.getNumThreads(), os.environ.get('OMP_NUM_THREADS')], len(samples)]))")
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
+    before, after, frames = json.loads(out.splitlines()[-1])
+    assert frames == 2 and before == after and after[1] is None

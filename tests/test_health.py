@@ -7,12 +7,11 @@ import time
 import urllib.error
 import urllib.request
 
-from pipeline_sources import RenderedSource
-
 from tofd.config import Config, config_digest
 from tofd.service.health import HealthServer, ServiceMetrics, notify_status, sd_notify, watchdog_interval_s
 from tofd.service.pipeline import Pipeline
 from tofd.service.pipeline.monitor import PipelineSnapshot
+from tofd_testing.pipeline_sources import RenderedSource
 
 
 def get(url):

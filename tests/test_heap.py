@@ -1,4 +1,5 @@
-"""tofd.algorithm.heap: a frame-sized array freed and allocated again stays on the heap (no fresh mmap)."""
+"""tofd.process_setup.keep_arrays_on_the_heap: a frame-sized array freed and allocated again stays on the heap (no
+fresh mmap)."""
 
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ class MallInfo2(ctypes.Structure):
 libc = ctypes.CDLL("libc.so.6")
 libc.mallinfo2.restype = MallInfo2
 if sys.argv[1] == "keep":
-    from tofd.algorithm.heap import keep_arrays_on_the_heap
+    from tofd.process_setup import keep_arrays_on_the_heap
     assert keep_arrays_on_the_heap()
 before = libc.mallinfo2().hblkhd
 frame = np.ones((8, 144, 176), np.float32)  # a frame's maps, 811 kB

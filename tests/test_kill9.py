@@ -6,8 +6,9 @@ import os
 import signal
 
 import pytest
-from chaos_helpers import alive, children_of, free_port, metric, metrics, shm_segments, tofd, wait_for
-from pipeline_sources import write_config
+
+from tofd_testing.chaos_helpers import alive, children_of, free_port, metric, metrics, shm_segments, tofd, wait_for
+from tofd_testing.pipeline_sources import write_config
 
 pytestmark = pytest.mark.slow
 

@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from tests.recording_helpers import assert_frames_equal, write_recording
 
 from drivers.intrinsics import Intrinsics
 from drivers.recording import format as fmt
 from drivers.recording.replay import iter_frames, read_recording_info
 from drivers.recording.schemas import CameraCalibration
-from tests.recording_helpers import assert_frames_equal, write_recording
 
 # an Azure Kinect NFOV-unbinned-like depth lens (strong barrel distortion) and a fisheye lens
 K4A_LIKE = Intrinsics(640, 576, 504.2, 504.4, 321.3, 329.8, "rational_polynomial",

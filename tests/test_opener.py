@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tests.recording_helpers import write_recording
 
 from drivers.k4a_mkv import K4aRecordingSource
 from drivers.opener import identify
 from drivers.recording.replay import iter_frames, read_recording_info
 from tests.k4a_helpers import CALIBRATION_JSON, k4a_libraries
-from tests.recording_helpers import write_recording
 from tests.rosbag_helpers import BAG_KINDS, write_frames_bag
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,8 +8,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from chaos_helpers import wait_for
-from pipeline_sources import RenderedSource, write_config
 
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.tracking import NoseTracker
@@ -18,6 +16,8 @@ from tofd.service.model import load_detector
 from tofd.service.pipeline import DropLedger, Pipeline
 from tofd.service.pipeline.queues import StageQueue
 from tofd.service.pipeline.stages import pipeline_families
+from tofd_testing.chaos_helpers import wait_for
+from tofd_testing.pipeline_sources import RenderedSource, write_config
 
 CFG = Config()
 

@@ -11,7 +11,6 @@ import time
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from recording_helpers import DEVICE, assert_frames_equal, make_frame, write_recording
 
 import tofd
 from drivers.frame import Registers
@@ -22,6 +21,7 @@ from drivers.recording.replay import ReplaySource, iter_frames
 from drivers.recording.schemas import RawImage
 from drivers.recording.writer import RecordingWriter
 from tofd import cli
+from tofd_testing.recording_helpers import DEVICE, assert_frames_equal, make_frame, write_recording
 
 
 @pytest.mark.parametrize("quantized", [True, False], ids=["usb-u16", "float32"])

@@ -14,7 +14,6 @@ import pyarrow as pa
 import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
-from recording_helpers import assert_frames_equal, write_recording
 from rerun.chunk import RrdReader
 from rrd_helpers import image_at
 
@@ -24,6 +23,7 @@ from drivers.recording.reader import read_recording_info
 from drivers.recording.replay import iter_frames
 from drivers.usb import protocol
 from tofd import cli
+from tofd_testing.recording_helpers import assert_frames_equal, write_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 BUNDLED = ROOT / "replay_data" / "emulated_face_035_070.mcap"

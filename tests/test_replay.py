@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from recording_helpers import FRAME_PERIOD_S, assert_frames_equal, write_recording
 
 from drivers.frame import Frame
 from drivers.recording.reader import read_recording_info
 from drivers.recording.replay import ReplaySource
 from drivers.source import DriverError
+from tofd_testing.recording_helpers import FRAME_PERIOD_S, assert_frames_equal, write_recording
 
 
 def collect(source: ReplaySource, timeout_s: float = 20.0, limit: int | None = None,

@@ -10,7 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from recording_helpers import (
+from test_replay import collect, counters
+
+from drivers.intrinsics import Intrinsics
+from drivers.recording.reader import read_recording_info
+from drivers.recording.replay import ReplaySource
+from drivers.recording.writer import RecordingWriter
+from drivers.source import DriverError
+from tofd_testing.recording_helpers import (
     RECORDING_FAULTS,
     SMALL_INTRINSICS,
     assert_frames_equal,
@@ -20,13 +27,6 @@ from recording_helpers import (
     mutate,
     write_recording,
 )
-from test_replay import collect, counters
-
-from drivers.intrinsics import Intrinsics
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import ReplaySource
-from drivers.recording.writer import RecordingWriter
-from drivers.source import DriverError
 
 BUNDLED = Path(__file__).resolve().parent.parent / "replay_data" / "emulated_face_035_070.mcap"
 V1_CLIP = Path(__file__).resolve().parent / "data" / "v1_first3.mcap"
@@ -246,8 +246,8 @@ def test_replay_command_refuses_a_damaged_header_in_one_line(tmp_path, capsys):
 def test_replay_command_ledgers_each_faulty_frame_and_replays_the_rest(tmp_path):
     """`tofd replay` (a real subprocess) of a recording with one frame of each fault: damaged, CRC 0,
     duplicated, 10x10 planes; exit 0, each faulty frame ledgered at capture with its reason, no traceback."""
-    from chaos_helpers import tofd
-    from pipeline_sources import write_config
+    from tofd_testing.chaos_helpers import tofd
+    from tofd_testing.pipeline_sources import write_config
 
     path = excerpt(BUNDLED, tmp_path / "clip.mcap", 14)
     faulty = {"malformed_frames": 3, "duplicated_frames": 6, "zero_crc_frames": 9, "damaged_frames": 12}

@@ -3,7 +3,6 @@
 import json
 
 import pytest
-from pipeline_sources import RenderedSource
 from rerun.chunk import RrdReader
 from rrd_helpers import check_rrd
 
@@ -12,6 +11,7 @@ from tofd.service.pipeline import Pipeline
 from tofd.service.viewer import RerunLogger, RerunTarget
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.logger import frames_per_send
+from tofd_testing.pipeline_sources import RenderedSource
 
 
 @pytest.mark.parametrize("batch_frames", [1, 4])

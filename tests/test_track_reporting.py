@@ -9,7 +9,6 @@ import urllib.request
 
 import numpy as np
 import pytest
-from pipeline_sources import RenderedSource, write_config
 from rrd_helpers import read_entities
 from test_health import metric_values
 
@@ -28,6 +27,7 @@ from tofd.service.pipeline.slots import SlotRing
 from tofd.service.pipeline.stats import TrackSnapshot, TrackStats
 from tofd.service.viewer import RerunLogger, RerunTarget, wire
 from tofd.service.viewer import blueprint as bp
+from tofd_testing.pipeline_sources import RenderedSource, write_config
 
 INTRINSICS = Intrinsics()
 DT = 0.04

@@ -7,8 +7,9 @@ import os
 import signal
 
 import pytest
-from chaos_helpers import BlackHole, free_port, metric, metrics, tofd, wait_for, workers_of
-from pipeline_sources import write_config
+
+from tofd_testing.chaos_helpers import BlackHole, free_port, metric, metrics, tofd, wait_for, workers_of
+from tofd_testing.pipeline_sources import write_config
 
 pytestmark = pytest.mark.slow
 

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from cdp_screenshot import chromium, free_port, screenshot
 from PIL import Image
-from pipeline_sources import write_config
+
+from tofd_testing.pipeline_sources import write_config
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = [pytest.mark.browser, pytest.mark.slow,

@@ -88,10 +88,11 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
     try:
         parser = build_parser(named, commands)
     except ImportError as exc:  # the command's module needs an extra that is not installed
-        extra = missing_extra(exc)
+        command = next(iter(named), "")
+        extra = missing_extra(exc, command)
         if extra is None:
             raise
-        print(f"tofd {' '.join(named)}: {install_hint(extra)}", file=sys.stderr)
+        print(f"tofd {command}: {install_hint(extra)}", file=sys.stderr)
         return 2
     args = parser.parse_args(argv)
     setup_logging("debug" if args.verbose else args.log_level)
@@ -122,7 +123,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"tofd {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 (an unexpected failure: one line, the traceback only with -v)
-        extra = missing_extra(exc) if isinstance(exc, ImportError) else None
+        extra = missing_extra(exc, args.command) if isinstance(exc, ImportError) else None
         if extra is not None:  # a module of an extra that is not installed, imported as the command ran
             print(f"tofd {args.command}: {install_hint(extra)}", file=sys.stderr)
             return 2

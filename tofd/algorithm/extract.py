@@ -15,7 +15,7 @@ import numpy as np
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import Eccentricities, FFTFeatures, NFFTFeatures, SamplingError
-from tofd.algorithm.names import FAMILIES
+from tofd.algorithm.names import FAMILIES, FAMILY_TABLE
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
 from tofd.algorithm.segmentation import segment_face
 
@@ -42,7 +42,8 @@ class FeatureExtractor:
             raise ValueError(f"unknown feature family {', '.join(unknown)} (known: {', '.join(FAMILIES)})")
         self.intrinsics, self.segmentation, self.families = intrinsics, segmentation, tuple(families)
         self._fft = FFTFeatures(intrinsics, features)
-        self._nfft = NFFTFeatures(intrinsics, features) if {"range_nfft", "amp_nfft"} & set(families) else None
+        methods = {FAMILY_TABLE[f].method for f in families}
+        self._nfft = NFFTFeatures(intrinsics, features) if "nfft" in methods else None
 
     def __call__(self, range_m: np.ndarray, amplitude: np.ndarray) -> FrameFeatures:
         t0 = time.perf_counter()
@@ -51,33 +52,35 @@ class FeatureExtractor:
         t1 = time.perf_counter()
         timings = {"segmentation": (t1 - t0) * 1e3}
         out = FrameFeatures(mask, {}, timings_ms=timings, rotation=fg.rotation)
-        fft_families = [f for f in ("range_fft", "amp_fft") if f in self.families]
+        fft_families = [FAMILY_TABLE[f] for f in self.families if FAMILY_TABLE[f].method == "fft"]
         for family in fft_families:
-            if family == "range_fft":
+            if family.signal == "range":
                 fm = self._fft.range_features(range_m, mask, fg.rotation)
             else:
                 fm = self._fft.amplitude_features(amplitude, mask)
-            out.maps[f"{family}_eps0"], out.maps[f"{family}_eps2"] = fm.eps0, fm.eps2
+            out.maps[family.map_name("eps0")], out.maps[family.map_name("eps2")] = fm.eps0, fm.eps2
         t2 = time.perf_counter()
         if fft_families:
             timings["fft"] = (t2 - t1) * 1e3
         if self._nfft is not None:  # range and amplitude share the points and the Toeplitz kernel
-            rng, amp = self._nfft_features(self._nfft, range_m, mask, fg.rotation, amplitude)
-            for nfft_family, nfm in (("range_nfft", rng), ("amp_nfft", amp)):
-                if nfft_family in self.families and nfm is not None:
-                    out.maps[f"{nfft_family}_eps0"], out.maps[f"{nfft_family}_eps2"] = nfm.eps0, nfm.eps2
+            nfft = {FAMILY_TABLE[f].signal: FAMILY_TABLE[f] for f in self.families if FAMILY_TABLE[f].method == "nfft"}
+            rng, amp = self._nfft_features(self._nfft, range_m, mask, fg.rotation,
+                                           amplitude if "amp" in nfft else None)
+            for signal, nfm in (("range", rng), ("amp", amp)):
+                if signal in nfft and nfm is not None:
+                    family = nfft[signal]
+                    out.maps[family.map_name("eps0")], out.maps[family.map_name("eps2")] = nfm.eps0, nfm.eps2
             out.nfft_iterations, out.nfft_residual = rng.iterations, rng.residual
             timings["nfft"] = (time.perf_counter() - t2) * 1e3
         return out
 
     def _nfft_features(self, nfft: NFFTFeatures, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray,
-                       amplitude: np.ndarray) -> tuple[Eccentricities, Eccentricities | None]:
+                       amplitude: np.ndarray | None) -> tuple[Eccentricities, Eccentricities | None]:
         """The NFFT maps; NaN (no NFFT detection) with a warning where the camera cannot carry the band at the
         foreground's range: wrong numbers would give wrong noses."""
-        amplitude_or_none = amplitude if "amp_nfft" in self.families else None
         try:
-            return nfft.features(range_m, mask, rotation, amplitude_or_none)
+            return nfft.features(range_m, mask, rotation, amplitude)
         except SamplingError as exc:
             warnings.warn(f"NFFT features left out: {exc}", RuntimeWarning, stacklevel=2)
             empty = Eccentricities.empty(self.intrinsics.shape)
-            return empty, (None if amplitude_or_none is None else Eccentricities.empty(self.intrinsics.shape))
+            return empty, (None if amplitude is None else Eccentricities.empty(self.intrinsics.shape))

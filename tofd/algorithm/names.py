@@ -2,13 +2,52 @@
 
 from __future__ import annotations
 
-FAMILIES = ("range_fft", "range_nfft", "amp_fft", "amp_nfft")
-"""Groups of maps computed together: each family is one filter pass giving <family>_eps0 and <family>_eps2."""
+from dataclasses import dataclass
+from typing import Literal
+
+Signal = Literal["range", "amp"]
+Method = Literal["fft", "nfft"]
+EPS = ("eps0", "eps2")
+"""The generalized eccentricities each family gives, in order."""
+
+
+@dataclass(frozen=True, slots=True)
+class Family:
+    """A group of maps computed together: one filter pass of `method` (FFT on the image grid, NFFT on the 3-D
+    points) over `signal` (the range or the amplitude image), giving <name>_eps0 and <name>_eps2."""
+
+    signal: Signal
+    method: Method
+
+    @property
+    def name(self) -> str:
+        return f"{self.signal}_{self.method}"
+
+    def map_name(self, eps: str) -> str:
+        """The name of this family's map of eccentricity `eps` (one of EPS)."""
+        return f"{self.name}_{eps}"
+
+
+FAMILY_TABLE: dict[str, Family] = {f.name: f for f in (Family("range", "fft"), Family("range", "nfft"),
+                                                       Family("amp", "fft"), Family("amp", "nfft"))}
+"""Family name -> Family: the one table of feature families."""
+
+FAMILIES = tuple(FAMILY_TABLE)
+"""The family names, in the order maps are listed."""
 
 
 def family_maps(families: tuple[str, ...]) -> tuple[str, ...]:
     """The map names of the given families, in their order."""
-    return tuple(f"{fam}_{eps}" for fam in families for eps in ("eps0", "eps2"))
+    return tuple(FAMILY_TABLE[fam].map_name(eps) for fam in families for eps in EPS)
+
+
+def map_parts(name: str) -> tuple[Family, str]:
+    """(family, eccentricity) of a map name (ValueError for a name not in MAP_NAMES)."""
+    for family in FAMILY_TABLE.values():
+        for eps in EPS:
+            if family.map_name(eps) == name:
+                return family, eps
+    raise ValueError(f"unknown feature map {name!r} (known: {', '.join(family_maps(FAMILIES))})")
 
 
 MAP_NAMES = family_maps(FAMILIES)

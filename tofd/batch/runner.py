@@ -24,7 +24,6 @@ import pyarrow.parquet as pq
 from distributed import Client, LocalCluster, as_completed
 
 from tofd.algorithm.detector import Margin, NoseModel
-from tofd.algorithm.threads import THREAD_ENV
 from tofd.batch.plan import InputPlan, Partition, expand_inputs, plan_inputs, run_digests
 from tofd.batch.rows import TIMED, minima_from_rows, rows_digest
 from tofd.batch.task import PrepareWorker, partition_stats, run_partition
@@ -32,6 +31,7 @@ from tofd.config import Config, config_from_dict, config_table
 from tofd.lab.accuracy import accuracy_from_records
 from tofd.lab.evaluation import variant_results
 from tofd.lab.report import answers_table, eer_table, results_to_dict
+from tofd.process_setup import THREAD_ENV
 from tofd.progress import Progress
 from tofd.service.model import load_service_model
 

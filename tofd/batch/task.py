@@ -26,12 +26,12 @@ from drivers.intrinsics import Intrinsics
 from drivers.recording.index import FrameIndex, read_chunks
 from tofd.algorithm.detector import Candidates, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
-from tofd.algorithm.threads import prepare_compute_process
 from tofd.batch.plan import Partition
 from tofd.batch.rows import ROW_SCHEMA, eval_columns, frame_row
 from tofd.config import Config, config_from_dict
 from tofd.lab.dataset import DatasetFile
 from tofd.lab.evaluation import NOSE_RADIUS_M, frame_samples, image_minima
+from tofd.process_setup import prepare_compute_process
 from tofd.service.pipeline.slots import local_slot
 from tofd.service.pipeline.stages import FeatureStage, process_frame
 
@@ -49,7 +49,7 @@ class PrepareWorker(WorkerPlugin):
 
 
 def prepare_process() -> None:
-    """Make this process ready to run partitions (idempotent): tofd.algorithm.threads.prepare_compute_process, as
+    """Make this process ready to run partitions (idempotent): tofd.process_setup.prepare_compute_process, as
     the pipeline workers."""
     global _prepared
     if not _prepared:

@@ -152,12 +152,12 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
     from drivers.source import DriverError
     from tofd.batch.golden import GoldenRecorder
     from tofd.outputs import prepare_output_dir
+    from tofd.process_setup import prepare_service_process
     from tofd.progress import Progress
     from tofd.service.daemon import serve
     from tofd.service.pipeline import PipelineError, ResultsWriter
-    from tofd.service.viewer import ViewerError
-
     from tofd.service.pipeline.queues import run_policy
+    from tofd.service.viewer import ViewerError
 
     policy = run_policy(cfg.pipeline.policy, live_source=False)
     out = prepare_output_dir(args.out)
@@ -166,6 +166,7 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
     results_path = out / f"{stem}.results.jsonl"
     writer = ResultsWriter(results_path, loops=args.loop)
     golden = GoldenRecorder() if args.check or args.write_golden else None
+    prepare_service_process()
     try:
         with source:
             result = serve(cfg, source, policy, live_source=False, writers=(writer,) + ((golden,) if golden else ()),

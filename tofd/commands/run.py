@@ -51,6 +51,7 @@ def main(args: argparse.Namespace) -> int:
     from drivers.source import DriverError
     from tofd.config import load_config
     from tofd.outputs import check_output_file
+    from tofd.process_setup import prepare_service_process
     from tofd.service.camera import open_camera
     from tofd.service.daemon import parse_rerun_spec, serve
     from tofd.service.pipeline import PipelineError
@@ -75,6 +76,7 @@ def main(args: argparse.Namespace) -> int:
     except (DriverError, OSError) as exc:
         print(f"tofd run: {exc}", file=sys.stderr)
         return 1
+    prepare_service_process()
     try:
         with camera:
             result = serve(cfg, camera, policy, live_source=True, max_frames=args.frames,

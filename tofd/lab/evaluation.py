@@ -14,9 +14,9 @@ testing, as in the pipeline.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import multiprocessing
-import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
@@ -43,9 +43,9 @@ from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import MAP_NAMES
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
 from tofd.algorithm.segmentation import filtered, valid_pixels
-from tofd.algorithm.threads import THREAD_ENV, use_one_thread
 from tofd.lab.dataset import Dataset
 from tofd.lab.roc import Answers, RocCurve, answers_at, margin_scale, roc_from_min_distances
+from tofd.process_setup import THREAD_ENV, child_environment, prepare_compute_process
 
 DISTANCE_BIN_M = 0.05  # per-distance results group frames by nose distance rounded to this
 NOSE_RADIUS_M = 0.015  # true nose pixels: within this 3-D distance of the ground-truth tip (default --radius-mm)
@@ -88,18 +88,17 @@ def frame_samples(extractor: FeatureExtractor, range_m: np.ndarray, amplitude: n
     return FrameSamples(to_log_features(feats).astype(np.float32), tip, border, front, noise, xyz, ff.nfft_iterations)
 
 
-_worker_extractor: FeatureExtractor | None = None
+Settings = tuple[Intrinsics, FeatureConfig, SegmentationConfig]
 
 
-def _init_worker(intrinsics: Intrinsics, features: FeatureConfig, segmentation: SegmentationConfig) -> None:
-    global _worker_extractor
-    use_one_thread()
-    _worker_extractor = FeatureExtractor(intrinsics, features, segmentation)
+@functools.cache
+def _extractor(settings: Settings) -> FeatureExtractor:
+    """A FeatureExtractor of `settings`, made once per process (its plans take a while to build)."""
+    return FeatureExtractor(*settings)
 
 
-def _worker(job: tuple[np.ndarray, np.ndarray, np.ndarray]) -> FrameSamples:
-    assert _worker_extractor is not None  # set by the pool initializer
-    return frame_samples(_worker_extractor, *job)
+def _samples(settings: Settings, job: tuple[np.ndarray, np.ndarray, np.ndarray]) -> FrameSamples:
+    return frame_samples(_extractor(settings), *job)
 
 
 def extract_samples(dataset: Dataset, features: FeatureConfig, segmentation: SegmentationConfig,
@@ -117,13 +116,14 @@ def extract_samples(dataset: Dataset, features: FeatureConfig, segmentation: Seg
                 progress(len(out), len(dataset))
         return out
 
+    settings = (dataset.intrinsics, features, segmentation)
     if workers <= 1 or len(dataset) < 2 * workers:
-        _init_worker(dataset.intrinsics, features, segmentation)
-        return collect(map(_worker, jobs))
-    os.environ.update(THREAD_ENV)  # inherited by the spawned workers before their BLAS/OpenMP load
-    ctx = multiprocessing.get_context("spawn")
-    with ctx.Pool(workers, _init_worker, (dataset.intrinsics, features, segmentation)) as pool:
-        return collect(pool.imap(_worker, jobs, chunksize=2))
+        extractor = FeatureExtractor(*settings)  # in this process, whose settings stay the caller's
+        return collect(frame_samples(extractor, *job) for job in jobs)
+    with child_environment(THREAD_ENV):  # the spawned workers' BLAS/OpenMP load single-threaded
+        pool = multiprocessing.get_context("spawn").Pool(workers, prepare_compute_process)
+    with pool:
+        return collect(pool.imap(functools.partial(_samples, settings), jobs, chunksize=2))
 
 
 def _columns(variant: str) -> list[int]:
@@ -197,12 +197,9 @@ def shape_box(box: Box, table: PixelTable, has_nose: np.ndarray) -> tuple[Box, R
     that separates nothing on the training frames (e.g. amplitude on some data) is widened until it stops
     costing detections, one that separates well is tightened. Ties go to the box nearest the quantile box
     (smallest sum of |log multiplier|), then to the larger mean per-frame margin log10(false_min / true_min)
-    (clipped at MARGIN_CLIP): the paper's box changes only where the training EER asks for it. With the margin
-    first, the many ties at training EER 0 were broken by chance (with 360 instead of 120 training frames range
-    eps2 was all but dropped and NFFT range EER rose to 8.8 / 8.1 % on two draws of the default split; 4.2 / 5.4 %
-    with this order; leave-one-subject-out mean NFFT range EER over three CV draws 2.8 -> 2.7 %, measured).
-    Vectorised over pixels; 7^(k-1) ROC sweeps on per-feature box distances computed once (6x faster than
-    Box.distance per candidate).
+    (clipped at MARGIN_CLIP): the paper's box changes only where the training EER asks for it, and the many ties
+    at training EER 0 are not broken by the margin's chance variations. Vectorised over pixels: 7^(k-1) ROC
+    sweeps on per-feature box distances computed once.
     """
     deviation = np.abs(table.features - box.centre) / box.half_width  # (P, k): box distance per feature
     deviation[np.isnan(deviation)] = np.inf

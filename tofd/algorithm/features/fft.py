@@ -3,10 +3,9 @@
 The image (foreground kept, background replaced by a constant) is placed in a buffer with
 `fft_padding_px` of background on every side (sizes rounded up to fast FFT lengths), so the filter's
 circular convolution does not wrap foreground from one image border onto the other. One rfft2, three
-products with the precomputed transfer grids, three irfft2 (scipy.fft, workers=1; three single inverse
-transforms are faster here than one batched call). The filters are the physical ones of transfer.py at
-pixel frequencies times f/e, so these features equal the NFFT features for an object at range e and
-change with distance elsewhere (the paper's point).
+products with the precomputed transfer grids, three irfft2 (scipy.fft, workers=1). The filters are the
+physical ones of transfer.py at pixel frequencies times f/e, so these features equal the NFFT features for an
+object at range e and change with distance elsewhere (the paper's point).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ tests/test_pocketfft.py pins them against numpy.fft for the scipy versions pypro
 
 `scale` is the engine's normalisation code: 0 none, 1 divide by sqrt(n), 2 divide by n (n: the product of the
 transformed axes' lengths, in the real domain for c2r / r2c). Transforms run on one thread (the compute
-processes' rule, tofd.algorithm.threads).
+processes' rule, tofd.process_setup).
 """
 
 from __future__ import annotations

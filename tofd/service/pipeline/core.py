@@ -32,7 +32,6 @@ from drivers.frame import COUNTER_LIMIT, Frame, frame_problem
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
-from tofd.algorithm.heap import keep_arrays_on_the_heap
 from tofd.algorithm.names import VIEWED_MAPS, family_maps
 from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config, config_table
@@ -149,7 +148,6 @@ class Pipeline:
         `max_frames` frames (None = until the source ends or stop()). When `cancelled()` turns true while
         the workers start (a stop signal), starting is given up: the pipeline ends with no frame taken."""
         self.source, self._max_frames = source, max_frames
-        keep_arrays_on_the_heap()  # this process copies every frame in and its maps out
         self.pool.start()
         self._spawn("collect", self._collect_loop)
         ok = self.pool.wait_ready(self.cfg.pipeline.worker_start_timeout_s,

@@ -17,7 +17,7 @@ from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.threads import THREAD_ENV
+from tofd.process_setup import THREAD_ENV, child_environment
 from tofd.service.pipeline import messages
 from tofd.service.pipeline.messages import WorkerReady, WorkerReply, WorkerTask
 
@@ -32,8 +32,8 @@ def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     from tofd.algorithm.detector import NoseModel
-    from tofd.algorithm.threads import prepare_compute_process
     from tofd.config import config_from_dict
+    from tofd.process_setup import prepare_compute_process
     from tofd.service.pipeline.slots import SlotRing
     from tofd.service.pipeline.stages import FeatureStage
 
@@ -81,16 +81,16 @@ class WorkerHandle:
         self.started_s = 0.0
 
     def start(self) -> None:
-        """Spawn the worker process; THREAD_ENV goes into this process's environment first, which the child
-        inherits, so its BLAS/OpenMP are single-threaded from the moment they load (before worker_main runs)."""
-        os.environ.update(THREAD_ENV)
+        """Spawn the worker process with THREAD_ENV in its environment, so its BLAS/OpenMP are single-threaded
+        from the moment they load (before worker_main runs)."""
         ctx = mp.get_context("spawn")
         task_r, task_w = ctx.Pipe(duplex=False)
         result_r, result_w = ctx.Pipe(duplex=False)
         process = ctx.Process(
             target=worker_main, args=(self._spec_json, task_r, result_w), name=f"tofd-worker-{self.index}", daemon=True
         )
-        process.start()
+        with child_environment(THREAD_ENV):
+            process.start()
         task_r.close()
         result_w.close()
         self._running, self.ready, self.inflight = _Running(process, task_w, result_r), False, {}

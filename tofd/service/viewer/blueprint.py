@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import rerun.blueprint as rrb
 
-from tofd.algorithm.names import VIEWED_MAPS
+from tofd.algorithm.names import VIEWED_MAPS, map_parts
 
 CAMERA = "/world/camera"  # Pinhole (intrinsics); x right, y down, z forward, metres
 IMAGE = f"{CAMERA}/image"  # the camera's image plane: 2-D views of range, amplitude, mask line up with 3-D
@@ -18,9 +18,10 @@ TRACK_2D = f"{IMAGE}/nose_track"  # Boxes2D: the confirmed nose track, pixels, l
 TRACK_3D = "/world/nose_track"  # Points3D: the confirmed nose track, metres
 TRACK_CONFIDENCE = "/track/confidence"  # Scalars: the nose track's confidence (0-1), every frame
 FEATURES_ORIGIN = "/features"  # the feature views' space: image pixels, like IMAGE's
-FEATURES = {name: f"{FEATURES_ORIGIN}/" + name.removeprefix("range_").replace("_", "/") for name in VIEWED_MAPS}
-"""Feature map name -> entity (range_fft_eps0 -> /features/fft/eps0): colour-mapped scalar images of the foreground's
-bounding box, each translated to where that box lies in the image."""
+FEATURES = {name: f"{FEATURES_ORIGIN}/{family.method}/{eps}"
+            for name in VIEWED_MAPS for family, eps in [map_parts(name)]}
+"""Feature map name -> entity (range_fft_eps0 -> /features/fft/eps0; the viewed maps are the range's): colour-mapped
+scalar images of the foreground's bounding box, each translated to where that box lies in the image."""
 TIMINGS = "/timings"  # Scalars per stage, milliseconds
 EVENTS = "/events"  # TextLog: device gaps and reconnects
 
@@ -32,9 +33,10 @@ def build_blueprint(image_shape: tuple[int, int]) -> rrb.Blueprint:
     def image_view(name: str, entity: str) -> rrb.Spatial2DView:
         return rrb.Spatial2DView(name=name, origin=IMAGE, contents=[entity, NOSE_2D, TRACK_2D])
 
-    def feature_view(entity: str) -> rrb.Spatial2DView:
-        family, eps = entity.split("/")[2:4]
-        return rrb.Spatial2DView(name=f"{family.upper()} {eps}", origin=FEATURES_ORIGIN, contents=[entity],
+    def feature_view(name: str) -> rrb.Spatial2DView:
+        family, eps = map_parts(name)
+        return rrb.Spatial2DView(name=f"{family.method.upper()} {eps}", origin=FEATURES_ORIGIN,
+                                 contents=[FEATURES[name]],
                                  visual_bounds=rrb.VisualBounds2D(x_range=[0, image_shape[1]],
                                                                   y_range=[0, image_shape[0]]))
 
@@ -42,7 +44,7 @@ def build_blueprint(image_shape: tuple[int, int]) -> rrb.Blueprint:
         rrb.Horizontal(
             rrb.Vertical(image_view("depth z [m]", RANGE), image_view("amplitude", AMPLITUDE),
                          image_view("foreground mask", MASK)),
-            rrb.Grid(*(feature_view(path) for path in FEATURES.values()), grid_columns=2),
+            rrb.Grid(*(feature_view(name) for name in FEATURES), grid_columns=2),
             rrb.Vertical(
                 rrb.Spatial3DView(name="3-D (camera frame)", origin="/world",
                                   contents=["+ /world/**", f"- {IMAGE}/**"]),

@@ -29,6 +29,7 @@ import rerun as rr
 from rerun.encodings import ColorModelLike
 
 from drivers.intrinsics import Intrinsics
+from tofd.algorithm.names import FAMILY_TABLE
 from tofd.config import RerunConfig
 from tofd.service.pipeline.results import FrameResult, track_px
 from tofd.service.pipeline.stats import TIMED_STAGES
@@ -45,6 +46,7 @@ from tofd.service.viewer.columns import (
 )
 from tofd.service.viewer.wire import OWN_TIMINGS
 
+POINT_COLOUR_MAP = FAMILY_TABLE["range_nfft"].map_name("eps0")  # colours the foreground's 3-D points
 NOSE_COLOR = (255, 0, 255)
 TRACK_COLOR = (0, 200, 255)
 TRACK_BOX_M = 0.03  # metres: side of the track's box in the image, at the track's depth (a nose's size)
@@ -243,7 +245,7 @@ class RerunLogger:
             at = np.flatnonzero(r.mask)  # np.take of a flat index is far faster than a 2-D mask or fancy index
             ranges = np.take(frame.range_m.reshape(-1), at)
             shown.add(bp.FOREGROUND, row, positions=np.take(self._rays.reshape(-1, 3), at, axis=0) * ranges[:, None],
-                      colors=colour_by(np.take(r.features["range_nfft_eps0"].reshape(-1), at)))
+                      colors=colour_by(np.take(r.features[POINT_COLOUR_MAP].reshape(-1), at)))
         self._add_nose_and_track(r, row, shown.series_row[row])
         for stage, ms in r.timings_ms.items():
             if stage not in OWN_TIMINGS:

@@ -23,14 +23,13 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
 from typing import NotRequired, TypedDict
 
-from tofd.algorithm.heap import keep_arrays_on_the_heap
 from tofd.config import Config, config_from_dict, config_table
+from tofd.process_setup import child_environment, keep_arrays_on_the_heap
 from tofd.service.lifeline import die_with_parent
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.slots import SlotRing
@@ -113,17 +112,6 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     ring.close()
     target.close(cfg.pipeline.shutdown_timeout_s)
     _send_status(status, ViewerStatus(closed=ViewerClosed(frames=logged, errors=errors)))
-
-
-@contextmanager
-def child_environment(values: dict[str, str]) -> Iterator[None]:
-    """os.environ with `values` added while a child process starts (it copies the environment then)."""
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for key in values:
-            del os.environ[key]
 
 
 class ViewerProcess:
