@@ -19,13 +19,16 @@ import tofd
 import tofd.commands
 from tofd.errors import UsageError
 from tofd.logs import LEVELS, setup_logging
+from tofd.service.signals import Interrupted, interrupt_while_loading
 
 DESCRIPTION = """\
 tofd: scale-invariant range features (Haker et al. 2008) and nose detection for SR3000-style time-of-flight
 cameras. It runs as a live camera daemon (Rerun viewer, /healthz, /metrics), records and replays MCAP
 recordings, and trains and evaluates the nose detector.
 
-Exit status: 0 success, 1 runtime failure (camera, viewer, pipeline), 2 usage or data error, 130 interrupted."""
+Exit status: 0 success, 1 runtime failure (camera, viewer, pipeline), 2 usage or data error, 130 interrupted.
+Signals: SIGTERM, SIGINT, SIGHUP and SIGQUIT stop (a running service drains, writes its summary and exits 0;
+while tofd loads: `interrupted`, 130); SIGUSR1 logs a status line."""
 
 EPILOG = "Start with `tofd run --emulate --rerun web` (no camera needed), or `tofd COMMAND --help`."
 
@@ -83,8 +86,12 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
     to a second), so that SIGTERM ends the service within pipeline.shutdown_timeout_s."""
     argv = sys.argv[1:] if argv is None else argv
     commands = _command_modules()
-    args = build_parser(_named_command(argv, commands), commands).parse_args(argv)
-    setup_logging("debug" if args.verbose else args.log_level)
+    try:
+        args = build_parser(_named_command(argv, commands), commands).parse_args(argv)
+        setup_logging("debug" if args.verbose else args.log_level)
+    except KeyboardInterrupt as exc:  # a stop signal while the command's modules load
+        print(f"tofd: interrupted{_signal_name(exc)}", file=sys.stderr)
+        return 130
     code = _run(args)
     if exit_at_once and getattr(args, "exit_at_once", False):
         logging.shutdown()
@@ -95,8 +102,14 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
 
 
 def entry() -> typing.NoReturn:
-    """The `tofd` console script and `python -m tofd`."""
+    """The `tofd` console script and `python -m tofd` (stop signals while it loads: tofd.service.signals)."""
+    interrupt_while_loading()
     sys.exit(main(exit_at_once=True))
+
+
+def _signal_name(exc: KeyboardInterrupt) -> str:
+    """" (SIGHUP)" for the signal an Interrupted names, "" for a plain KeyboardInterrupt."""
+    return f" ({exc})" if isinstance(exc, Interrupted) else ""
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -106,8 +119,8 @@ def _run(args: argparse.Namespace) -> int:
         kind = "config error: " if type(exc).__name__ == "ConfigError" else ""
         print(f"tofd {args.command}: {kind}{exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"tofd {args.command}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print(f"tofd {args.command}: interrupted{_signal_name(exc)}", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 (an unexpected failure: one line, the traceback only with -v)
         logging.getLogger("tofd").debug("unexpected error", exc_info=True)

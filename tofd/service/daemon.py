@@ -24,7 +24,7 @@ from tofd.service.model import ModelIdentity, read_model_file, service_model
 from tofd.service.pipeline.core import Pipeline, Sink, maps_read
 from tofd.service.pipeline.queues import Policy
 from tofd.service.shutdown import Shutdown
-from tofd.service.signals import StopSignals
+from tofd.service.signals import StopSignals, start_resource_tracker
 from tofd.service.summary import run_summary, write_json_atomic
 from tofd.service.supervise import show_progress, supervise
 from tofd.service.viewer.spec import RERUN_SPEC_HELP, parse_rerun_spec
@@ -105,6 +105,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             from tofd.service.viewer.process import ViewerProcess
             from tofd.service.viewer.targets import file_footer
 
+            start_resource_tracker()
             model_file = read_model_file(cfg)
             identity = run_identity(cfg, model_file.identity)
             if cfg.rerun.sink != "none":

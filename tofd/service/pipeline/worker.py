@@ -19,6 +19,7 @@ from multiprocessing.connection import Connection
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.threads import THREAD_ENV
+from tofd.service.signals import children_start, ignore_in_child
 
 KILL_JOIN_S = 1.0  # seconds to wait for a SIGKILLed worker to be reaped
 
@@ -28,8 +29,7 @@ def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
     from tofd.service.lifeline import die_with_parent
 
     die_with_parent()  # a kill -9 of the parent leaves no worker behind
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    ignore_in_child()
     from tofd.algorithm.detector import NoseModel
     from tofd.algorithm.threads import prepare_compute_process
     from tofd.config import config_from_dict
@@ -82,7 +82,8 @@ class WorkerHandle:
         self.process = ctx.Process(
             target=worker_main, args=(self._spec_json, task_r, result_w), name=f"tofd-worker-{self.index}", daemon=True
         )
-        self.process.start()
+        with children_start():
+            self.process.start()
         task_r.close()
         result_w.close()
         self.tasks, self.results, self.ready, self.inflight = task_w, result_r, False, {}

@@ -20,7 +20,6 @@ import json
 import logging
 import multiprocessing as mp
 import os
-import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -33,6 +32,7 @@ from tofd.config import Config, config_from_dict, config_table
 from tofd.service.lifeline import die_with_parent
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.slots import SlotRing
+from tofd.service.signals import children_start, ignore_in_child
 from tofd.service.viewer import wire
 from tofd.service.viewer.logger import RerunLogger
 from tofd.service.viewer.targets import QUIET_NO_FOOTER, RerunTarget, ViewerError
@@ -51,8 +51,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     its slot (`slots`: the ring's name and size) after; what waits in the logger's batch is sent when no frame
     came for IDLE_FLUSH_S, and at the end."""
     die_with_parent(parent_pid)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    ignore_in_child()  # the parent decides when we stop
     keep_arrays_on_the_heap()
     os.nice(VIEWER_NICE)  # it waking up to log a frame would otherwise preempt a worker mid-frame
     cfg = config_from_dict(cfg_table)
@@ -126,7 +125,8 @@ class ViewerProcess:
                                          status_w, (self._ring.name, queue_frames), self._free))
         quiet = {} if footer or "RUST_LOG" in os.environ else {"RUST_LOG": QUIET_NO_FOOTER}
         with child_environment(quiet):
-            self.process.start()
+            with children_start():
+                self.process.start()
         frames_r.close()
         status_w.close()
         self._lock = threading.Lock()  # the pipe and `_closing`, between offer and close
