@@ -135,22 +135,34 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     except BaseException:
         writer.discard()
         raise
-    writer.close()
     s = result.summary
+    try:
+        writer.close()
+    except OSError as exc:
+        s["outputs_failed"][str(results_path)] = exc.strerror or str(exc)
+        print(f"tofd replay: output {results_path} failed: {exc.strerror or exc}", file=sys.stderr)
     if source.stopped_reason not in (None, "end"):
         print(f"tofd replay: the recording is {source.stopped_reason} after frame {source.last_good_counter}: "
               f"{source.stop_detail}", file=sys.stderr)
-    _report_accuracy(results_path, out / f"{stem}.accuracy.png")
-    written = ["results.jsonl", "summary.json"] + (["rrd"] if cfg.rerun.sink == "save" else [])
+    failed = s["outputs_failed"]  # each said so in one line when it failed
+    if str(results_path) not in failed:
+        _report_accuracy(results_path, out / f"{stem}.accuracy.png")
+    outputs = {"results.jsonl": results_path, "summary.json": out / f"{stem}.summary.json"}
+    if cfg.rerun.sink == "save":
+        outputs["rrd"] = Path(cfg.rerun.path)
+    written = [name for name, path in outputs.items() if str(path) not in failed]
+    not_written = [name for name, path in outputs.items() if str(path) in failed]
     skipped = source.counters["replay_dropped"]
     loops = source.counters["replay_loops"]
     print(f"tofd replay: {s['frames_out']} frames processed, {s['frames_dropped']} dropped"
           + (f", {skipped} skipped to keep the recorded pace" if skipped else "")
           + (f", {loops + 1} passes" if args.loop else "")
-          + f", {s['fps']} fps; wrote {out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
+          + f", {s['fps']} fps; wrote " + (f"{out}/{stem}.{{{','.join(written)}}}" if written else "nothing")
+          + (f"; failed: {', '.join(not_written)}" if not_written else ""), file=sys.stderr)
+    code = 1 if failed else result.exit_code
     if golden is not None:
-        return check_golden(args, golden.rows, stem, cfg, result.model) or result.exit_code
-    return result.exit_code
+        return check_golden(args, golden.rows, stem, cfg, result.model) or code
+    return code
 
 
 def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Config, model: NoseModel | None) -> int:

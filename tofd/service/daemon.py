@@ -141,5 +141,10 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
         show_progress(progress, snap)
         progress.done()
     if summary_path is not None:
-        write_json_atomic(summary_path, summary)
-    return ServiceResult(1 if pipeline.error else 0, summary, model, viewer.web_url if viewer else None)
+        try:
+            write_json_atomic(summary_path, summary)
+        except OSError as exc:
+            log.error("output %s failed: %s", summary_path, exc.strerror or exc)
+            summary["outputs_failed"][str(summary_path)] = exc.strerror or str(exc)
+    failed = pipeline.error is not None or bool(summary["outputs_failed"])
+    return ServiceResult(1 if failed else 0, summary, model, viewer.web_url if viewer else None)

@@ -19,6 +19,9 @@ def run_summary(ledger_summary: dict, snap: dict, run_s: float, viewer: dict | N
             "worker_restarts": snap["worker_restarts"],
             "device_events": dict(snap["device_events"]),
             "track": snap["track"],
+            "outputs_failed": {**snap.get("outputs_failed", {}),
+                               **({viewer["path"]: viewer["failed"]}
+                                  if viewer and viewer.get("failed") else {})},
             "viewer": viewer}
 
 

@@ -10,9 +10,10 @@ from tofd.service.pipeline.stats import PipelineStats
 
 
 def snapshot(ledger: DropLedger, stats: PipelineStats, pool: WorkerPool, queue_depth: Mapping[str, int],
-             device_events: Mapping[str, int], error: str | None, track: dict | None) -> dict:
-    """Counters, rates, timings (ms quantiles), queue depths and the nose track (stats.TrackStats.snapshot, None
-    without a detector); see tofd.service.health for the metrics."""
+             device_events: Mapping[str, int], error: str | None, track: dict | None,
+             outputs_failed: Mapping[str, str] | None = None) -> dict:
+    """Counters, rates, timings (ms quantiles), queue depths, the nose track (stats.TrackStats.snapshot, None
+    without a detector) and the outputs that failed (file -> why); see tofd.service.health for the metrics."""
     return {
         "frames_in": ledger.frames_in,
         "frames_out": ledger.frames_out,
@@ -29,4 +30,5 @@ def snapshot(ledger: DropLedger, stats: PipelineStats, pool: WorkerPool, queue_d
         "last_delivery_age_s": stats.last_delivery_age_s(),
         "error": error,
         "track": track,
+        "outputs_failed": dict(outputs_failed or {}),
     }
