@@ -19,7 +19,6 @@ import tofd
 import tofd.commands
 from tofd.errors import UsageError
 from tofd.logs import LEVELS, setup_logging
-from tofd.service.signals import Interrupted, interrupt_while_loading
 
 DESCRIPTION = """\
 tofd: scale-invariant range features (Haker et al. 2008) and nose detection for SR3000-style time-of-flight
@@ -103,12 +102,16 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
 
 def entry() -> typing.NoReturn:
     """The `tofd` console script and `python -m tofd` (stop signals while it loads: tofd.service.signals)."""
+    from tofd.service.signals import interrupt_while_loading  # stdlib only: cheap to load first
+
     interrupt_while_loading()
     sys.exit(main(exit_at_once=True))
 
 
 def _signal_name(exc: KeyboardInterrupt) -> str:
     """" (SIGHUP)" for the signal an Interrupted names, "" for a plain KeyboardInterrupt."""
+    from tofd.service.signals import Interrupted
+
     return f" ({exc})" if isinstance(exc, Interrupted) else ""
 
 

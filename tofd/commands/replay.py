@@ -111,11 +111,11 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
         raise UsageError(f"{args.file}: {exc}") from None
     info = source.info
     if info is None:
-        raise UsageError(f"{args.file}: {source.header_problem}")
+        raise UsageError(source.header_problem)
     if args.seek is not None:
         reached, last = source.counters_reach(args.seek)
         if not reached:
-            raise UsageError(f"--seek {args.seek}: past the end (last frame counter {last})")
+            raise UsageError(f"{args.file}: --seek {args.seek}: past the end (last frame counter {last})")
     out = prepare_output_dir(args.out)
     if info.intrinsics is not None:
         cfg = replace(cfg, intrinsics=info.intrinsics)

@@ -47,7 +47,7 @@ log = logging.getLogger(__name__)
 CLOSE = b"close"
 POLL_S = 0.1  # seconds between checks of a start's `cancelled`
 IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this long without a new frame
-SINK_CHECK_S = 2.0  # a "save" sink's file is checked (a bounded flush) at most this often
+SINK_CHECK_S = 6.0  # seconds between checks that a "save" sink's file grows (Rerun writes it at least every 5 s)
 SINK_FLUSH_TIMEOUT_S = 5.0  # a file sink that cannot write what it was given in this long has failed
 FULL_DISK_BYTES = 1 << 20  # a failed file sink's disk with less free space than this was full
 FILE_SINK_LOG = "re_log_encoding::rrd=off,re_sdk::recording_stream=off"
@@ -75,15 +75,25 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
         return
     status.send_bytes(json.dumps({"ready": target.web_url}).encode())
     logged = errors = 0
-    failed, checked_s = False, time.monotonic()
+    failed, checked_s, size_seen, logged_seen = False, time.monotonic(), -1, 0
 
-    def file_sink_failed() -> bool:
-        """For a "save" sink, at most every SINK_CHECK_S: whether Rerun's file writer has stopped (it says so only
-        on its own stderr; a flush that cannot finish tells us); the parent is told once."""
-        nonlocal failed, checked_s
-        if sink != "save" or failed or time.monotonic() - checked_s < SINK_CHECK_S:
+    def file_sink_failed(closing: bool = False) -> bool:
+        """For a "save" sink, at most every SINK_CHECK_S (and when `closing`): whether Rerun's file writer has
+        stopped. It says so only on its own stderr, so: a file that did not grow while frames were logged, or a
+        full disk, is asked for a bounded flush, and one that cannot finish it has failed; the parent is told."""
+        nonlocal failed, checked_s, size_seen, logged_seen
+        if sink != "save" or failed or (not closing and time.monotonic() - checked_s < SINK_CHECK_S):
             return failed
         checked_s = time.monotonic()
+        try:
+            size = os.stat(cfg.rerun.path).st_size
+            full = shutil.disk_usage(Path(cfg.rerun.path).parent).free < FULL_DISK_BYTES
+        except OSError:
+            size, full = -1, True
+        stalled = full or (size == size_seen and logged > logged_seen)
+        size_seen, logged_seen = size, logged
+        if not stalled:
+            return False
         try:
             target.rec.flush(timeout_sec=SINK_FLUSH_TIMEOUT_S)
         except RuntimeError:
@@ -123,8 +133,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     if not failed:
         logging_step("batch", logger.flush)
     ring.close()
-    checked_s = -SINK_CHECK_S
-    file_sink_failed()  # a file's last check, bounded: a stopped file writer would hold target.close's flush
+    file_sink_failed(closing=True)  # bounded: a stopped file writer would hold target.close's flush
     target.close(0.1 if failed else cfg.pipeline.shutdown_timeout_s)  # a failed file takes nothing more
     status.send_bytes(json.dumps({"closed": {"frames": logged, "errors": errors}}).encode())
 
