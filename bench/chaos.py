@@ -73,15 +73,16 @@ def tree_rss_mb(pid: int) -> float:
 
 
 class PeakRss:
-    """Samples the RSS of a process tree every 0.5 s in a thread; `peak_mb` is the largest sum seen."""
+    """Samples the RSS of a process tree every `interval_s` in a thread; `peak_mb` is the largest sum seen."""
 
-    def __init__(self, pid: int):
+    def __init__(self, pid: int, interval_s: float = 0.5):
         self.pid, self.peak_mb, self._stop = pid, tree_rss_mb(pid), threading.Event()
+        self.interval_s = interval_s
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
-        while not self._stop.wait(0.5):
+        while not self._stop.wait(self.interval_s):
             self.peak_mb = max(self.peak_mb, tree_rss_mb(self.pid))
 
     def stop(self) -> float:

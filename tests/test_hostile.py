@@ -9,12 +9,12 @@ import sys
 from pathlib import Path
 
 import pytest
-from hostile_inputs import CONFIG_CASES, DATASET_CASES, RECORDING_CASES, npz_bomb
 
 from drivers.recording.reader import read_recording_info
 from drivers.recording.replay import ReplaySource
 from drivers.source import DriverError
 from tofd.lab.dataset import DatasetError, DatasetFile, load_dataset
+from tofd_testing.hostile_inputs import CONFIG_CASES, DATASET_CASES, RECORDING_CASES, npz_bomb
 
 ROOT = Path(__file__).resolve().parent.parent
 CHUNK_CASES = [name for name in RECORDING_CASES if not name.startswith(("header_", "attachment_50", "deep_json"))]

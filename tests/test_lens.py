@@ -6,12 +6,13 @@ import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from tests.recording_helpers import assert_frames_equal, write_recording
 
 from drivers.intrinsics import Intrinsics
 from drivers.recording import format as fmt
-from drivers.recording.replay import iter_frames, read_recording_info
+from drivers.recording.reader import read_recording_info
+from drivers.recording.replay import iter_frames
 from drivers.recording.schemas import CameraCalibration
+from tofd_testing.recording_helpers import assert_frames_equal, write_recording
 
 # an Azure Kinect NFOV-unbinned-like depth lens (strong barrel distortion) and a fisheye lens
 K4A_LIKE = Intrinsics(640, 576, 504.2, 504.4, 321.3, 329.8, "rational_polynomial",
@@ -132,7 +133,7 @@ def test_tofd_recording_keeps_the_lens_and_tells_foxglove(tmp_path):
 
 def test_pinhole_frames_are_encoded_as_before_lens_models():
     # a pinhole header carries no distortion fields, and Foxglove gets plumb_bob with zero coefficients
-    from tests.recording_helpers import make_frame
+    from tofd_testing.recording_helpers import make_frame
     messages = fmt.encode_frame(make_frame(2))
     header = fmt.schemas.frame_header_class().FromString(messages[0])
     assert not header.intrinsics.HasField("distortion_model") and len(header.intrinsics.distortion) == 0

@@ -12,13 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.recording_helpers import write_recording
 
 from drivers.k4a_mkv import K4aRecordingSource
 from drivers.opener import identify
-from drivers.recording.replay import iter_frames, read_recording_info
+from drivers.recording.reader import read_recording_info
+from drivers.recording.replay import iter_frames
 from tests.k4a_helpers import CALIBRATION_JSON, k4a_libraries
 from tests.rosbag_helpers import BAG_KINDS, write_frames_bag
+from tofd_testing.recording_helpers import write_recording
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,7 +48,7 @@ def test_inputs_are_recognised_by_content_not_by_name(tmp_path, k4a_recording):
     disguised = tmp_path / "kinect.mcap"
     shutil.copy(k4a_recording, disguised)
     assert identify(disguised).name == "k4a"
-    from tests.recording_helpers import make_frame
+    from tofd_testing.recording_helpers import make_frame
     for kind in BAG_KINDS:
         (tmp_path / kind).mkdir()
         bag = write_frames_bag(tmp_path / kind, kind, [make_frame(0)])

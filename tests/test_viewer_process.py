@@ -37,7 +37,8 @@ def test_frames_go_through_the_slots_in_order_with_their_planes(tmp_path):
         assert v.offer(r, block_s=30.0)
     assert shm_of(os.getpid())
     report = v.close(30.0)
-    assert report == {"exit": "clean", "frames": 12, "errors": 0, "unsent": 0}
+    assert report == {"exit": "clean", "frames": 12, "errors": 0, "unsent": 0, "path": str(path),
+                      "output": str(path)}  # finished: under its own name (it grew under a temp name)
     assert not shm_of(os.getpid())  # unlinked
     tables = read_entities(str(path))
     assert tables[bp.RANGE][1].column("frame").to_pylist() == list(range(12))

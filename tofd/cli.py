@@ -26,7 +26,9 @@ tofd: scale-invariant range features (Haker et al. 2008) and nose detection for 
 cameras. It runs as a live camera daemon (Rerun viewer, /healthz, /metrics), records and replays MCAP
 recordings, and trains and evaluates the nose detector.
 
-Exit status: 0 success, 1 runtime failure (camera, viewer, pipeline), 2 usage or data error, 130 interrupted."""
+Exit status: 0 success, 1 runtime failure (camera, viewer, pipeline), 2 usage or data error, 130 interrupted.
+Signals: SIGTERM, SIGINT, SIGHUP and SIGQUIT stop (a running service drains, writes its summary and exits 0;
+while tofd loads: `interrupted`, 130); SIGUSR1 logs a status line."""
 
 EPILOG = "Start with `tofd run --emulate --rerun web` (no camera needed), or `tofd COMMAND --help`."
 
@@ -87,6 +89,8 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
     named = _named_command(argv, commands)
     try:
         parser = build_parser(named, commands)
+        args = parser.parse_args(argv)
+        setup_logging("debug" if args.verbose else args.log_level)
     except ImportError as exc:  # the command's module needs an extra that is not installed
         command = next(iter(named), "")
         extra = missing_extra(exc, command)
@@ -94,8 +98,9 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
             raise
         print(f"tofd {command}: {install_hint(extra)}", file=sys.stderr)
         return 2
-    args = parser.parse_args(argv)
-    setup_logging("debug" if args.verbose else args.log_level)
+    except KeyboardInterrupt as exc:  # a stop signal while the command's modules load
+        print(f"tofd: interrupted{_signal_name(exc)}", file=sys.stderr)
+        return 130
     code = _run(args)
     if exit_at_once and getattr(args, "exit_at_once", False):
         logging.shutdown()
@@ -106,8 +111,18 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
 
 
 def entry() -> typing.NoReturn:
-    """The `tofd` console script and `python -m tofd`."""
+    """The `tofd` console script and `python -m tofd` (stop signals while it loads: tofd.service.signals)."""
+    from tofd.service.signals import interrupt_while_loading  # stdlib only: cheap to load first
+
+    interrupt_while_loading()
     sys.exit(main(exit_at_once=True))
+
+
+def _signal_name(exc: KeyboardInterrupt) -> str:
+    """" (SIGHUP)" for the signal an Interrupted names, "" for a plain KeyboardInterrupt."""
+    from tofd.service.signals import Interrupted
+
+    return f" ({exc})" if isinstance(exc, Interrupted) else ""
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -119,8 +134,8 @@ def _run(args: argparse.Namespace) -> int:
     except UsageError as exc:
         print(f"tofd {args.command}: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"tofd {args.command}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print(f"tofd {args.command}: interrupted{_signal_name(exc)}", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 (an unexpected failure: one line, the traceback only with -v)
         extra = missing_extra(exc, args.command) if isinstance(exc, ImportError) else None

@@ -75,21 +75,29 @@ class AtomicFile:
         return self.file.write(data)
 
     def commit(self) -> Path:
-        """Flush, fsync and rename over the target (permissions 0644 less the umask, like open())."""
+        """Flush, fsync and rename over the target (permissions 0644 less the umask, like open()); if that fails
+        (a full disk), the temp file is removed and the OSError raised."""
         if self.file.closed:
             return self.path
-        self.file.flush()
-        os.fsync(self.file.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(self.file.fileno(), 0o666 & ~umask)
-        self.file.close()
-        os.replace(self.tmp_path, self.path)
+        try:
+            self.file.flush()
+            os.fsync(self.file.fileno())
+            umask = os.umask(0)
+            os.umask(umask)
+            os.fchmod(self.file.fileno(), 0o666 & ~umask)
+            self.file.close()
+            os.replace(self.tmp_path, self.path)
+        except OSError:
+            self.discard()
+            raise
         return self.path
 
     def discard(self) -> None:
         if not self.file.closed:
-            self.file.close()
+            try:
+                self.file.close()  # flushes what is buffered: may fail on a full disk
+            except OSError:
+                pass
         self.tmp_path.unlink(missing_ok=True)
 
     def __enter__(self) -> AtomicFile:
@@ -100,6 +108,32 @@ class AtomicFile:
             self.commit()
         else:
             self.discard()
+
+
+def temp_path(path: str | Path) -> Path:
+    """Where an output that is written for a long time (e.g. a .rrd) grows until it is finished: a hidden name
+    beside `path`, unique to this process."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+def partial_path(path: str | Path) -> Path:
+    """The name an output that could not be finished keeps its readable part under: <stem>.partial<suffix>."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.partial{path.suffix}")
+
+
+def finish_output(tmp: Path, path: Path, finished: bool) -> Path | None:
+    """Rename `tmp` to `path` if the output was `finished`, else to partial_path(path) (None if nothing was
+    written); no temp file remains either way. Returns where it went."""
+    if not tmp.exists():
+        return None
+    target = path if finished else partial_path(path)
+    if not finished and tmp.stat().st_size == 0:
+        tmp.unlink()
+        return None
+    os.replace(tmp, target)
+    return target
 
 
 def write_text(path: str | Path, text: str) -> Path:

@@ -32,7 +32,7 @@ def main(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.file}: {exc}") from None
     info = source.info
     if info is None:
-        raise UsageError(f"{args.file}: {source.header_problem}")
+        raise UsageError(source.header_problem)
     tmp = args.out.with_name(f".{args.out.name}.{os.getpid()}.tmp")
     try:
         with source, RecordingWriter(tmp, config=info.config, fsync_interval_s=None) as writer:

@@ -114,11 +114,11 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
         raise UsageError(f"{args.file}: {exc}") from None
     info = source.info
     if info is None:
-        raise UsageError(f"{args.file}: {source.header_problem}")
+        raise UsageError(source.header_problem)
     if args.seek is not None:
         reached, last = source.counters_reach(args.seek)
         if not reached:
-            raise UsageError(f"--seek {args.seek}: past the end (last frame counter {last})")
+            raise UsageError(f"{args.file}: --seek {args.seek}: past the end (last frame counter {last})")
     return _serve(args, cfg, source, info.intrinsics, args.frames or (None if args.loop else info.frame_count), stem)
 
 
@@ -179,23 +179,35 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
     except BaseException:
         writer.discard()
         raise
-    writer.close()
     s = result.summary
+    try:
+        writer.close()
+    except OSError as exc:
+        s["outputs_failed"][str(results_path)] = exc.strerror or str(exc)
+        print(f"tofd replay: output {results_path} failed: {exc.strerror or exc}", file=sys.stderr)
     stopped = getattr(source, "stopped_reason", None)
     if stopped not in (None, "end"):
         print(f"tofd replay: the recording is {stopped} after frame {getattr(source, 'last_good_counter', None)}: "
               f"{getattr(source, 'stop_detail', '')}", file=sys.stderr)
-    _report_accuracy(results_path, out / f"{stem}.accuracy.png")
-    written = ["results.jsonl", "summary.json"] + (["rrd"] if cfg.rerun.sink == "save" else [])
+    failed = s["outputs_failed"]  # each said so in one line when it failed
+    if str(results_path) not in failed:
+        _report_accuracy(results_path, out / f"{stem}.accuracy.png")
+    outputs = {"results.jsonl": results_path, "summary.json": out / f"{stem}.summary.json"}
+    if cfg.rerun.sink == "save":
+        outputs["rrd"] = Path(cfg.rerun.path)
+    written = [name for name, path in outputs.items() if str(path) not in failed]
+    not_written = [name for name, path in outputs.items() if str(path) in failed]
     skipped = source.counters["replay_dropped"]
     loops = source.counters["replay_loops"]
     print(f"tofd replay: {s['frames_out']} frames processed, {s['frames_dropped']} dropped"
           + (f", {skipped} skipped to keep the recorded pace" if skipped else "")
           + (f", {loops + 1} passes" if args.loop else "")
-          + f", {s['fps']} fps; wrote {out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
+          + f", {s['fps']} fps; wrote " + (f"{out}/{stem}.{{{','.join(written)}}}" if written else "nothing")
+          + (f"; failed: {', '.join(not_written)}" if not_written else ""), file=sys.stderr)
+    code = 1 if failed else result.exit_code
     if golden is not None:
-        return check_golden(args, golden.rows, stem, cfg, result.model) or result.exit_code
-    return result.exit_code
+        return check_golden(args, golden.rows, stem, cfg, result.model) or code
+    return code
 
 
 def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Config, model: NoseModel | None) -> int:

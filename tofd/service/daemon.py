@@ -25,7 +25,7 @@ from tofd.service.pipeline.core import Pipeline, Sink, maps_read
 from tofd.service.pipeline.ledger import LedgerSummary
 from tofd.service.pipeline.queues import Policy
 from tofd.service.shutdown import Shutdown
-from tofd.service.signals import StopSignals
+from tofd.service.signals import StopSignals, start_resource_tracker
 from tofd.service.summary import ModelRecord, RunSummary, run_summary, write_json_atomic
 from tofd.service.supervise import show_progress, supervise
 from tofd.service.viewer.spec import RERUN_SPEC_HELP, parse_rerun_spec
@@ -109,6 +109,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             from tofd.service.viewer.process import ViewerProcess
             from tofd.service.viewer.targets import file_footer
 
+            start_resource_tracker()
             model_file = read_model_file(cfg)
             identity = run_identity(cfg, model_file.identity)
             if cfg.rerun.sink != "none":
@@ -146,5 +147,10 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
         show_progress(progress, snap)
         progress.done()
     if summary_path is not None:
-        write_json_atomic(summary_path, summary)
-    return ServiceResult(1 if pipeline.error else 0, summary, model, viewer.web_url if viewer else None)
+        try:
+            write_json_atomic(summary_path, summary)
+        except OSError as exc:
+            log.error("output %s failed: %s", summary_path, exc.strerror or exc)
+            summary["outputs_failed"][str(summary_path)] = exc.strerror or str(exc)
+    failed = pipeline.error is not None or bool(summary["outputs_failed"])
+    return ServiceResult(1 if failed else 0, summary, model, viewer.web_url if viewer else None)

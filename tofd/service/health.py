@@ -2,9 +2,11 @@
 (sd_notify).
 
 /healthz answers 200 while the pipeline runs, has no fatal error and delivered a frame within
-`stale_after_s` (or is still starting), else 503; the body is a small JSON status (HEAD answers the same
-status without it). /metrics is ServiceMetrics through prometheus_client. sd_notify writes READY=1 / WATCHDOG=1 /
-STATUS= / STOPPING=1 datagrams to $NOTIFY_SOCKET with a plain socket; without that variable it does nothing.
+`stale_after_s` (or is still starting), else 503; the body is a small JSON status (HEAD answers the same status
+without it): "ok", "unhealthy", or "degraded" (still 200) while an output has failed (a full disk, a permission;
+named in its problems and in tofd_output_failed). /metrics is ServiceMetrics through prometheus_client.
+sd_notify writes READY=1 / WATCHDOG=1 / STATUS= / STOPPING=1 datagrams to $NOTIFY_SOCKET with a plain socket;
+without that variable it does nothing.
 """
 
 from __future__ import annotations
@@ -109,6 +111,11 @@ class _SnapshotCollector:
         yield one(CounterMetricFamily, "tofd_worker_restarts", "Feature worker processes restarted.",
                   snap.worker_restarts)
         yield one(GaugeMetricFamily, "tofd_workers_alive", "Feature worker processes alive.", snap.workers_alive)
+        failed = GaugeMetricFamily("tofd_output_failed", "Outputs that failed and are written no more (1), by file.",
+                                   labels=["output"])
+        for output in sorted(snap.outputs_failed):
+            failed.add_metric([output], 1.0)
+        yield failed
         if snap.track is not None:
             yield from _track_metrics(snap.track)
 
@@ -184,7 +191,9 @@ def health_status(snap: PipelineSnapshot, running: bool, stale_after_s: float) -
         problems.append("pipeline not running")
     if age is not None and age > stale_after_s:
         problems.append(f"no frame delivered for {age:.1f} s")
-    return not problems, {"status": "ok" if not problems else "unhealthy", "problems": problems,
+    failed = [f"output {output} failed: {why}" for output, why in sorted(snap.outputs_failed.items())]
+    status = "unhealthy" if problems else "degraded" if failed else "ok"
+    return not problems, {"status": status, "problems": problems + failed,
                           "fps": round(snap.fps, 2), "frames_out": snap.frames_out,
                           "last_frame_age_s": None if age is None else round(age, 3)}
 

@@ -14,12 +14,17 @@ from tofd.service.pipeline.monitor import PipelineSnapshot
 
 class ViewerReport(TypedDict, total=False):
     """ViewerProcess.close's report: how the viewer process ended ("clean", "killed", or "cancelled" while it
-    started), frames it logged, frames Rerun refused, frames handed over but not logged."""
+    started), frames it logged, frames Rerun refused, frames handed over but not logged; for a "save" sink the
+    .rrd's name (path), where its readable part is (output: path, its partial name, or None) and why it could not
+    be finished (failed)."""
 
     exit: str
     frames: int
     errors: int
     unsent: int
+    path: str
+    output: str | None
+    failed: str
 
 
 class ModelRecord(TypedDict):
@@ -30,8 +35,8 @@ class ModelRecord(TypedDict):
 class RunSummary(LedgerSummary):
     """The run summary (<stem>.summary.json): the ledger summary, fps over the whole run, timing quantiles (ms,
     p50 and p99 per stage), worker restarts, device events, the error if any, the nose track's counts (None: no
-    detector), the viewer's end report (None: no viewer), the model and config the run used and the shutdown's
-    report (tofd.service.shutdown)."""
+    detector), the outputs that failed (file -> why), the viewer's end report (None: no viewer), the model and
+    config the run used and the shutdown's report (tofd.service.shutdown)."""
 
     error: str | None
     fps: float
@@ -39,6 +44,7 @@ class RunSummary(LedgerSummary):
     worker_restarts: int
     device_events: dict[str, int]
     track: dict[str, str | float | int] | None
+    outputs_failed: dict[str, str]
     viewer: ViewerReport | None
     model: ModelRecord
     config_sha256: str
@@ -53,7 +59,10 @@ def run_summary(ledger_summary: LedgerSummary, snap: PipelineSnapshot, run_s: fl
         fps=round(ledger_summary["frames_out"] / run_s, 2) if run_s > 0 else 0.0,
         timings_ms={k: [round(x, 3) for x in v] for k, v in snap.timings_ms.items()},
         worker_restarts=snap.worker_restarts, device_events=dict(snap.device_events),
-        track=None if snap.track is None else dataclasses.asdict(snap.track), viewer=viewer, model=model,
+        track=None if snap.track is None else dataclasses.asdict(snap.track),
+        outputs_failed={**snap.outputs_failed,
+                        **({viewer["path"]: viewer["failed"]} if viewer and viewer.get("failed") else {})},
+        viewer=viewer, model=model,
         config_sha256=config_sha256, shutdown=shutdown)
 
 

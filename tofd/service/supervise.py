@@ -7,7 +7,7 @@ import logging
 import time
 
 from tofd.progress import Progress
-from tofd.service.health import notify_status, sd_notify, watchdog_interval_s
+from tofd.service.health import notify_status, sd_notify, status_text, watchdog_interval_s
 from tofd.service.pipeline import Pipeline
 from tofd.service.pipeline.monitor import PipelineSnapshot
 from tofd.service.signals import StopSignals
@@ -17,13 +17,17 @@ log = logging.getLogger(__name__)
 
 def supervise(pipeline: Pipeline, stop: StopSignals, progress: Progress | None) -> None:
     """Return when the pipeline ended or a stop signal came (then capture is stopped; draining is the
-    caller's). The watchdog is pinged only while the pipeline has not failed; a camera that is away
-    (reconnecting) is no reason for systemd to restart us: /healthz reports that to monitoring instead."""
+    caller's); log a status line for each SIGUSR1. The watchdog is pinged only while the pipeline has not
+    failed; a camera that is away (reconnecting) is no reason for systemd to restart us: /healthz reports that
+    to monitoring instead."""
     watchdog = watchdog_interval_s()
     tick = min(0.25, watchdog or 0.25)
-    last_ping = 0.0
+    last_ping, status_requests = 0.0, 0
     while pipeline.running:
         time.sleep(tick)
+        if stop.status_requests != status_requests:  # SIGUSR1
+            status_requests = stop.status_requests
+            log.info("status: %s", status_text(pipeline.snapshot()))
         if stop:
             log.info("%s: draining the pipeline", stop.name)
             pipeline.stop()

@@ -63,6 +63,10 @@ class OfferingViewer(Protocol):
 
     def offer(self, result: FrameResult, block_s: float) -> bool: ...
 
+    def failure(self) -> tuple[str, str] | None:
+        """(output file, why) once the viewer's output failed (e.g. a full disk), else None."""
+        ...
+
 
 class InlineViewer(Protocol):
     """A viewer called on the sink thread with each delivered frame; `flush` sends what it batches at the end."""
@@ -126,6 +130,8 @@ class Pipeline:
         self.outq: StageQueue[FrameResult] = StageQueue(policy, pc.sink_queue)
         self.source: FrameSource | None = None
         self.error: str | None = None
+        self.outputs_failed: dict[str, str] = {}  # output file -> why it failed (it is written no more)
+        self._failed_writers: set[Sink] = set()
         self._items: dict[int, _Queued] = {}  # seq -> frame, from admission until it leaves the workers
         self._items_lock = threading.Lock()
         self._capture_done = threading.Event()
@@ -387,6 +393,25 @@ class Pipeline:
             self.stats.record(result.timings_ms)
             if self.viewer is not None and not self.viewer.offer(result, block_s):
                 self.ledger.skip_viewer(result.seq, result.frame.frame_counter, "blocked")
+            if self.viewer is not None and (failure := self.viewer.failure()) is not None:
+                self._output_failed(*failure)
+
+    def _write_outputs(self, result: FrameResult) -> None:
+        """Hand the result to every writer whose output has not failed; an OSError (a full disk, a permission)
+        fails that output once (_output_failed), the frame goes on to the others."""
+        for write in self.writers:
+            if write in self._failed_writers:
+                continue
+            try:
+                write(result)
+            except OSError as exc:
+                self._failed_writers.add(write)
+                self._output_failed(str(getattr(write, "path", write)), exc.strerror or str(exc))
+
+    def _output_failed(self, output: str, why: str) -> None:
+        """One line for an output that failed; /healthz reports degraded, /metrics and the summary name it."""
+        log.error("output %s failed: %s; it is not written any more (the pipeline goes on)", output, why)
+        self.outputs_failed[output] = why
 
     def _write(self, result: FrameResult) -> bool:
         """Hand a frame to the inline viewer and the writers; False (the frame ledgered as dropped by the sink
@@ -399,8 +424,7 @@ class Pipeline:
                 result.timings_ms["logging"] = (time.perf_counter() - t0) * 1e3
             part = "writer"
             result.timings_ms["latency"] = (time.monotonic() - result.arrival_s) * 1e3
-            for write in self.writers:
-                write(result)
+            self._write_outputs(result)
             return True
         except Exception as exc:
             log.exception("sink: the %s failed on frame %d", part, result.frame.frame_counter)
@@ -422,7 +446,7 @@ class Pipeline:
         track = None if self.track_stats is None else self.track_stats.snapshot()
         return monitor.snapshot(self.ledger, self.stats, self.pool,
                                 {"dispatch": len(self.inq), "reorder": self.order.pending, "sink": len(self.outq)},
-                                counters, self.error, track)
+                                counters, self.error, track, self.outputs_failed)
 
 
 def _safe_counter(frame: Frame) -> int:

@@ -4,7 +4,7 @@ status and the run summary."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from tofd.service.pipeline.ledger import DropLedger
 from tofd.service.pipeline.pool import WorkerPool
@@ -13,7 +13,8 @@ from tofd.service.pipeline.stats import PipelineStats, TrackSnapshot
 
 @dataclass(frozen=True, slots=True)
 class PipelineSnapshot:
-    """Counters, rates, timings, queue depths and the nose track of a running (or finished) pipeline."""
+    """Counters, rates, timings, queue depths, the nose track and the failed outputs of a running (or finished)
+    pipeline."""
 
     frames_in: int
     frames_out: int
@@ -30,14 +31,17 @@ class PipelineSnapshot:
     last_delivery_age_s: float | None  # seconds since the last delivered frame (None before the first)
     error: str | None  # the pipeline's fatal error, if any
     track: TrackSnapshot | None  # None without a detector
+    outputs_failed: Mapping[str, str] = field(default_factory=dict)  # output file -> why it failed (written no more)
 
 
 def snapshot(ledger: DropLedger, stats: PipelineStats, pool: WorkerPool, queue_depth: Mapping[str, int],
-             device_events: Mapping[str, int], error: str | None, track: TrackSnapshot | None) -> PipelineSnapshot:
+             device_events: Mapping[str, int], error: str | None, track: TrackSnapshot | None,
+             outputs_failed: Mapping[str, str] | None = None) -> PipelineSnapshot:
     """The snapshot of the pipeline's parts now."""
     return PipelineSnapshot(
         frames_in=ledger.frames_in, frames_out=ledger.frames_out, frames_dropped=ledger.frames_dropped,
         drops=ledger.drops_by(), viewer_drops=ledger.viewer_drops_by(), gaps=len(ledger.gaps), fps=stats.fps(),
         timings_ms=stats.quantiles_ms(), queue_depth={**queue_depth, "workers": pool.inflight},
         workers_alive=pool.alive(), worker_restarts=pool.restarts, device_events=dict(device_events),
-        last_delivery_age_s=stats.last_delivery_age_s(), error=error, track=track)
+        last_delivery_age_s=stats.last_delivery_age_s(), error=error, track=track,
+        outputs_failed=dict(outputs_failed or {}))

@@ -114,6 +114,7 @@ class ResultsWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = AtomicFile(self.path, "w", buffering=1)
         self._loops, self._loop, self._last_counter = loops, 0, -1
+        self.failed: OSError | None = None  # why writing stopped (the temp file is gone then)
 
     def __call__(self, result: FrameResult) -> None:
         record = result_record(result)
@@ -122,11 +123,17 @@ class ResultsWriter:
                 self._loop += 1
             self._last_counter = record["frame_counter"]
             record["loop"] = self._loop
-        self._file.write(json.dumps(record) + "\n")
+        try:
+            self._file.write(json.dumps(record) + "\n")
+        except OSError as exc:  # a full disk: the file cannot be completed, so none is left behind
+            self.failed = exc
+            self._file.discard()
+            raise
 
     def close(self) -> None:
-        """Rename the complete file into place."""
-        self._file.commit()
+        """Rename the complete file into place (nothing when writing failed; OSError if this fails)."""
+        if self.failed is None:
+            self._file.commit()
 
     def discard(self) -> None:
         """Remove the temp file: a failed run leaves no results file behind."""

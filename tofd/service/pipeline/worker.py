@@ -20,6 +20,7 @@ from drivers.intrinsics import Intrinsics
 from tofd.process_setup import THREAD_ENV, child_environment
 from tofd.service.pipeline import messages
 from tofd.service.pipeline.messages import WorkerReady, WorkerReply, WorkerTask
+from tofd.service.signals import children_start, ignore_in_child
 
 KILL_JOIN_S = 1.0  # seconds to wait for a SIGKILLed worker to be reaped
 
@@ -29,8 +30,7 @@ def worker_main(spec_json: str, tasks: Connection, results: Connection) -> None:
     from tofd.service.lifeline import die_with_parent
 
     die_with_parent()  # a kill -9 of the parent leaves no worker behind
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    ignore_in_child()
     from tofd.algorithm.detector import NoseModel
     from tofd.config import config_from_dict
     from tofd.process_setup import prepare_compute_process
@@ -89,7 +89,7 @@ class WorkerHandle:
         process = ctx.Process(
             target=worker_main, args=(self._spec_json, task_r, result_w), name=f"tofd-worker-{self.index}", daemon=True
         )
-        with child_environment(THREAD_ENV):
+        with child_environment(THREAD_ENV), children_start():
             process.start()
         task_r.close()
         result_w.close()

@@ -11,28 +11,34 @@ the deadline: nothing in the parent ever waits on Rerun, and the pipe never fill
 headers are in it).
 
 Protocol: parent -> child, one JSON header per frame (wire.py) or b"close"; child -> parent, one JSON
-ViewerStatus once at start (ready, with the web viewer's address, or error) and one at the end (closed).
+ViewerStatus once at start (ready, with the web viewer's address, or error), one if a "save" sink's file stops
+being written (failed) and one at the end (closed).
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import multiprocessing as mp
 import os
-import signal
+import shutil
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
+from pathlib import Path
 from typing import NotRequired, TypedDict
 
 from tofd.config import Config, config_from_dict, config_table
+from tofd.outputs import finish_output, temp_path
 from tofd.process_setup import child_environment, keep_arrays_on_the_heap
 from tofd.service.lifeline import die_with_parent
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.slots import SlotRing
+from tofd.service.signals import children_start, ignore_in_child
 from tofd.service.summary import ViewerReport
 from tofd.service.viewer import wire
 from tofd.service.viewer.logger import RerunLogger
@@ -43,6 +49,12 @@ log = logging.getLogger(__name__)
 CLOSE = b"close"
 POLL_S = 0.1  # seconds between checks of a start's `cancelled`
 IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this long without a new frame
+SINK_CHECK_S = 6.0  # seconds between checks that a "save" sink's file grows (Rerun writes it at least every 5 s)
+SINK_FLUSH_TIMEOUT_S = 5.0  # a file sink that cannot write what it was given in this long has failed
+FULL_DISK_BYTES = 1 << 20  # a failed file sink's disk with less free space than this was full
+FILE_SINK_LOG = "re_log_encoding::rrd=off,re_sdk::recording_stream=off"
+"""Added to RUST_LOG (default "warn") of a "save" sink's viewer process: the SDK's own lines about its file are off
+(no warning that a live file has no footer; a failed file is reported by tofd, once)."""
 VIEWER_NICE = 10  # the viewer process's niceness: on busy cores the feature workers go first
 
 
@@ -56,6 +68,7 @@ class ViewerStatus(TypedDict):
 
     ready: NotRequired[str | None]  # started; the web viewer's address (the "web" sink) or None
     error: NotRequired[str]  # could not start its sink
+    failed: NotRequired[str]  # its "save" sink's file stopped being written (why)
     closed: NotRequired[ViewerClosed]  # flushed and about to exit
 
 
@@ -69,8 +82,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     its slot (`slots`: the ring's name and size) after; what waits in the logger's batch is sent when no frame
     came for IDLE_FLUSH_S, and at the end."""
     die_with_parent(parent_pid)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    ignore_in_child()  # the parent decides when we stop
     keep_arrays_on_the_heap()
     os.nice(VIEWER_NICE)  # it waking up to log a frame would otherwise preempt a worker mid-frame
     cfg = config_from_dict(cfg_table)
@@ -83,6 +95,31 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
         return
     _send_status(status, ViewerStatus(ready=target.web_url))
     logged = errors = 0
+    failed, checked_s, size_seen, logged_seen = False, time.monotonic(), -1, 0
+
+    def file_sink_failed(closing: bool = False) -> bool:
+        """For a "save" sink, at most every SINK_CHECK_S (and when `closing`): whether Rerun's file writer has
+        stopped. It says so only on its own stderr, so: a file that did not grow while frames were logged, or a
+        full disk, is asked for a bounded flush, and one that cannot finish it has failed; the parent is told."""
+        nonlocal failed, checked_s, size_seen, logged_seen
+        if sink != "save" or failed or (not closing and time.monotonic() - checked_s < SINK_CHECK_S):
+            return failed
+        checked_s = time.monotonic()
+        try:
+            size = os.stat(cfg.rerun.path).st_size
+            full = shutil.disk_usage(Path(cfg.rerun.path).parent).free < FULL_DISK_BYTES
+        except OSError:
+            size, full = -1, True
+        stalled = full or (size == size_seen and logged > logged_seen)
+        size_seen, logged_seen = size, logged
+        if not stalled:
+            return False
+        try:
+            target.rec.flush(timeout_sec=SINK_FLUSH_TIMEOUT_S)
+        except RuntimeError:
+            failed = True
+            _send_status(status, ViewerStatus(failed=file_problem(cfg.rerun.path)))
+        return failed
 
     def logging_step(what: str, step: Callable[..., None], *args: object) -> bool:
         """step(*args), one logger call; a failure is counted and warned about, and the rest goes on."""
@@ -99,19 +136,39 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     while True:
         try:
             if not frames.poll(IDLE_FLUSH_S):
-                logging_step("batch", logger.flush)
+                if not failed:
+                    logging_step("batch", logger.flush)
+                file_sink_failed()
                 continue
             header = frames.recv_bytes()
         except (EOFError, OSError):
             break
         if header == CLOSE:
             break
-        logged += logging_step("frame", lambda h: logger(wire.read(h, ring, cfg.intrinsics)), header)
+        if file_sink_failed():  # nothing more is logged: it would only pile up in memory
+            errors += 1
+        else:
+            logged += logging_step("frame", lambda h: logger(wire.read(h, ring, cfg.intrinsics)), header)
         free.release()  # the logger keeps no view of the slot
-    logging_step("batch", logger.flush)
+    if not failed:
+        logging_step("batch", logger.flush)
     ring.close()
-    target.close(cfg.pipeline.shutdown_timeout_s)
+    file_sink_failed(closing=True)  # bounded: a stopped file writer would hold target.close's flush
+    target.close(0.1 if failed else cfg.pipeline.shutdown_timeout_s)  # a failed file takes nothing more
     _send_status(status, ViewerStatus(closed=ViewerClosed(frames=logged, errors=errors)))
+
+
+def file_problem(path: str) -> str:
+    """Why a file output in `path`'s directory most likely stopped (Rerun's file writer does not say)."""
+    directory = Path(path).parent
+    try:
+        if shutil.disk_usage(directory).free < FULL_DISK_BYTES:
+            return os.strerror(errno.ENOSPC)
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    if not os.access(directory, os.W_OK):
+        return os.strerror(errno.EACCES)
+    return "the Rerun file writer stopped"
 
 
 class ViewerProcess:
@@ -123,6 +180,12 @@ class ViewerProcess:
                  start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True):
         ctx = mp.get_context("spawn")
         self.queue_frames = queue_frames
+        self.output = Path(cfg.rerun.path) if sink == "save" else None  # the .rrd, once finished
+        self._writing = None if self.output is None else temp_path(self.output)  # where it grows meanwhile
+        self.failed: str | None = None  # why the output failed, once the child said so
+        self._failure_told = False
+        if self._writing is not None:
+            cfg = replace(cfg, rerun=replace(cfg.rerun, path=str(self._writing)))
         self._ring = SlotRing.create(queue_frames, cfg.intrinsics.shape, wire.PLANES, use="viewer")
         self._free = ctx.Semaphore(queue_frames)  # slots the child has finished with
         self._next = 0  # the slot the next frame goes to
@@ -131,9 +194,13 @@ class ViewerProcess:
         self.process = ctx.Process(target=viewer_main, name="tofd-viewer", daemon=True,
                                    args=(config_table(cfg), sink, batch_frames, footer, os.getpid(), frames_r,
                                          status_w, (self._ring.name, queue_frames), self._free))
-        quiet = {} if footer or "RUST_LOG" in os.environ else {"RUST_LOG": QUIET_NO_FOOTER}
+        if sink == "save":
+            quiet = {"RUST_LOG": f"{os.environ.get('RUST_LOG', 'warn')},{FILE_SINK_LOG}"}
+        else:
+            quiet = {} if footer or "RUST_LOG" in os.environ else {"RUST_LOG": QUIET_NO_FOOTER}
         with child_environment(quiet):
-            self.process.start()
+            with children_start():
+                self.process.start()
         frames_r.close()
         status_w.close()
         self._lock = threading.Lock()  # the pipe and `_closing`, between offer and close
@@ -144,22 +211,27 @@ class ViewerProcess:
         msg = self._status_message(start_timeout_s, cancelled)
         if msg is None and cancelled():  # a stop signal while it started: nothing to flush, close() says so
             self._release()
+            self._discard_output()
             self.report = ViewerReport(exit="cancelled", unsent=0)
             return
         if msg is None or "ready" not in msg:
             self._release()
+            self._discard_output()
             raise ViewerError((msg or {}).get("error") or f"the viewer process did not start in {start_timeout_s:g} s")
         self.web_url = msg["ready"]
 
     def _status_message(self, timeout_s: float,
                         cancelled: Callable[[], bool] = lambda: False) -> ViewerStatus | None:
-        """The child's next status message within `timeout_s`; None if none came, the child died or
-        `cancelled()` (polled every POLL_S) turned true."""
+        """The child's next status message within `timeout_s` (a failure message is noted in `failed` and
+        skipped); None if none came, the child died or `cancelled()` (polled every POLL_S) turned true."""
         deadline = time.monotonic() + timeout_s
         try:
             while not cancelled():
                 if self._status.poll(min(POLL_S, max(0.0, deadline - time.monotonic()))):
                     message: ViewerStatus = json.loads(self._status.recv_bytes())
+                    if "failed" in message:
+                        self.failed = message["failed"]
+                        continue
                     return message
                 if time.monotonic() >= deadline:
                     break
@@ -187,6 +259,21 @@ class ViewerProcess:
                 return False  # the child is gone
         return True
 
+    def failure(self) -> tuple[str, str] | None:
+        """(output file, why) once, when the child reported that its output failed; else None (never blocks)."""
+        with self._lock:
+            if self.failed is None and not self._closing:
+                try:
+                    if self._status.poll(0):
+                        message: ViewerStatus = json.loads(self._status.recv_bytes())
+                        self.failed = message.get("failed")
+                except (EOFError, OSError):
+                    pass
+            if self.failed is None or self._failure_told:
+                return None
+            self._failure_told = True
+        return str(self.output), self.failed
+
     def close(self, timeout_s: float) -> ViewerReport:
         """Let the child log what it was handed, flush and exit; SIGKILL it after `timeout_s`. A summary:
         {"exit": "clean" | "killed" | "cancelled" (stopped while starting), "frames": logged, "errors": frames
@@ -210,7 +297,31 @@ class ViewerProcess:
             closed = msg["closed"]
             self.report = ViewerReport(exit="clean", frames=closed["frames"], errors=closed["errors"], unsent=unsent)
         self._release()
+        self._finish_output()
         return self.report
+
+    def _finish_output(self) -> None:
+        """The .rrd of a "save" sink under its name if the child finished it, else its readable part under
+        outputs.partial_path (its name in the report's "output", `failed` saying why)."""
+        if self.output is None or self._writing is None:
+            return
+        finished = self.report.get("exit") == "clean" and self.failed is None
+        try:
+            where = finish_output(self._writing, self.output, finished)
+        except OSError as exc:
+            self._writing.unlink(missing_ok=True)
+            where, self.failed = None, self.failed or exc.strerror or str(exc)
+        if not finished:
+            self.failed = self.failed or "the viewer did not finish it"
+            log.log(logging.INFO if self._failure_told else logging.ERROR, "output %s could not be finished (%s)%s",
+                    self.output, self.failed, f"; its readable part is {where}" if where else "")
+            self.report["failed"] = self.failed
+        self.report["path"] = str(self.output)
+        self.report["output"] = None if where is None else str(where)
+
+    def _discard_output(self) -> None:
+        if self._writing is not None:
+            self._writing.unlink(missing_ok=True)
 
     def _release(self) -> None:
         """Kill the child if it still runs; close the pipes and unlink the slots."""

@@ -18,12 +18,12 @@ import numpy as np
 import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.records import Attachment, Chunk, Message, Metadata
-from recording_helpers import frame_spans, write_recording
 
 from drivers.recording import format as fmt
 from drivers.recording.bounds import MAX_ATTACHMENT_BYTES, MAX_CHUNK_BYTES
 from drivers.recording.mcap_writer import McapChunkWriter
 from tofd.lab.npz import MAX_LOADED_BYTES
+from tofd_testing.recording_helpers import frame_spans, write_recording
 
 BASE_FRAMES = 4  # frames of the intact recording each chunk case is spliced into (after its second frame)
 BOMB_BYTES = 1 << 30  # what a recording's decompression bomb decompresses to
