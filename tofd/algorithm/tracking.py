@@ -1,16 +1,17 @@
 """A nose track across frames: an alpha-beta filter on the detected 3-D nose tip, with gating, a confidence,
 loss and re-acquisition. Pure: one `update(detection, timestamp_s)` per frame, no I/O.
 
-Per frame the track predicts p + v dt. An accepted detection within the gate (gate_m + gate_growth_m_per_s x
-time since the last associated detection, metres in 3-D) corrects it: p += alpha r, v += beta r / dt with r the
-residual. A detection outside the gate is not believed at once (a wrong pixel of the detector looks like that):
-it starts a challenger, which replaces the track after `confirm_hits` mutually-gated detections with none
-associated to the track in between (the head really moved there). Confidence rises by `confidence_gain` of its
-shortfall on each associated detection and decays as exp(-dt / confidence_tau_s) otherwise; the track is lost after
-`lost_after_s` without an associated detection. The reported nose is the predicted or corrected position while the
-track is confirmed and its last associated detection is at most `report_coast_s` old (status "tracking"); after that
-the track coasts (status "coasting": still predicted and gated, nothing reported) until a detection is associated
-again or it is lost, because a prediction without recent support drifts off a moving head.
+Per frame the track predicts p + v dt. An accepted detection (its refined tip, else its pixel's point) within the gate
+(gate_m + gate_growth_m_per_s x time since the last associated detection, metres in 3-D) corrects it: p += alpha r, v
++= beta r / dt with r the residual. A detection outside the gate is not believed at once (a wrong pixel of the
+detector looks like that): it starts a challenger, which replaces the track after `confirm_hits` mutually-gated
+detections with none associated to the track in between (the head really moved there). Confidence rises by
+`confidence_gain` of its shortfall on each associated detection and decays as exp(-dt / confidence_tau_s) otherwise;
+the track is lost after `lost_after_s` without an associated detection. The reported nose is the predicted or
+corrected position while the track is confirmed and its last associated detection is at most `report_coast_s` old
+(status "tracking"); after that the track coasts (status "coasting": still predicted and gated, nothing reported)
+until a detection is associated again or it is lost, because a prediction without recent support drifts off a moving
+head.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ class DetectionLike(Protocol):
     """What the tracker reads of a detection (tofd.algorithm.detector.Detection)."""
 
     @property
-    def nose_xyz_m(self) -> tuple[float, float, float] | None: ...
+    def answer_xyz_m(self) -> tuple[float, float, float] | None: ...
 
     @property
     def accepted(self) -> bool: ...
@@ -115,8 +116,8 @@ class NoseTracker:
     def update(self, detection: DetectionLike | None, timestamp_s: float) -> TrackState:
         """Advance the track to timestamp_s (seconds) with this frame's detection (None or not accepted: none)."""
         xyz = None
-        if detection is not None and detection.accepted and detection.nose_xyz_m is not None:
-            xyz = np.asarray(detection.nose_xyz_m, dtype=np.float64)
+        if detection is not None and detection.accepted and detection.answer_xyz_m is not None:
+            xyz = np.asarray(detection.answer_xyz_m, dtype=np.float64)
         track = self._track
         reacquired = associated = False
         if track is not None:

@@ -12,9 +12,11 @@ from tofd.algorithm.detector.acceptance import PAPER_RULE, Margin, rival_distanc
 from tofd.algorithm.detector.box import Box, require_maps, stack_features
 from tofd.algorithm.detector.candidates import ALL_FOREGROUND, Candidates
 from tofd.algorithm.detector.model_file import NoseModel
+from tofd.algorithm.detector.tip import refine_tip
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import families_for
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
+from tofd.algorithm.segmentation import rotation_to_z
 
 
 @dataclass(frozen=True, slots=True)
@@ -25,17 +27,30 @@ class Detection:
     nose_xyz_m: tuple[float, float, float] | None  # camera frame, metres
     score: float  # box distance of the best foreground pixel (lower is better; inf if no foreground)
     accepted: bool  # the acceptance rule holds (acceptance.Margin.accepts)
+    tip_px: tuple[float, float] | None = None  # (u, v) sub-pixel nose tip near the accepted pixel (tip.py), or None
+    tip_xyz_m: tuple[float, float, float] | None = None  # camera frame, metres; None: not refined or none accepted
+
+    @property
+    def answer_xyz_m(self) -> tuple[float, float, float] | None:
+        """The reported nose point: the refined tip, else the accepted pixel's point (None if none accepted)."""
+        return self.tip_xyz_m if self.tip_xyz_m is not None else self.nose_xyz_m
+
+    @property
+    def answer_px(self) -> tuple[float, float] | None:
+        """The reported nose pixel (u, v): the refined tip's, else the accepted pixel (None if none accepted)."""
+        return self.tip_px if self.tip_px is not None else self.nose_px
 
 
 def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrinsics, box: Box,
            scale: float, candidates: Candidates = ALL_FOREGROUND, direction: np.ndarray | None = None,
-           margin: Margin = PAPER_RULE) -> Detection:
+           margin: Margin = PAPER_RULE, tip_radius_m: float = 0.0) -> Detection:
     """Detect the nose in one frame from its feature maps ((H, W), NaN outside the foreground).
 
     range_m: (H, W) radial range in metres, for the 3-D point of the detected pixel and the candidate tests.
     candidates: which foreground pixels (where all the box's features are finite) may be the nose (module
     docstring); direction: the face's viewing direction for the front test (segmentation.Foreground.rotation
     row 2). Only candidate pixels are scored (a few thousand of 25k). margin: the acceptance rule beyond the scale.
+    tip_radius_m: > 0: the accepted pixel is refined to the sub-pixel tip (tip.refine_tip, window of this radius).
     """
     require_maps(maps, box.features)
     foreground = np.logical_and.reduce([np.isfinite(maps[n]) for n in box.features])
@@ -50,7 +65,12 @@ def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrins
     if not margin.accepts(score, rival, scale):
         return Detection(None, None, score, False)
     x, y, z = (float(c) for c in points[best])
-    return Detection((int(cols[best]), int(rows[best])), (x, y, z), score, True)
+    pixel = (int(cols[best]), int(rows[best]))
+    if tip_radius_m <= 0:
+        return Detection(pixel, (x, y, z), score, True)
+    rotation = np.eye(3) if direction is None else rotation_to_z(np.asarray(direction, dtype=np.float64))
+    tip = refine_tip(np.asarray(range_m), foreground, intrinsics, pixel, rotation, tip_radius_m)
+    return Detection(pixel, (x, y, z), score, True, tip.px, tip.xyz_m)
 
 
 class NoseDetector:
@@ -68,6 +88,7 @@ class NoseDetector:
         self.scale = detector.box_scale if detector.box_scale > 0 else vm.operating_scale
         self.candidates = Candidates.from_config(detector, segmentation)
         self.margin = Margin.from_config(detector)
+        self.tip_radius_m = detector.tip_radius_m
         self.families = families_for(self.box.features)
         self._features, self._segmentation = features, segmentation
         self._extractor: FeatureExtractor | None = None
@@ -76,7 +97,8 @@ class NoseDetector:
                     direction: np.ndarray | None = None) -> Detection:
         """Detection from named feature maps (tofd.algorithm.names), the frame's (H, W) range in metres and the
         face's viewing direction (FrameFeatures.rotation[2]; None: the camera's z axis)."""
-        return detect(maps, range_m, self.intrinsics, self.box, self.scale, self.candidates, direction, self.margin)
+        return detect(maps, range_m, self.intrinsics, self.box, self.scale, self.candidates, direction, self.margin,
+                      self.tip_radius_m)
 
     def detect_frame(self, range_m: np.ndarray, amplitude: np.ndarray) -> Detection:
         """Segment, compute this variant's features, detect."""

@@ -74,8 +74,9 @@ def track_record(state: TrackState | None, intrinsics: Intrinsics) -> dict | Non
 
 
 def result_record(r: FrameResult) -> dict:
-    """The JSON-ready per-frame record written to the results file: the frame's detection, and beside it the nose
-    track after this frame (track_record; None without a detector model)."""
+    """The JSON-ready per-frame record written to the results file: the frame's detection (the accepted pixel and
+    its point, and the sub-pixel tip refined from it), and beside it the nose track after this frame (track_record;
+    None without a detector model)."""
     det = r.detection
     truth = r.frame.ground_truth
     return {
@@ -84,6 +85,8 @@ def result_record(r: FrameResult) -> dict:
         "foreground_px": int(np.count_nonzero(r.mask)),
         "nose_px": list(det.nose_px) if det is not None and det.nose_px is not None else None,
         "nose_xyz_m": [round(c, 5) for c in det.nose_xyz_m] if det is not None and det.nose_xyz_m else None,
+        "tip_px": [round(c, 2) for c in det.tip_px] if det is not None and det.tip_px else None,
+        "tip_xyz_m": [round(c, 5) for c in det.tip_xyz_m] if det is not None and det.tip_xyz_m else None,
         "score": finite_or_none(det.score) if det is not None else None,
         "accepted": bool(det.accepted) if det is not None else None,
         "track": track_record(r.track, r.frame.intrinsics),

@@ -54,7 +54,8 @@ class FeatureStage:
 
 def detection_dict(det: Detection) -> dict:
     """A Detection as a JSON-ready dict (score may be inf: no foreground)."""
-    return {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score, "accepted": det.accepted}
+    return {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score, "accepted": det.accepted,
+            "tip_px": det.tip_px, "tip_xyz_m": det.tip_xyz_m}
 
 
 def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: dict, maps: tuple[str, ...], *,
@@ -83,5 +84,7 @@ def detection_from(message: dict) -> Detection | None:
     if d is None:
         return None
     return Detection(tuple(d["nose_px"]) if d["nose_px"] else None,
-                     tuple(d["nose_xyz_m"]) if d["nose_xyz_m"] else None, float(d["score"]), bool(d["accepted"]))
+                     tuple(d["nose_xyz_m"]) if d["nose_xyz_m"] else None, float(d["score"]), bool(d["accepted"]),
+                     tuple(d["tip_px"]) if d.get("tip_px") else None,
+                     tuple(d["tip_xyz_m"]) if d.get("tip_xyz_m") else None)
 

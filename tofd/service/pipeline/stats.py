@@ -56,28 +56,34 @@ class PipelineStats:
 
 class TrackStats:
     """The nose track as /metrics and the run summary report it: its latest state, frames with an accepted
-    detection and with a reported track nose, and how often a confirmed track began (acquired: a new track
+    detection, with a sub-pixel tip refined from it, and with a reported track nose, the last refined tip (camera frame,
+    metres), and how often a confirmed track began (acquired: a new track
     confirmed, or a challenger replacing the track) or was lost (dropped without a confirmed successor, a new
     tentative track started in the same frame included); coasting does not end a track."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._last: TrackState | None = None
-        self._counts = {"detected_frames": 0, "tracked_frames": 0, "acquired": 0, "lost": 0}
+        self._counts = {"detected_frames": 0, "tip_frames": 0, "tracked_frames": 0, "acquired": 0, "lost": 0}
+        self._tip: tuple[float, float, float] | None = None
 
     def record(self, detection: Detection | None, state: TrackState) -> None:
         """Count one frame's detection and the track after it (frames in pipeline order)."""
         with self._lock:
             before = self._last is not None and self._last.confirmed
             self._counts["detected_frames"] += detection is not None and detection.accepted
+            if detection is not None and detection.accepted and detection.tip_xyz_m is not None:
+                self._counts["tip_frames"] += 1
+                self._tip = detection.tip_xyz_m
             self._counts["tracked_frames"] += state.reported
             self._counts["acquired"] += state.confirmed and (not before or state.reacquired)
             self._counts["lost"] += before and not state.confirmed  # hits never fall: only a loss unconfirms
             self._last = state
 
     def snapshot(self) -> dict:
-        """{"status", "confidence", and the counts of the class docstring} (status "none" before the first frame)."""
+        """{"status", "confidence", "tip_xyz_m" (None before the first refined tip), and the counts of the class
+        docstring} (status "none" before the first frame)."""
         with self._lock:
             last = self._last
             return {"status": "none" if last is None else last.status,
-                    "confidence": 0.0 if last is None else last.confidence, **self._counts}
+                    "confidence": 0.0 if last is None else last.confidence, "tip_xyz_m": self._tip, **self._counts}

@@ -1,0 +1,88 @@
+"""Sub-pixel nose tip: the front-most point of the surface near the accepted pixel, fitted locally in 3-D.
+
+The detector's best pixel is where the features look most like a nose tip, which at close range lies a few
+pixels beside the tip itself. The tip is the point of the nose surface nearest the camera along the face's
+viewing direction: the foreground points within `radius_m` (laterally, in the face frame) of the current
+estimate are fitted by least squares with a quadric depth h(x, y) = a + b x + c y + d x^2 + e x y + f y^2, its
+minimum (a cap facing the camera: positive-definite Hessian) is the new estimate, and the window is re-centred
+on it for `iterations` rounds. Points more than OUTLIER_SIGMAS robust standard deviations off the first fit
+(flying pixels) are dropped before the second. The tip is never moved farther than `radius_m` x MAX_SHIFT_RADII
+from the accepted pixel's point; a window that cannot be fitted keeps the last estimate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.intrinsics import Intrinsics
+
+MIN_POINTS = 8  # fewer foreground points in the window than this: no fit (6 coefficients)
+OUTLIER_SIGMAS = 3.0  # residuals beyond this many robust sigmas (1.4826 x MAD) are dropped before refitting
+MAX_SHIFT_RADII = 2.0  # the tip stays within this many radii of the accepted pixel's point
+
+
+@dataclass(frozen=True, slots=True)
+class Tip:
+    """The refined tip: camera-frame point (metres) and its sub-pixel image position (u, v)."""
+
+    xyz_m: tuple[float, float, float]
+    px: tuple[float, float]
+    fitted: bool  # False: the window could not be fitted and the tip is the accepted pixel's point
+
+
+def _fit_minimum(x: np.ndarray, y: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """Least-squares quadric h(x, y); (minimum (2,), h there, residuals) or None if it has no minimum."""
+    design = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=1)
+    coef, *_ = np.linalg.lstsq(design, h, rcond=None)
+    _, b, c, d, e, f = coef
+    hessian = np.array([[2 * d, e], [e, 2 * f]])
+    if not (hessian[0, 0] > 0 and np.linalg.det(hessian) > 0):
+        return None
+    at = np.linalg.solve(hessian, -np.array([b, c]))
+    value = float(coef @ np.array([1.0, at[0], at[1], at[0] ** 2, at[0] * at[1], at[1] ** 2]))
+    return at, value, h - design @ coef
+
+
+def refine_tip(range_m: np.ndarray, foreground: np.ndarray, intrinsics: Intrinsics, pixel: tuple[int, int],
+               rotation: np.ndarray, radius_m: float, iterations: int = 2) -> Tip:
+    """The tip near `pixel` (u, v) of a frame (module docstring).
+
+    range_m: (H, W) radial range, metres; foreground: (H, W) bool, the pixels the surface is fitted to;
+    rotation: (3, 3) camera -> face frame, row 2 the face's viewing direction (segmentation.Foreground.rotation).
+    Only a window of about 2 radii around the pixel is read.
+    """
+    u0, v0 = pixel
+    start = intrinsics.unit_rays()[v0, u0] * float(range_m[v0, u0])
+    best = start
+    fitted = False
+    half = int(np.ceil(radius_m * (1 + MAX_SHIFT_RADII) * max(intrinsics.fx, intrinsics.fy) / max(start[2], 1e-3)))
+    h, w = range_m.shape
+    r0, r1, c0, c1 = max(v0 - half, 0), min(v0 + half + 1, h), max(u0 - half, 0), min(u0 + half + 1, w)
+    win = foreground[r0:r1, c0:c1] & np.isfinite(range_m[r0:r1, c0:c1])
+    points = intrinsics.unit_rays()[r0:r1, c0:c1][win] * range_m[r0:r1, c0:c1][win][:, None].astype(np.float64)
+    local = points @ rotation.T  # face frame: x, y lateral, z depth along the viewing direction
+    centre = rotation @ start
+    for _ in range(max(iterations, 0)):
+        near = np.hypot(local[:, 0] - centre[0], local[:, 1] - centre[1]) <= radius_m
+        if np.count_nonzero(near) < MIN_POINTS:
+            break
+        x, y, z = local[near, 0] - centre[0], local[near, 1] - centre[1], local[near, 2]
+        fit = _fit_minimum(x, y, z)
+        if fit is not None:
+            keep = np.abs(fit[2]) <= OUTLIER_SIGMAS * 1.4826 * np.median(np.abs(fit[2])) + 1e-9
+            if np.count_nonzero(keep) >= MIN_POINTS and not keep.all():
+                fit = _fit_minimum(x[keep], y[keep], z[keep])
+        if fit is None:
+            break
+        at, depth, _ = fit
+        moved = np.array([centre[0] + at[0], centre[1] + at[1], depth])
+        shift = moved[:2] - (rotation @ start)[:2]
+        limit = radius_m * MAX_SHIFT_RADII
+        if np.hypot(*shift) > limit:  # a flat or saddle-like window: go no farther than the limit
+            break
+        centre, fitted = moved, True
+        best = rotation.T @ centre
+    u, v = intrinsics.project(best)
+    return Tip((float(best[0]), float(best[1]), float(best[2])), (float(u), float(v)), fitted)
