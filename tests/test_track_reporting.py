@@ -60,7 +60,7 @@ def test_track_counts_acquisition_replacement_and_loss():
     cfg = TrackerConfig(report_coast_s=2.5 * DT)
     tracker, stats = NoseTracker(cfg), TrackStats()
     assert stats.snapshot() == {"status": "none", "confidence": 0.0, "detected_frames": 0, "tracked_frames": 0,
-                                "acquired": 0, "lost": 0}
+                                "acquired": 0, "lost": 0, "tip_frames": 0, "tip_xyz_m": None}
     t = 0.0
     script = [hit(0.0)] * 6 + [hit(0.10)] * cfg.confirm_hits + [MISS] * 20 + [hit(-0.05)] * 4
     for d in script:  # confirmed at 0, replaced by a challenger at 10 cm, lost while missing, confirmed again
@@ -175,6 +175,9 @@ def test_metrics_report_the_track_of_a_live_run(tmp_path):
     detected = metric_values(text, "tofd_nose_detected_frames_total")[""]
     assert detected >= 10 and metric_values(text, "tofd_nose_tracked_frames_total")[""] == detected - 2
     assert metric_values(text, "tofd_track_confidence")[""] > 0.9
+    tips = metric_values(text, "tofd_nose_tip_frames_total")[""]
+    assert 0.8 * detected <= tips <= detected  # the accepted pixel refined to a sub-pixel tip in most frames
+    assert 0.3 < metric_values(text, "tofd_nose_tip_m")['{axis="z"}'] < 0.8
     assert "# TYPE tofd_track_lost_total counter" in text
 
 

@@ -14,7 +14,7 @@ DT = 1 / 25
 
 @dataclass(frozen=True)
 class Det:
-    nose_xyz_m: tuple[float, float, float] | None
+    answer_xyz_m: tuple[float, float, float] | None
     accepted: bool = True
 
 

@@ -53,8 +53,10 @@ def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrins
     tip_radius_m: > 0: the accepted pixel is refined to the sub-pixel tip (tip.refine_tip, window of this radius).
     """
     require_maps(maps, box.features)
-    foreground = np.logical_and.reduce([np.isfinite(maps[n]) for n in box.features])
-    rows, cols = np.nonzero(candidates.mask(foreground, range_m, intrinsics, direction))
+    foreground = np.isfinite(maps[box.features[0]])
+    for name in box.features[1:]:
+        foreground &= np.isfinite(maps[name])
+    rows, cols = candidates.pixels(foreground, range_m, intrinsics, direction)
     if rows.size == 0:
         return Detection(None, None, float("inf"), False)
     dist = box.distance(stack_features({n: maps[n][rows, cols] for n in box.features}, box.features))

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.intrinsics import Intrinsics
+from tofd.algorithm.segmentation import coarse_stride
 
 MIN_POINTS = 8  # fewer foreground points in the window than this: no fit (6 coefficients)
 OUTLIER_SIGMAS = 3.0  # residuals beyond this many robust sigmas (1.4826 x MAD) are dropped before refitting
@@ -51,7 +52,8 @@ def refine_tip(range_m: np.ndarray, foreground: np.ndarray, intrinsics: Intrinsi
 
     range_m: (H, W) radial range, metres; foreground: (H, W) bool, the pixels the surface is fitted to;
     rotation: (3, 3) camera -> face frame, row 2 the face's viewing direction (segmentation.Foreground.rotation).
-    Only a window of about 2 radii around the pixel is read.
+    Only a window of about 2 radii around the pixel is read, every stride-th pixel of it on cameras of finer
+    pixels than the reference (segmentation.coarse_stride): the fit needs the surface's shape, not every sample.
     """
     u0, v0 = pixel
     start = intrinsics.unit_rays()[v0, u0] * float(range_m[v0, u0])
@@ -59,9 +61,11 @@ def refine_tip(range_m: np.ndarray, foreground: np.ndarray, intrinsics: Intrinsi
     fitted = False
     half = int(np.ceil(radius_m * (1 + MAX_SHIFT_RADII) * max(intrinsics.fx, intrinsics.fy) / max(start[2], 1e-3)))
     h, w = range_m.shape
-    r0, r1, c0, c1 = max(v0 - half, 0), min(v0 + half + 1, h), max(u0 - half, 0), min(u0 + half + 1, w)
-    win = foreground[r0:r1, c0:c1] & np.isfinite(range_m[r0:r1, c0:c1])
-    points = intrinsics.unit_rays()[r0:r1, c0:c1][win] * range_m[r0:r1, c0:c1][win][:, None].astype(np.float64)
+    s = coarse_stride(intrinsics)
+    rows = slice(v0 - min(half, v0) // s * s, min(v0 + half + 1, h), s)  # the grid through the pixel itself
+    cols = slice(u0 - min(half, u0) // s * s, min(u0 + half + 1, w), s)
+    win = foreground[rows, cols] & np.isfinite(range_m[rows, cols])
+    points = intrinsics.unit_rays()[rows, cols][win] * range_m[rows, cols][win][:, None].astype(np.float64)
     local = points @ rotation.T  # face frame: x, y lateral, z depth along the viewing direction
     centre = rotation @ start
     for _ in range(max(iterations, 0)):
