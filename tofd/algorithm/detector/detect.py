@@ -1,5 +1,8 @@
 """Nose detection in one frame: the candidate pixel of smallest box distance, reported if the acceptance rule
-(acceptance.py: within the box scale, and with the margin test well ahead of any rival) holds."""
+(acceptance.py: within the box scale, and with the margin test well ahead of any rival) holds, refined to the
+sub-pixel tip (tip.py). Beside it, the best pixel of each of up to MAX_ALTERNATIVES regions (RIVAL_RADIUS_M apart)
+whose box distance alone would pass the rule: a nose track near one of them may take it when the frame's own
+answer is rejected (tofd.algorithm.tracking), since the track settles what the margin test cannot in one frame."""
 
 from __future__ import annotations
 
@@ -8,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.detector.acceptance import PAPER_RULE, Margin, rival_distance
+from tofd.algorithm.detector.acceptance import PAPER_RULE, RIVAL_RADIUS_M, Margin
 from tofd.algorithm.detector.box import Box, require_maps, stack_features
 from tofd.algorithm.detector.candidates import ALL_FOREGROUND, Candidates
 from tofd.algorithm.detector.model_file import NoseModel
@@ -17,6 +20,22 @@ from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import families_for
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
 from tofd.algorithm.segmentation import rotation_to_z
+
+MAX_ALTERNATIVES = 3  # regions whose best pixel a frame reports as alternatives
+
+
+@dataclass(frozen=True, slots=True)
+class Alternative:
+    """A region's best candidate pixel inside the box at the acceptance scale (the margin test left out)."""
+
+    px: tuple[int, int]  # (u, v) = (column, row)
+    xyz_m: tuple[float, float, float]  # the pixel's point, camera frame, metres
+    score: float  # box distance
+    tip_xyz_m: tuple[float, float, float] | None = None  # its refined tip (None: not refined)
+
+    @property
+    def answer_xyz_m(self) -> tuple[float, float, float]:
+        return self.tip_xyz_m if self.tip_xyz_m is not None else self.xyz_m
 
 
 @dataclass(frozen=True, slots=True)
@@ -29,6 +48,7 @@ class Detection:
     accepted: bool  # the acceptance rule holds (acceptance.Margin.accepts)
     tip_px: tuple[float, float] | None = None  # (u, v) sub-pixel nose tip near the accepted pixel (tip.py), or None
     tip_xyz_m: tuple[float, float, float] | None = None  # camera frame, metres; None: not refined or none accepted
+    alternatives: tuple[Alternative, ...] = ()  # best first (module docstring); empty when none is inside the box
 
     @property
     def answer_xyz_m(self) -> tuple[float, float, float] | None:
@@ -60,19 +80,43 @@ def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrins
     if rows.size == 0:
         return Detection(None, None, float("inf"), False)
     dist = box.distance(stack_features({n: maps[n][rows, cols] for n in box.features}, box.features))
-    best = int(np.argmin(dist))
-    score = float(dist[best])
     points = intrinsics.unit_rays()[rows, cols] * np.asarray(range_m, dtype=np.float64)[rows, cols, None]
-    rival = rival_distance(dist, points, best) if margin.ratio > 0 else np.inf
-    if not margin.accepts(score, rival, scale):
-        return Detection(None, None, score, False)
-    x, y, z = (float(c) for c in points[best])
-    pixel = (int(cols[best]), int(rows[best]))
-    if tip_radius_m <= 0:
-        return Detection(pixel, (x, y, z), score, True)
+    regions = region_bests(dist, points, MAX_ALTERNATIVES)
+    best = regions[0]
+    score = float(dist[best])
+    rival = float(dist[regions[1]]) if len(regions) > 1 else np.inf
     rotation = np.eye(3) if direction is None else rotation_to_z(np.asarray(direction, dtype=np.float64))
-    tip = refine_tip(np.asarray(range_m), foreground, intrinsics, pixel, rotation, tip_radius_m)
-    return Detection(pixel, (x, y, z), score, True, tip.px, tip.xyz_m)
+    within = margin.scale_factor * scale if margin.ratio > 0 else scale
+
+    def alternative(i: int) -> Alternative:
+        pixel, (x, y, z) = (int(cols[i]), int(rows[i])), (float(c) for c in points[i])
+        tip = (refine_tip(np.asarray(range_m), foreground, intrinsics, pixel, rotation, tip_radius_m)
+               if tip_radius_m > 0 else None)
+        return Alternative(pixel, (x, y, z), float(dist[i]), None if tip is None else tip.xyz_m)
+
+    alternatives = tuple(alternative(i) for i in regions if dist[i] <= within)
+    if not margin.accepts(score, rival, scale):
+        return Detection(None, None, score, False, alternatives=alternatives)
+    top = alternatives[0]
+    if top.tip_xyz_m is None:
+        return Detection(top.px, top.xyz_m, score, True, alternatives=alternatives)
+    u, v = intrinsics.project(np.asarray(top.tip_xyz_m))
+    return Detection(top.px, top.xyz_m, score, True, (float(u), float(v)), top.tip_xyz_m, alternatives)
+
+
+def region_bests(distance: np.ndarray, xyz_m: np.ndarray, count: int) -> list[int]:
+    """Indices of the best pixel (smallest distance) of up to `count` regions: each is the best pixel farther than
+    RIVAL_RADIUS_M from all those before it (the first is the best pixel; the second is acceptance's rival)."""
+    order = np.argsort(distance, kind="stable")
+    chosen: list[int] = []
+    free = np.ones(len(distance), bool)
+    for _ in range(count):
+        left = order[free[order] & np.isfinite(distance[order])]
+        if left.size == 0:
+            break
+        chosen.append(int(left[0]))
+        free &= np.sum((xyz_m - xyz_m[left[0]]) ** 2, axis=1) > RIVAL_RADIUS_M**2
+    return chosen or [int(order[0])]
 
 
 class NoseDetector:

@@ -66,7 +66,7 @@ def track_record(state: TrackState | None, intrinsics: Intrinsics) -> dict | Non
     px = track_px(state, intrinsics)
     reported = px is not None
     return {"status": state.status, "confidence": state.confidence, "associated": state.associated,
-            "reacquired": state.reacquired,
+            "assisted": state.assisted, "reacquired": state.reacquired,
             "nose_px": [round(c, 2) for c in px] if reported else None,
             "nose_xyz_m": [round(c, 5) for c in state.nose_xyz_m] if reported and state.nose_xyz_m else None,
             "velocity_m_per_s": ([round(c, 5) for c in state.velocity_m_per_s]

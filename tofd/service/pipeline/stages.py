@@ -9,7 +9,7 @@ import numpy as np
 
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.detector import Detection, NoseDetector, NoseModel
+from tofd.algorithm.detector import Alternative, Detection, NoseDetector, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import FAMILIES, VARIANTS, VIEWED_FAMILIES, families_for, family_maps
 from tofd.config import Config
@@ -53,9 +53,11 @@ class FeatureStage:
 
 
 def detection_dict(det: Detection) -> dict:
-    """A Detection as a JSON-ready dict (score may be inf: no foreground)."""
+    """A Detection as a JSON-ready dict (score may be inf: no foreground); each alternative as one list
+    [u, v, x, y, z, score] (+ [tip x, y, z] when refined)."""
     return {"nose_px": det.nose_px, "nose_xyz_m": det.nose_xyz_m, "score": det.score, "accepted": det.accepted,
-            "tip_px": det.tip_px, "tip_xyz_m": det.tip_xyz_m}
+            "tip_px": det.tip_px, "tip_xyz_m": det.tip_xyz_m,
+            "alternatives": [[*a.px, *a.xyz_m, a.score, *(a.tip_xyz_m or ())] for a in det.alternatives]}
 
 
 def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: dict, maps: tuple[str, ...], *,
@@ -83,8 +85,10 @@ def detection_from(message: dict) -> Detection | None:
     d = message.get("detection")
     if d is None:
         return None
+    alternatives = tuple(Alternative((int(a[0]), int(a[1])), (a[2], a[3], a[4]), a[5],
+                                     (a[6], a[7], a[8]) if len(a) > 6 else None) for a in d.get("alternatives", ()))
     return Detection(tuple(d["nose_px"]) if d["nose_px"] else None,
                      tuple(d["nose_xyz_m"]) if d["nose_xyz_m"] else None, float(d["score"]), bool(d["accepted"]),
                      tuple(d["tip_px"]) if d.get("tip_px") else None,
-                     tuple(d["tip_xyz_m"]) if d.get("tip_xyz_m") else None)
+                     tuple(d["tip_xyz_m"]) if d.get("tip_xyz_m") else None, alternatives)
 
