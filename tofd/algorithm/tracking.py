@@ -1,17 +1,18 @@
 """A nose track across frames: an alpha-beta filter on the detected 3-D nose tip, with gating, a confidence,
 loss and re-acquisition. Pure: one `update(detection, timestamp_s)` per frame, no I/O.
 
-Per frame the track predicts p + v dt. An accepted detection (its refined tip, else its pixel's point) within the gate
-(gate_m + gate_growth_m_per_s x time since the last associated detection, metres in 3-D) corrects it: p += alpha r, v
-+= beta r / dt with r the residual. A detection outside the gate is not believed at once (a wrong pixel of the
-detector looks like that): it starts a challenger, which replaces the track after `confirm_hits` mutually-gated
-detections with none associated to the track in between (the head really moved there). Confidence rises by
+Per frame the track predicts p + v dt. An accepted detection (its refined tip, else its pixel's point) within the
+gate (gate_m + gate_growth_m_per_s x time since the last associated detection, metres in 3-D) corrects it: p +=
+alpha r, v += beta r / dt with r the residual. A detection outside the gate is not believed at once (a wrong pixel
+of the detector looks like that): it starts a challenger, which replaces the track after `confirm_hits` mutually-
+gated detections with none associated to the track in between (the head really moved there). Confidence rises by
 `confidence_gain` of its shortfall on each associated detection and decays as exp(-dt / confidence_tau_s) otherwise;
 the track is lost after `lost_after_s` without an associated detection. The reported nose is the predicted or
 corrected position while the track is confirmed and its last associated detection is at most `report_coast_s` old
-(status "tracking"); after that the track coasts (status "coasting": still predicted and gated, nothing reported)
-until a detection is associated again or it is lost, because a prediction without recent support drifts off a moving
-head.
+(status "tracking"), and with `report_new` that of a new, tentative track in the frames a detection is associated (a
+user sees the nose from the first frame; a challenger is never reported before it replaces the track); after that
+the track coasts (status "coasting": still predicted and gated, nothing reported) until a detection is associated
+again or it is lost, because a prediction without recent support drifts off a moving head.
 
 A frame whose own answer is rejected (none accepted) still feeds a confirmed track when one of its alternatives
 (region bests inside the box without the margin test, tofd.algorithm.detector.Alternative) lies inside the gate:
@@ -68,6 +69,8 @@ class TrackerConfig:
     lost_after_s: float = 0.5  # seconds without an associated detection before the track is dropped
     report_coast_s: float = 0.1  # seconds after its last associated detection a confirmed track still reports its
     # nose (chosen on the training subjects' head-motion sequences: bench/tune_tracker.py)
+    report_new: bool = True  # a new track (no confirmed one exists) is reported in the frames its detection is
+    # associated, before it is confirmed; a challenger never is (the confirmed track is reported meanwhile)
     confidence_gain: float = 0.5  # share of (1 - confidence) gained per associated detection
     confidence_tau_s: float = 0.25  # seconds: e-folding time of the confidence while no detection is associated
 
@@ -98,11 +101,8 @@ class TrackState:
     associated: bool  # this frame's detection was used by the track
     assisted: bool  # ... through one of its alternatives (the frame's own answer was rejected)
     reacquired: bool  # this frame a challenger replaced the track, or a new track was started
-
-    @property
-    def reported(self) -> bool:
-        """The track's position is reported as the nose (a confirmed track with recent support)."""
-        return self.status == "tracking"
+    reported: bool = False  # the position is reported as the nose: status "tracking", or (report_new) a new track
+    # associated in this frame
 
     @property
     def confirmed(self) -> bool:
@@ -204,8 +204,9 @@ class NoseTracker:
         status: Status = "tentative"
         if track.hits >= self.config.confirm_hits:
             status = "tracking" if track.last_s - track.last_hit_s <= self.config.report_coast_s else "coasting"
+        reported = status == "tracking" or (status == "tentative" and associated and self.config.report_new)
         return TrackState(status, _triple(track.position), _triple(track.velocity), round(track.confidence, 6),
-                          associated, assisted and associated, reacquired)
+                          associated, assisted and associated, reacquired, reported)
 
 
 def _triple(v: np.ndarray) -> tuple[float, float, float]:
