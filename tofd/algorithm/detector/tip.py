@@ -91,8 +91,9 @@ def refine_tip(range_m: np.ndarray, foreground: np.ndarray, intrinsics: Intrinsi
     range_m: (H, W) radial range, metres; foreground: (H, W) bool, the pixels the surface is fitted to;
     rotation: (3, 3) camera -> face frame, row 2 the face's viewing direction (segmentation.Foreground.rotation),
     refined about the pixel by face_rotation.
-    Only windows about the pixel are read (the ring's, and about 3 radii for the fit), every stride-th pixel of it on cameras of finer
-    pixels than the reference (segmentation.coarse_stride): the fit needs the surface's shape, not every sample.
+    Only windows about the pixel are read (the ring's, and about 3 radii for the fit), every stride-th pixel of them
+    on cameras of finer pixels than the reference (segmentation.coarse_stride): a fit needs the surface's shape, not
+    every sample.
     """
     u0, v0 = pixel
     start = intrinsics.unit_rays()[v0, u0] * float(range_m[v0, u0])
