@@ -104,7 +104,7 @@ def main() -> int:
                     "variant": cfg.detector.variant, "frames": args.frames, "fps": args.fps,
                     "motion": dataclasses.asdict(ISSUE_MOTION), "subjects": list(subjects), "pixel_goals": PIXEL_GOALS,
                     "metric_goals": METRIC_GOALS,
-                    "conditions": {}}
+                    "bins": []}
     for ci, name in enumerate(conditions):
         scores = []
         for si, subject in enumerate(subjects):
@@ -112,7 +112,7 @@ def main() -> int:
                                   seed=args.seed + 100 * ci + si, model=CONDITIONS[name], motion=ISSUE_MOTION)
             scores.append(score_bins(seq))
         rows = pooled(scores)
-        result["conditions"][name] = rows
+        result["bins"] += [{"condition": name, **row} for row in rows]
         print(f"{camera}, {name}, {', '.join(subjects)} ({args.frames} frames each):\n{table(rows)}", flush=True)
     result["seconds"] = round(time.monotonic() - start, 1)
     write_json(args.out or Path(__file__).parent / "results" / f"sequences_{camera}.json", result)

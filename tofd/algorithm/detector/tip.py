@@ -24,7 +24,8 @@ from tofd.algorithm.segmentation import coarse_stride, rotation_to_z
 
 MIN_POINTS = 8  # fewer foreground points in the window than this: no fit (6 coefficients)
 OUTLIER_SIGMAS = 3.0  # residuals beyond this many robust sigmas (1.4826 x MAD) are dropped before refitting
-MAX_SHIFT_RADII = 2.0  # the tip stays within this many radii of the accepted pixel's point
+MAX_SHIFT_RADII = 1.0  # the tip stays within this many radii of the accepted pixel's point (a minimum found
+# farther off is an extrapolation along a flat ridge, not the tip)
 RING_M = (0.03, 0.065)  # metres: inner and outer lateral radius of the ring the face plane is fitted to
 RING_DEPTH_M = 0.08  # metres: ring points at most this far behind the pixel's point (not the wall behind the head)
 MIN_RING_POINTS = 20  # fewer: keep the segmentation's direction
@@ -53,9 +54,9 @@ def _fit_minimum(x: np.ndarray, y: np.ndarray, h: np.ndarray) -> tuple[np.ndarra
 
 
 def _window(range_m: np.ndarray, intrinsics: Intrinsics, pixel: tuple[int, int], half: int
-            ) -> tuple[np.ndarray, np.ndarray]:
-    """The valid pixels of a (2 half + 1)^2 window about pixel (u, v), every coarse_stride-th through the pixel:
-    (bool selection of the window, (K, 3) float64 points in metres)."""
+            ) -> tuple[tuple[slice, slice], np.ndarray]:
+    """A (2 half + 1)^2 window about pixel (u, v), every coarse_stride-th pixel through the pixel itself: its
+    (rows, cols) slices and the (K, 3) float64 points of its valid pixels, metres."""
     u0, v0 = pixel
     h, w = range_m.shape
     s = coarse_stride(intrinsics)
