@@ -110,8 +110,8 @@ def test_margin_accepts_a_clear_winner_beyond_the_scale_and_rejects_a_close_race
 def test_rival_distance_skips_the_best_pixels_neighbourhood():
     xyz = np.array([[0.0, 0.0, 0.5], [0.01, 0.0, 0.5], [0.0, 0.019, 0.5], [0.03, 0.0, 0.5], [0.0, 0.0, 0.6]])
     distance = np.array([0.1, 0.2, 0.3, 0.9, 0.7])
-    assert rival_distance(distance, xyz, 0) == pytest.approx(0.7)  # pixels 1, 2 lie within 2 cm of pixel 0
-    assert rival_distance(distance[:3], xyz[:3], 0) == np.inf
+    assert rival_distance(distance, xyz) == pytest.approx(0.7)  # pixels 1, 2 lie within 2 cm of pixel 0
+    assert rival_distance(distance[:3], xyz[:3]) == np.inf
 
 
 def test_border_distance_is_physical_and_scale_invariant():

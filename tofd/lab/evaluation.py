@@ -163,7 +163,7 @@ class PixelTable:
         bounds = np.flatnonzero(np.r_[True, self.frame[1:] != self.frame[:-1], True]) if len(self.frame) else []
         for start, stop in itertools.pairwise(bounds):
             d = distance[start:stop]
-            out[self.frame[start]] = rival_distance(d, self.xyz[start:stop], int(np.argmin(d)))
+            out[self.frame[start]] = rival_distance(d, self.xyz[start:stop])
         return out
 
     def _frame_min(self, values: np.ndarray, frame: np.ndarray) -> np.ndarray:

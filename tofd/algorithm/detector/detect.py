@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.detector.acceptance import PAPER_RULE, RIVAL_RADIUS_M, Margin
+from tofd.algorithm.detector.acceptance import PAPER_RULE, Margin, region_bests
 from tofd.algorithm.detector.box import Box, require_maps, stack_features
 from tofd.algorithm.detector.candidates import ALL_FOREGROUND, Candidates
 from tofd.algorithm.detector.model_file import NoseModel
@@ -81,7 +81,7 @@ def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrins
         return Detection(None, None, float("inf"), False)
     dist = box.distance(stack_features({n: maps[n][rows, cols] for n in box.features}, box.features))
     points = intrinsics.unit_rays()[rows, cols] * np.asarray(range_m, dtype=np.float64)[rows, cols, None]
-    regions = region_bests(dist, points, MAX_ALTERNATIVES)
+    regions = region_bests(dist, points, MAX_ALTERNATIVES) or [int(np.argmin(dist))]
     best = regions[0]
     score = float(dist[best])
     rival = float(dist[regions[1]]) if len(regions) > 1 else np.inf
@@ -102,21 +102,6 @@ def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrins
         return Detection(top.px, top.xyz_m, score, True, alternatives=alternatives)
     u, v = intrinsics.project(np.asarray(top.tip_xyz_m))
     return Detection(top.px, top.xyz_m, score, True, (float(u), float(v)), top.tip_xyz_m, alternatives)
-
-
-def region_bests(distance: np.ndarray, xyz_m: np.ndarray, count: int) -> list[int]:
-    """Indices of the best pixel (smallest distance) of up to `count` regions: each is the best pixel farther than
-    RIVAL_RADIUS_M from all those before it (the first is the best pixel; the second is acceptance's rival)."""
-    order = np.argsort(distance, kind="stable")
-    chosen: list[int] = []
-    free = np.ones(len(distance), bool)
-    for _ in range(count):
-        left = order[free[order] & np.isfinite(distance[order])]
-        if left.size == 0:
-            break
-        chosen.append(int(left[0]))
-        free &= np.sum((xyz_m - xyz_m[left[0]]) ** 2, axis=1) > RIVAL_RADIUS_M**2
-    return chosen or [int(order[0])]
 
 
 class NoseDetector:
