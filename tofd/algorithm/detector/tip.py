@@ -92,7 +92,7 @@ def refine_tip(range_m: np.ndarray, foreground: np.ndarray, intrinsics: Intrinsi
     range_m: (H, W) radial range, metres; foreground: (H, W) bool, the pixels the surface is fitted to;
     rotation: (3, 3) camera -> face frame, row 2 the face's viewing direction (segmentation.Foreground.rotation),
     refined about the pixel by face_rotation.
-    Only windows about the pixel are read (the ring's, and about 3 radii for the fit), every stride-th pixel of them
+    Only windows about the pixel are read (the ring's, and 2 radii for the fit), every stride-th pixel of them
     on cameras of finer pixels than the reference (segmentation.coarse_stride): a fit needs the surface's shape, not
     every sample.
     """
@@ -123,7 +123,7 @@ def refine_tip(range_m: np.ndarray, foreground: np.ndarray, intrinsics: Intrinsi
         moved = np.array([centre[0] + at[0], centre[1] + at[1], depth])
         shift = moved[:2] - (rotation @ start)[:2]
         limit = radius_m * MAX_SHIFT_RADII
-        if np.hypot(*shift) > limit:  # a flat or saddle-like window: go no farther than the limit
+        if np.hypot(*shift) > limit:  # a minimum beyond the limit is not the tip: keep the last estimate
             break
         centre, fitted = moved, True
         best = rotation.T @ centre
