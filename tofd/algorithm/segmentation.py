@@ -163,6 +163,14 @@ def decimated(intrinsics: Intrinsics, stride: int) -> Intrinsics:
                       intrinsics.fy / stride, intrinsics.cx / stride, intrinsics.cy / stride)
 
 
+def upsampled(coarse: np.ndarray, shape: tuple[int, int], stride: int) -> np.ndarray:
+    """An image of every stride-th pixel brought back to `shape` by nearest neighbour (each pixel takes the value
+    of the sampled pixel nearest it)."""
+    rows = np.minimum((np.arange(shape[0]) + stride // 2) // stride, coarse.shape[0] - 1)
+    cols = np.minimum((np.arange(shape[1]) + stride // 2) // stride, coarse.shape[1] - 1)
+    return coarse[rows[:, None], cols[None, :]]
+
+
 def bounding_box(mask: np.ndarray, margin_px: int = 0, align_px: int = 1) -> tuple[slice, slice]:
     """(rows, cols) slices of a mask's bounding box grown by margin_px, corners on an align_px grid, clipped to the
     image. The mask must have a pixel set."""
@@ -198,11 +206,9 @@ def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationCo
     mask = np.zeros(range_m.shape, dtype=bool)
     if not coarse.any():
         return Foreground(mask, rotation)
-    h, w = range_m.shape
-    rows = np.minimum((np.arange(h) + stride // 2) // stride, coarse.shape[0] - 1)
-    cols = np.minimum((np.arange(w) + stride // 2) // stride, coarse.shape[1] - 1)
-    box = bounding_box(coarse[rows][:, cols])
-    near = coarse[rows[box[0]]][:, cols[box[1]]]
+    full = upsampled(coarse, range_m.shape, stride)
+    box = bounding_box(full)
+    near = full[box]
     with np.errstate(invalid="ignore"):
         depth = range_m[box] * (intrinsics.unit_rays()[box] @ rotation[2]).astype(np.float32)
         mask[box] = near & valid_pixels(range_m[box], amplitude[box]) & (depth <= cut)

@@ -21,7 +21,7 @@ import numpy as np
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.params import DetectorConfig, SegmentationConfig
-from tofd.algorithm.segmentation import bounding_box, filtered
+from tofd.algorithm.segmentation import bounding_box, coarse_stride, filtered, upsampled
 
 
 def border_distance_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
@@ -46,15 +46,24 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
 
     Depth along `direction` (unit, camera frame; default the camera's z axis), median-filtered over median_px
     pixels (the segmentation's filter: a minimum of unfiltered noisy depths lies in front of the surface);
-    the disc's radius in pixels is radius_m at the mask's median depth.
+    the disc's radius in pixels is radius_m at the mask's median depth. The front-most depth is the minimum over
+    every coarse_stride-th pixel of the disc, so that it is taken over as many samples (as much noise) as on the
+    reference camera whatever the camera's pixel size.
     """
     depth, valid, smooth = _face_depth(mask, range_m, intrinsics, direction, median_px)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
     median_m = float(np.median(depth[valid]))
-    r_px = max(1, round(min(radius_m * intrinsics.fx / median_m if median_m > 0 else np.inf, max(valid.shape))))
+    stride = coarse_stride(intrinsics)
+    r_px = max(1, round(min(radius_m * intrinsics.fx / stride / median_m if median_m > 0 else np.inf,
+                            max(valid.shape))))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r_px + 1, 2 * r_px + 1))
-    return np.where(valid, smooth - cv2.erode(smooth, disc), 0.0).astype(np.float32)
+    if stride == 1:
+        front = cv2.erode(smooth, disc)
+    else:
+        sampled = filtered(depth[::stride, ::stride], valid[::stride, ::stride], median_px)
+        front = np.minimum(upsampled(cv2.erode(sampled, disc), smooth.shape, stride), smooth)
+    return np.where(valid, smooth - front, 0.0).astype(np.float32)
 
 
 def _face_depth(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None,
