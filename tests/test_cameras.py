@@ -83,3 +83,17 @@ def test_shipped_model_finds_the_tip_on_a_640x576_camera(distance):
                     np.random.default_rng(7))
     det = detector.detect_frame(r.range_m, r.amplitude)
     assert det.accepted and np.linalg.norm(np.subtract(det.answer_xyz_m, r.nose_xyz_m)) < 0.010
+
+
+def test_front_gap_of_a_noisy_plane_is_alike_on_both_cameras():
+    """The front test compares a pixel with the front-most depth within 12 mm: on a noisy plane that gap is noise
+    only, and it must not grow with the number of pixels the disc holds on a camera of finer pixels."""
+    from tofd.algorithm.detector import front_gap_m
+
+    gaps = {}
+    for name, intrinsics in (("sr3000", Intrinsics()), ("k4a", K4A)):
+        rng = np.random.default_rng(4)
+        range_m = 0.6 / intrinsics.unit_rays()[..., 2] + rng.normal(0.0, 0.003, intrinsics.shape)
+        mask = np.ones(intrinsics.shape, bool)
+        gaps[name] = float(np.median(front_gap_m(mask, range_m, intrinsics)[mask]))
+    assert gaps["k4a"] == pytest.approx(gaps["sr3000"], rel=0.25)
