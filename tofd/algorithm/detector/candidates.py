@@ -46,9 +46,9 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
 
     Depth along `direction` (unit, camera frame; default the camera's z axis), median-filtered over median_px
     pixels (the segmentation's filter: a minimum of unfiltered noisy depths lies in front of the surface);
-    the disc's radius in pixels is radius_m at the mask's median depth. The front-most depth is the minimum over
-    every coarse_stride-th pixel of the disc, so that it is taken over as many samples (as much noise) as on the
-    reference camera whatever the camera's pixel size.
+    the disc's radius in pixels is radius_m at the mask's median depth. On a camera of finer pixels the test runs
+    on every coarse_stride-th pixel and each pixel takes the gap of the sample nearest it, so that the median and
+    the minimum see the surface (and the noise) as on the reference camera.
     """
     depth, valid, smooth = _face_depth(mask, range_m, intrinsics, direction, median_px)
     if not valid.any():
@@ -59,11 +59,11 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
                             max(valid.shape))))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r_px + 1, 2 * r_px + 1))
     if stride == 1:
-        front = cv2.erode(smooth, disc)
+        gap = smooth - cv2.erode(smooth, disc)
     else:
         sampled = filtered(depth[::stride, ::stride], valid[::stride, ::stride], median_px)
-        front = np.minimum(upsampled(cv2.erode(sampled, disc), smooth.shape, stride), smooth)
-    return np.where(valid, smooth - front, 0.0).astype(np.float32)
+        gap = upsampled(sampled - cv2.erode(sampled, disc), smooth.shape, stride)
+    return np.where(valid, gap, 0.0).astype(np.float32)
 
 
 def _face_depth(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None,
