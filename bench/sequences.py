@@ -98,7 +98,7 @@ def main() -> int:
     detector = NoseDetector(load_model(args.model), cfg.detector, cfg.features, cfg.segmentation, intrinsics)
     camera = args.camera if args.camera in ("sr3000", "k4a-nfov") else f"{intrinsics.width}x{intrinsics.height}"
     start = time.monotonic()
-    result: dict = {"title": "Nose tip per distance bin, held-out identities in motion (bench/sequences.py)",
+    result: dict = {"title": f"Nose tip per distance bin, held-out identities in motion, {camera} (bench/sequences.py)",
                     "about": __doc__.split("\n\n")[1].replace("\n", " "), "camera": camera,
                     "intrinsics": intrinsics.to_dict(), "model": shown_path(args.model),
                     "variant": cfg.detector.variant, "frames": args.frames, "fps": args.fps,
