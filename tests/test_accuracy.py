@@ -33,3 +33,12 @@ def test_results_without_a_track_have_no_track_counts():
     acc = accuracy_from_records([{"frame_counter": 0, "nose_px": [1.0, 1.0], "ground_truth_px": [1.0, 1.0]}])
     assert acc is not None and acc.found == 1 and acc.wrong == 0
     assert acc.track_found is None and acc.track_wrong is None
+
+
+def test_the_refined_tip_is_scored_where_the_record_has_one():
+    truth = [80.0, 60.0]
+    records = [{**record(0, [86.0, 60.0], truth, None), "tip_px": [80.5, 60.2]},  # pixel 6 px off, its tip 0.5 px
+               {**record(1, [81.0, 60.0], truth, None), "tip_px": None}]  # no tip: the pixel itself
+    acc = accuracy_from_records(records, radius_px=5.0)
+    assert acc is not None and acc.found == 2 and acc.wrong == 0
+    np.testing.assert_allclose(acc.error_px, [np.hypot(0.5, 0.2), 1.0])

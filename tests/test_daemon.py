@@ -82,11 +82,12 @@ def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     assert has_footer(tmp_path / f"{stem}.rrd")  # a replay ends: its file keeps the index for random access
     nose = tables[bp.NOSE_2D][1]
     logged = dict(zip(nose.column("frame").to_pylist(), nose.column("Points2D:positions").to_pylist(), strict=True))
-    for x in accepted:  # the detected nose pixel is what the viewer shows
-        assert logged[x["frame_counter"]] == [[float(c) for c in x["nose_px"]]]
+    for x in accepted:  # the detected nose's refined tip is what the viewer shows
+        assert logged[x["frame_counter"]] == [pytest.approx(x["tip_px"], abs=0.006)]
     # beside it the track, through the viewer process's wire format: its box where the results put it
-    tracked = [x for x in lines if x["track"]["status"] == "tracking"]
-    assert tracked and all(x["track"]["nose_px"] is not None for x in tracked)
+    confirmed = [x for x in lines if x["track"]["status"] == "tracking"]
+    assert confirmed and all(x["track"]["nose_px"] is not None for x in confirmed)
+    tracked = [x for x in lines if x["track"]["nose_px"] is not None]  # confirmed, or new and associated
     assert summary["track"]["tracked_frames"] == len(tracked)
     assert summary["track"]["detected_frames"] == len(accepted) and summary["track"]["acquired"] >= 1
     boxes = tables[bp.TRACK_2D][1]

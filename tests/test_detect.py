@@ -94,7 +94,13 @@ def test_margin_accepts_a_clear_winner_beyond_the_scale_and_rejects_a_close_race
     det = detect(maps, range_m, intrinsics, box, 1.0, margin=margin)
     assert det.accepted and det.nose_px == (10, 10) and det.score == pytest.approx(1.2, rel=1e-5)
     maps["range_nfft_eps0"][10, 30] = 10**0.9  # a rival 20 cm away at distance 1.8: 1.2 > 0.5 x 1.8
-    assert not detect(maps, range_m, intrinsics, box, 1.0, margin=margin).accepted
+    det = detect(maps, range_m, intrinsics, box, 1.0, margin=margin)
+    assert not det.accepted  # the close race leaves two regions inside the box at 1.5: the track may choose
+    assert [(a.px, round(a.score, 3)) for a in det.alternatives] == [((10, 10), 1.2)]  # 1.8 > 1.5: not one
+    maps["range_nfft_eps0"][10, 30] = 10**0.7  # distance 1.4
+    assert [a.px for a in detect(maps, range_m, intrinsics, box, 1.0, margin=margin).alternatives] == [(10, 10),
+                                                                                                       (30, 10)]
+    maps["range_nfft_eps0"][10, 30] = 10**0.9
     maps["range_nfft_eps0"][10, 10] = 10**0.48  # distance 0.96: inside the scale, but more than 0.5 x 1.8
     assert detect(maps, range_m, intrinsics, box, 1.0).accepted
     assert not detect(maps, range_m, intrinsics, box, 1.0, margin=margin).accepted
@@ -104,8 +110,8 @@ def test_margin_accepts_a_clear_winner_beyond_the_scale_and_rejects_a_close_race
 def test_rival_distance_skips_the_best_pixels_neighbourhood():
     xyz = np.array([[0.0, 0.0, 0.5], [0.01, 0.0, 0.5], [0.0, 0.019, 0.5], [0.03, 0.0, 0.5], [0.0, 0.0, 0.6]])
     distance = np.array([0.1, 0.2, 0.3, 0.9, 0.7])
-    assert rival_distance(distance, xyz, 0) == pytest.approx(0.7)  # pixels 1, 2 lie within 2 cm of pixel 0
-    assert rival_distance(distance[:3], xyz[:3], 0) == np.inf
+    assert rival_distance(distance, xyz) == pytest.approx(0.7)  # pixels 1, 2 lie within 2 cm of pixel 0
+    assert rival_distance(distance[:3], xyz[:3]) == np.inf
 
 
 def test_border_distance_is_physical_and_scale_invariant():
@@ -255,3 +261,21 @@ def test_front_test_allowance_grows_with_the_local_noise():
     gap, border = np.array([0.003, 0.003]), np.array([1.0, 1.0])
     assert list(Candidates(front_depth_m=0.001).keep(border, gap, np.array([0.004, 0.001]))) == [False, False]
     assert list(cand.keep(border, gap, np.array([0.004, 0.001]))) == [True, False]
+
+
+def test_rendered_detection_reports_the_tip_and_survives_the_worker_message():
+    from drivers.emulator.render import Pose, render_face
+    from tofd.config import load_config
+    from tofd.lab.faces import SUBJECTS, make_subject
+    from tofd.service.model import load_detector
+    from tofd.service.pipeline.stages import detection_dict, detection_from
+
+    detector, intrinsics = load_detector(load_config(None)), Intrinsics()
+    r = render_face(make_subject(SUBJECTS["mp_bignose"]), Pose(0.4, 10.0, 5.0), intrinsics,
+                    np.random.default_rng(5))
+    det = detector.detect_frame(r.range_m, r.amplitude)
+    assert det.accepted and det.tip_xyz_m is not None and det.alternatives[0].px == det.nose_px
+    assert det.answer_xyz_m == det.tip_xyz_m and det.answer_px == det.tip_px
+    assert np.linalg.norm(np.subtract(det.tip_xyz_m, r.nose_xyz_m)) < 0.01
+    np.testing.assert_allclose(intrinsics.project(np.asarray(det.tip_xyz_m)), det.tip_px)
+    assert detection_from(json.loads(json.dumps(detection_dict(det)))) == det

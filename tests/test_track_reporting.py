@@ -51,8 +51,8 @@ def result(counter: int, detection: Detection, track) -> FrameResult:
                        nfft_residual=1e-3, arrival_s=time.monotonic(), detection=detection, track=track)
 
 
-def tracked_results(detections: list[Detection]) -> list[FrameResult]:
-    tracker = NoseTracker()
+def tracked_results(detections: list[Detection], cfg: TrackerConfig | None = None) -> list[FrameResult]:
+    tracker = NoseTracker(cfg)
     return [result(k, d, tracker.update(d, k * DT)) for k, d in enumerate(detections)]
 
 
@@ -60,7 +60,7 @@ def test_track_counts_acquisition_replacement_and_loss():
     cfg = TrackerConfig(report_coast_s=2.5 * DT)
     tracker, stats = NoseTracker(cfg), TrackStats()
     assert stats.snapshot() == TrackSnapshot(status="none", confidence=0.0, detected_frames=0, tracked_frames=0,
-                                             acquired=0, lost=0)
+                                             acquired=0, lost=0, tip_frames=0, tip_xyz_m=None)
     t = 0.0
     script = [hit(0.0)] * 6 + [hit(0.10)] * cfg.confirm_hits + [MISS] * 20 + [hit(-0.05)] * 4
     for d in script:  # confirmed at 0, replaced by a challenger at 10 cm, lost while missing, confirmed again
@@ -71,7 +71,7 @@ def test_track_counts_acquisition_replacement_and_loss():
     assert snap.detected_frames == 6 + cfg.confirm_hits + 4
     assert snap.status == "tracking" and 0.5 < snap.confidence < 1.0
     # 2 misses reported (report_coast_s), then the track coasts unreported until lost: one loss, not one per coast
-    assert snap.tracked_frames == (6 - 2) + cfg.confirm_hits + 2 + (4 - 2)
+    assert snap.tracked_frames == 6 + cfg.confirm_hits + 2 + 4  # new tracks are reported from their first hit
 
 
 def test_a_loss_is_counted_when_a_new_track_starts_in_the_same_frame():
@@ -90,7 +90,10 @@ def test_a_loss_is_counted_when_a_new_track_starts_in_the_same_frame():
 def test_results_record_reports_the_track_beside_the_detection():
     rows = [result_record(r) for r in tracked_results([hit(0.01)] * 4 + [MISS])]
     assert [r["track"]["status"] for r in rows] == ["tentative", "tentative", "tracking", "tracking", "tracking"]
-    assert rows[0]["track"]["nose_px"] is None and rows[0]["track"]["reacquired"]  # tentative: not reported
+    assert rows[0]["track"]["nose_px"] is not None and rows[0]["track"]["reacquired"]  # a new track: reported
+    untold = TrackerConfig(report_new=False)
+    quiet = [result_record(r) for r in tracked_results([hit(0.01)] * 3, untold)]
+    assert [r["track"]["nose_px"] is None for r in quiet] == [True, True, False]  # then only once confirmed
     last = rows[-1]
     assert last["accepted"] is False and last["nose_px"] is None  # the detection missed, the track coasts on
     assert not last["track"]["associated"] and last["track"]["confidence"] < rows[-2]["track"]["confidence"]
@@ -173,8 +176,11 @@ def test_metrics_report_the_track_of_a_live_run(tmp_path):
     assert metric_values(text, "tofd_track_acquired_total")[""] == 1
     assert metric_values(text, "tofd_track_lost_total")[""] == 0
     detected = metric_values(text, "tofd_nose_detected_frames_total")[""]
-    assert detected >= 10 and metric_values(text, "tofd_nose_tracked_frames_total")[""] == detected - 2
+    assert detected >= 10 and metric_values(text, "tofd_nose_tracked_frames_total")[""] == detected
     assert metric_values(text, "tofd_track_confidence")[""] > 0.9
+    tips = metric_values(text, "tofd_nose_tip_frames_total")[""]
+    assert 0.8 * detected <= tips <= detected  # the accepted pixel refined to a sub-pixel tip in most frames
+    assert 0.3 < metric_values(text, "tofd_nose_tip_m")['{axis="z"}'] < 0.8
     assert "# TYPE tofd_track_lost_total counter" in text
 
 

@@ -14,8 +14,20 @@ DT = 1 / 25
 
 @dataclass(frozen=True)
 class Det:
-    nose_xyz_m: tuple[float, float, float] | None
+    answer_xyz_m: tuple[float, float, float] | None
     accepted: bool = True
+    alternatives: tuple = ()
+
+
+@dataclass(frozen=True)
+class Alt:
+    answer_xyz_m: tuple[float, float, float]
+    score: float
+
+
+def rejected(*alternatives: tuple[float, float]) -> Det:
+    """A frame whose own answer was rejected, with alternatives at (x, score) each (y = 0, z = 0.5)."""
+    return Det(None, False, tuple(Alt((x, 0.0, 0.5), score) for x, score in alternatives))
 
 
 def det(x: float, y: float = 0.0, z: float = 0.5) -> Det:
@@ -118,3 +130,21 @@ def test_velocity_is_clipped() -> None:
 def test_bad_config_names_the_key(key: str, value: float) -> None:
     with pytest.raises(ValueError, match=key):
         NoseTracker(TrackerConfig(**{key: value}))
+
+
+def test_a_confirmed_track_takes_the_best_alternative_inside_its_gate() -> None:
+    tracker = NoseTracker()
+    run(tracker, [det(0.0)] * 5)
+    gate = tracker.config.gate_m
+    state = tracker.update(rejected((0.3, 0.5), (0.004, 1.2), (-0.006, 0.9)), 5 * DT)
+    assert state.associated and state.assisted and state.reported
+    assert state.nose_xyz_m[0] == pytest.approx(tracker.config.alpha * -0.006)  # the better of the two inside
+    state = tracker.update(rejected((gate * 3, 0.1)), 6 * DT)  # only one far outside the gate: not associated
+    assert not state.associated and not state.assisted
+
+
+def test_alternatives_neither_start_nor_confirm_a_track() -> None:
+    tracker = NoseTracker()
+    states = run(tracker, [rejected((0.0, 0.5))] * 3 + [det(0.0), rejected((0.0, 0.5))])
+    assert [s.status for s in states] == ["none"] * 3 + ["tentative", "tentative"]
+    assert not any(s.assisted for s in states)

@@ -145,6 +145,8 @@ class DetectorConfig:
     margin_ratio: float = 0.7  # the best pixel is reported only if its box distance is at most this times that of
     # the best pixel 2 cm or more away from it (tofd/algorithm/detector/acceptance.py); 0 = no margin test
     margin_scale_factor: float = 2.0  # with the margin test on, the box scale is the operating scale times this
+    tip_radius_m: float = 0.016  # metres: window radius of the sub-pixel tip fit about the accepted pixel
+    # (tofd/algorithm/detector/tip.py); 0 = report the accepted pixel itself
 
     def validate(self) -> None:
         if self.variant not in VARIANTS:
@@ -159,5 +161,7 @@ class DetectorConfig:
             raise ValueError(f"front_noise_factor: {self.front_noise_factor} must be >= 0 (0 = fixed allowance)")
         if not 0 <= self.margin_ratio < 1:
             raise ValueError(f"margin_ratio: {self.margin_ratio} is not in [0, 1) (0 = no margin test)")
+        if not self.tip_radius_m >= 0:
+            raise ValueError(f"tip_radius_m: {self.tip_radius_m} must be >= 0 (0 = no tip fit)")
         if not self.margin_scale_factor >= 1:
             raise ValueError(f"margin_scale_factor: {self.margin_scale_factor} must be >= 1")

@@ -147,23 +147,81 @@ def segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
     return segment_face(range_m, amplitude, cfg, intrinsics).mask
 
 
+REFERENCE_FOCAL_PX = Intrinsics().fx  # pixels: the camera whose pixel sizes the config's *_px settings mean (SR3000)
+
+
+def coarse_stride(intrinsics: Intrinsics) -> int:
+    """Decimation that brings the camera's pixel footprint (range / focal length) nearest the reference camera's:
+    the segmentation runs on every stride-th pixel, so its pixel-sized filters mean the same metres on every camera
+    (1 on the SR3000)."""
+    return max(1, int(min(intrinsics.fx, intrinsics.fy) / REFERENCE_FOCAL_PX + 0.5))
+
+
+def decimated(intrinsics: Intrinsics, stride: int) -> Intrinsics:
+    """The intrinsics of the image of every stride-th pixel (rows and columns 0, stride, 2 stride, ...)."""
+    return Intrinsics(-(-intrinsics.width // stride), -(-intrinsics.height // stride), intrinsics.fx / stride,
+                      intrinsics.fy / stride, intrinsics.cx / stride, intrinsics.cy / stride)
+
+
+def upsampled(coarse: np.ndarray, shape: tuple[int, int], stride: int) -> np.ndarray:
+    """An image of every stride-th pixel brought back to `shape` by nearest neighbour (each pixel takes the value
+    of the sampled pixel nearest it)."""
+    rows = np.minimum((np.arange(shape[0]) + stride // 2) // stride, coarse.shape[0] - 1)
+    cols = np.minimum((np.arange(shape[1]) + stride // 2) // stride, coarse.shape[1] - 1)
+    return coarse[rows[:, None], cols[None, :]]
+
+
+def bounding_box(mask: np.ndarray, margin_px: int = 0, align_px: int = 1) -> tuple[slice, slice]:
+    """(rows, cols) slices of a mask's bounding box grown by margin_px, corners on an align_px grid, clipped to the
+    image. The mask must have a pixel set."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    h, w = mask.shape
+    a = align_px
+    r0, c0 = max(rows[0] - margin_px, 0) // a * a, max(cols[0] - margin_px, 0) // a * a
+    r1, c1 = min(-(-(rows[-1] + 1 + margin_px) // a) * a, h), min(-(-(cols[-1] + 1 + margin_px) // a) * a, w)
+    return slice(int(r0), int(r1)), slice(int(c0), int(c1))
+
+
 def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
                  intrinsics: Intrinsics | None = None) -> Foreground:
     """Foreground mask and face frame from a radial range map (metres, NaN/0/inf invalid) and amplitude.
 
-    intrinsics: the camera's, for the depth of each pixel (default: the SR3000 default Intrinsics()).
+    intrinsics: the camera's, for the depth of each pixel (default: the SR3000 default Intrinsics()). A camera of
+    finer pixels (coarse_stride > 1) is segmented on every stride-th pixel; the mask is brought back to every pixel
+    by nearest neighbour and each pixel's own validity and depth cut (step 3's flying-pixel test) applied again.
     """
     range_m = np.asarray(range_m)
     amplitude = np.asarray(amplitude)
     if range_m.shape != amplitude.shape or range_m.ndim != 2:
         raise ValueError(f"range_m {range_m.shape} and amplitude {amplitude.shape} must be equal 2-D shapes")
-    rotation = np.eye(3)
-    valid = valid_pixels(range_m, amplitude)
-    if not valid.any():
-        return Foreground(np.zeros(range_m.shape, dtype=bool), rotation)
     intrinsics = intrinsics or Intrinsics()
     if intrinsics.shape != range_m.shape:
         raise ValueError(f"range_m has shape {range_m.shape}, intrinsics {intrinsics.shape}")
+    stride = coarse_stride(intrinsics)
+    if stride == 1:
+        mask, rotation, _ = _segment(range_m, amplitude, cfg, intrinsics)
+        return Foreground(mask, rotation)
+    coarse, rotation, cut = _segment(range_m[::stride, ::stride], amplitude[::stride, ::stride], cfg,
+                                     decimated(intrinsics, stride))
+    mask = np.zeros(range_m.shape, dtype=bool)
+    if not coarse.any():
+        return Foreground(mask, rotation)
+    full = upsampled(coarse, range_m.shape, stride)
+    box = bounding_box(full)
+    near = full[box]
+    with np.errstate(invalid="ignore"):
+        depth = range_m[box] * (intrinsics.unit_rays()[box] @ rotation[2]).astype(np.float32)
+        mask[box] = near & valid_pixels(range_m[box], amplitude[box]) & (depth <= cut)
+    return Foreground(mask, rotation)
+
+
+def _segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig,
+             intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray, float]:
+    """Steps 1-3 of the module docstring at the image's own resolution: (mask, rotation, depth cut in metres)."""
+    rotation = np.eye(3)
+    valid = valid_pixels(range_m, amplitude)
+    if not valid.any():
+        return np.zeros(range_m.shape, dtype=bool), rotation, np.inf
     rays = intrinsics.unit_rays()
     ray_z = rays[..., 2]
     depth = range_m * ray_z
@@ -171,7 +229,7 @@ def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationCo
     smooth = filtered(depth, valid, cfg.median_px)
     mask &= smooth < FAR_M
     if not mask.any():
-        return Foreground(mask, rotation)
+        return mask, rotation, np.inf
     head = head_band(mask, smooth, cfg, intrinsics.fy)
     if cfg.plane_iterations > 0:
         direction = face_direction(rays[head] * (smooth[head] / ray_z[head])[:, None], cfg)
@@ -192,4 +250,4 @@ def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationCo
     if cfg.nearest_component and (mask & head).any():
         nearest = int(np.argmin(np.where(mask & head, smooth, np.inf)))
         mask = component_at(mask, *divmod(nearest, mask.shape[1]))
-    return Foreground(mask, rotation)
+    return mask, rotation, cut

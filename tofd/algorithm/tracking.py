@@ -1,21 +1,29 @@
 """A nose track across frames: an alpha-beta filter on the detected 3-D nose tip, with gating, a confidence,
 loss and re-acquisition. Pure: one `update(detection, timestamp_s)` per frame, no I/O.
 
-Per frame the track predicts p + v dt. An accepted detection within the gate (gate_m + gate_growth_m_per_s x
-time since the last associated detection, metres in 3-D) corrects it: p += alpha r, v += beta r / dt with r the
-residual. A detection outside the gate is not believed at once (a wrong pixel of the detector looks like that):
-it starts a challenger, which replaces the track after `confirm_hits` mutually-gated detections with none
-associated to the track in between (the head really moved there). Confidence rises by `confidence_gain` of its
-shortfall on each associated detection and decays as exp(-dt / confidence_tau_s) otherwise; the track is lost after
-`lost_after_s` without an associated detection. The reported nose is the predicted or corrected position while the
-track is confirmed and its last associated detection is at most `report_coast_s` old (status "tracking"); after that
+Per frame the track predicts p + v dt. An accepted detection (its refined tip, else its pixel's point) within the
+gate (gate_m + gate_growth_m_per_s x time since the last associated detection, metres in 3-D) corrects it: p +=
+alpha r, v += beta r / dt with r the residual. A detection outside the gate is not believed at once (a wrong pixel
+of the detector looks like that): it starts a challenger, which replaces the track after `confirm_hits` mutually-
+gated detections with none associated to the track in between (the head really moved there). Confidence rises by
+`confidence_gain` of its shortfall on each associated detection and decays as exp(-dt / confidence_tau_s) otherwise;
+the track is lost after `lost_after_s` without an associated detection. The reported nose is the predicted or
+corrected position while the track is confirmed and its last associated detection is at most `report_coast_s` old
+(status "tracking"), and with `report_new` that of a new, tentative track in the frames a detection is associated (a
+user sees the nose from the first frame; a challenger is never reported before it replaces the track); after that
 the track coasts (status "coasting": still predicted and gated, nothing reported) until a detection is associated
 again or it is lost, because a prediction without recent support drifts off a moving head.
+
+A frame whose own answer is rejected (none accepted) still feeds a confirmed track when one of its alternatives
+(region bests inside the box without the margin test, tofd.algorithm.detector.Alternative) lies inside the gate:
+the best-scoring such one is associated (status flag `assisted`), so far-range frames that one frame cannot
+settle are answered from the track and the local evidence together.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, Protocol, get_args
 
@@ -25,14 +33,27 @@ Status = Literal["none", "tentative", "coasting", "tracking"]
 STATUSES: tuple[Status, ...] = get_args(Status)
 
 
+class AlternativeLike(Protocol):
+    """What the tracker reads of a detection's alternative (tofd.algorithm.detector.Alternative)."""
+
+    @property
+    def answer_xyz_m(self) -> tuple[float, float, float]: ...
+
+    @property
+    def score(self) -> float: ...
+
+
 class DetectionLike(Protocol):
     """What the tracker reads of a detection (tofd.algorithm.detector.Detection)."""
 
     @property
-    def nose_xyz_m(self) -> tuple[float, float, float] | None: ...
+    def answer_xyz_m(self) -> tuple[float, float, float] | None: ...
 
     @property
     def accepted(self) -> bool: ...
+
+    @property
+    def alternatives(self) -> Sequence[AlternativeLike]: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,6 +69,8 @@ class TrackerConfig:
     lost_after_s: float = 0.5  # seconds without an associated detection before the track is dropped
     report_coast_s: float = 0.1  # seconds after its last associated detection a confirmed track still reports its
     # nose (chosen on the training subjects' head-motion sequences: bench/tune_tracker.py)
+    report_new: bool = True  # a new track (no confirmed one exists) is reported in the frames its detection is
+    # associated, before it is confirmed; a challenger never is (the confirmed track is reported meanwhile)
     confidence_gain: float = 0.5  # share of (1 - confidence) gained per associated detection
     confidence_tau_s: float = 0.25  # seconds: e-folding time of the confidence while no detection is associated
 
@@ -76,12 +99,10 @@ class TrackState:
     velocity_m_per_s: tuple[float, float, float] | None
     confidence: float  # 0..1
     associated: bool  # this frame's detection was used by the track
+    assisted: bool  # ... through one of its alternatives (the frame's own answer was rejected)
     reacquired: bool  # this frame a challenger replaced the track, or a new track was started
-
-    @property
-    def reported(self) -> bool:
-        """The track's position is reported as the nose (a confirmed track with recent support)."""
-        return self.status == "tracking"
+    reported: bool = False  # the position is reported as the nose: status "tracking", or (report_new) a new track
+    # associated in this frame
 
     @property
     def confirmed(self) -> bool:
@@ -115,10 +136,13 @@ class NoseTracker:
     def update(self, detection: DetectionLike | None, timestamp_s: float) -> TrackState:
         """Advance the track to timestamp_s (seconds) with this frame's detection (None or not accepted: none)."""
         xyz = None
-        if detection is not None and detection.accepted and detection.nose_xyz_m is not None:
-            xyz = np.asarray(detection.nose_xyz_m, dtype=np.float64)
+        if detection is not None and detection.accepted and detection.answer_xyz_m is not None:
+            xyz = np.asarray(detection.answer_xyz_m, dtype=np.float64)
         track = self._track
-        reacquired = associated = False
+        reacquired = associated = assisted = False
+        if track is not None and xyz is None and detection is not None and track.hits >= self.config.confirm_hits:
+            xyz = self._nearby(track, detection.alternatives, timestamp_s)
+            assisted = xyz is not None
         if track is not None:
             associated = self._step(track, xyz, timestamp_s)
             if not associated and timestamp_s - track.last_hit_s > self.config.lost_after_s:
@@ -136,7 +160,20 @@ class NoseTracker:
                     track, associated, reacquired = challenger, True, True
         elif associated:
             self._challenger = None
-        return self._state(track, associated, reacquired)
+        return self._state(track, associated, reacquired, assisted)
+
+    def _nearby(self, track: _Track, alternatives: Sequence[AlternativeLike], t: float) -> np.ndarray | None:
+        """The best-scoring alternative inside the confirmed track's gate at t, or None."""
+        predicted, gate = self._predict(track, t)
+        inside = [(a.score, np.asarray(a.answer_xyz_m, dtype=np.float64)) for a in alternatives]
+        inside = [(score, p) for score, p in inside if math.hypot(*(p - predicted)) <= gate]
+        return min(inside, key=lambda sp: sp[0])[1] if inside else None
+
+    def _predict(self, track: _Track, t: float) -> tuple[np.ndarray, float]:
+        """The track's predicted position at t (metres) and its gate radius then (metres)."""
+        cfg = self.config
+        predicted = track.position + track.velocity * max(t - track.last_s, 0.0)
+        return predicted, cfg.gate_m + cfg.gate_growth_m_per_s * (t - track.last_hit_s)
 
     def _new(self, xyz: np.ndarray, t: float) -> _Track:
         return _Track(xyz.copy(), np.zeros(3), t, t, 1, self.config.confidence_gain)
@@ -145,9 +182,8 @@ class NoseTracker:
         """Predict to t and correct with xyz if it is inside the gate; True iff it was associated."""
         cfg = self.config
         dt = max(t - track.last_s, 0.0)
-        predicted = track.position + track.velocity * dt
+        predicted, gate = self._predict(track, t)
         track.last_s = t
-        gate = cfg.gate_m + cfg.gate_growth_m_per_s * (t - track.last_hit_s)
         residual = None if xyz is None else xyz - predicted
         if residual is not None and math.hypot(*residual) <= gate:  # math: numpy's norm of 3 values costs 10x
             track.position = predicted + cfg.alpha * residual
@@ -162,14 +198,15 @@ class NoseTracker:
         track.confidence *= math.exp(-dt / cfg.confidence_tau_s)
         return False
 
-    def _state(self, track: _Track | None, associated: bool, reacquired: bool) -> TrackState:
+    def _state(self, track: _Track | None, associated: bool, reacquired: bool, assisted: bool) -> TrackState:
         if track is None:
-            return TrackState("none", None, None, 0.0, False, False)
+            return TrackState("none", None, None, 0.0, False, False, False)
         status: Status = "tentative"
         if track.hits >= self.config.confirm_hits:
             status = "tracking" if track.last_s - track.last_hit_s <= self.config.report_coast_s else "coasting"
+        reported = status == "tracking" or (status == "tentative" and associated and self.config.report_new)
         return TrackState(status, _triple(track.position), _triple(track.velocity), round(track.confidence, 6),
-                          associated, reacquired)
+                          associated, assisted and associated, reacquired, reported)
 
 
 def _triple(v: np.ndarray) -> tuple[float, float, float]:

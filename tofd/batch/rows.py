@@ -20,7 +20,8 @@ a frame with ground truth (tofd.batch.task.FrameEvaluation)."""
 _FLOAT_LIST = pa.list_(pa.float64())
 ROW_SCHEMA = pa.schema(
     [("frame_counter", pa.int64()), ("timestamp_us", pa.int64()), ("host_wall_s", pa.float64()),
-     ("foreground_px", pa.int64()), ("nose_px", _FLOAT_LIST), ("nose_xyz_m", _FLOAT_LIST), ("score", pa.float64()),
+     ("foreground_px", pa.int64()), ("nose_px", _FLOAT_LIST), ("nose_xyz_m", _FLOAT_LIST),
+     ("tip_px", _FLOAT_LIST), ("tip_xyz_m", _FLOAT_LIST), ("score", pa.float64()),
      ("accepted", pa.bool_()), ("ground_truth_px", _FLOAT_LIST), ("ground_truth_xyz_m", _FLOAT_LIST),
      ("ground_truth_visible", pa.bool_()), ("nfft_iterations", pa.int64()),
      ("nfft_residual", pa.float64()), ("mask_digest", pa.string())]

@@ -69,7 +69,7 @@ def main(args: argparse.Namespace) -> int:
     plot_roc(out / "roc.png", results)
     write_json(out / "evaluation.json", results, radius_mm=args.radius_mm, timing=timing,
                test={"data": args.test or f"rendered test split seed {args.seed + 1}", "frames": len(test),
-                     "subjects": sorted(set(test.subject.tolist()))},
+                     "subjects": sorted(set(test.subject.tolist())), "intrinsics": test.intrinsics.to_dict()},
                model=model.to_dict())
     print("timing: " + ", ".join(f"{k} {v}" for k, v in timing.items()))
     print(f"wrote {out / 'evaluation.json'}, {out / 'roc.png'}, {out / 'model.json'}")

@@ -42,7 +42,8 @@ def main(args: argparse.Namespace) -> int:
     samples = samples_for(ds, cfg, args, "train", timing)
     model = train_model(samples, cfg.features, cfg.segmentation, args.quantile, args.positive_radius_mm / 1e3,
                         args.radius_mm / 1e3, training={"data": args.train or f"rendered train split seed {args.seed}",
-                                                        "subjects": sorted(set(ds.subject.tolist()))},
+                                                        "subjects": sorted(set(ds.subject.tolist())),
+                                                        "intrinsics": ds.intrinsics.to_dict()},
                         candidates=Candidates.from_config(cfg.detector, cfg.segmentation))
     path = save_model(model, args.out)
     for name, vm in model.variants.items():

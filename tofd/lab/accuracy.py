@@ -1,10 +1,10 @@
 """Nose accuracy of a replay or batch run against the inputs' ground truth, from per-frame results records.
 
-Error = Euclidean pixel distance between the detected and the ground-truth nose pixel; a frame counts as found
-when a nose was detected within `radius_px` of the truth; the nose track's pixel (while confirmed) is
-scored the same way beside it. Frames without ground truth, or whose nose the truth marks not visible
-(outside the image, occluded), are ignored; frames whose ground-truth 3-D nose tip is known are also
-grouped by distance, in the bins of `tofd evaluate`.
+Error = Euclidean pixel distance between the detected nose (its refined sub-pixel tip where the record has one, else
+the accepted pixel) and the ground-truth nose pixel; a frame counts as found when a nose was detected within
+`radius_px` of the truth; the nose track's pixel (while confirmed) is scored the same way beside it. Frames without
+ground truth, or whose nose the truth marks not visible (outside the image, occluded), are ignored; frames whose
+ground-truth 3-D nose tip is known are also grouped by distance, in the bins of `tofd evaluate`.
 """
 
 from __future__ import annotations
@@ -112,7 +112,7 @@ def accuracy_from_records(records: Iterable[dict], radius_px: float = RADIUS_PX)
         track = rec.get("track")
         tracked = tracked and track is not None
         counters.append(rec["frame_counter"])
-        errors.append(_error_px(rec.get("nose_px"), truth))
+        errors.append(_error_px(rec.get("tip_px") or rec.get("nose_px"), truth))
         scores.append(rec["score"] if rec.get("score") is not None else np.nan)
         track_errors.append(_error_px(track["nose_px"], truth) if track is not None else np.nan)
         distances.append(float(np.linalg.norm(xyz)) if xyz is not None else np.nan)

@@ -6,8 +6,10 @@ from __future__ import annotations
 import argparse
 import time
 
+from drivers.intrinsics import Intrinsics
 from tofd.config import Config
 from tofd.errors import UsageError
+from tofd.lab.cameras import INTRINSICS_HELP, parse_intrinsics
 from tofd.lab.dataset import Dataset, load_labelled
 from tofd.lab.evaluation import NOSE_RADIUS_M, FrameSamples, extract_samples
 from tofd.lab.faces import SUBJECTS, check_subjects
@@ -26,6 +28,9 @@ def add_data_arguments(parser: argparse.ArgumentParser, splits: tuple[str, ...])
         parser.add_argument(f"--{split}-subjects", default=None, metavar="NAME,...",
                             help=f"subjects of the rendered {split} split, comma-separated (default: the split's; "
                                  f"known: {', '.join(SUBJECTS)})")
+        parser.add_argument(f"--{split}-intrinsics", default=None, metavar="CAMERA",
+                            help=f"the rendered {split} split's {INTRINSICS_HELP} (train on one geometry and "
+                                 "test on another for cross-camera results)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the rendered splits (test uses seed + 1)")
     parser.add_argument("--config", default=None, help="config file (default: the bundled tofd.toml)")
     parser.add_argument("--workers", type=int, default=2, help="feature-extraction processes (default 2)")
@@ -46,9 +51,12 @@ def check_data_arguments(args: argparse.Namespace, splits: tuple[str, ...]) -> N
     for split in splits:
         subjects = _subjects(args, split)
         if getattr(args, split) is not None:
-            if subjects is not None:
-                raise UsageError(f"--{split}-subjects renders the {split} split; it cannot be combined with --{split}")
+            for option in ("subjects", "intrinsics"):
+                if getattr(args, f"{split}_{option}") is not None:
+                    raise UsageError(f"--{split}-{option} renders the {split} split; it cannot be combined with "
+                                     f"--{split}")
             continue
+        intrinsics_for(args, split)
         frames = getattr(args, f"{split}_frames")
         if frames < 1:
             raise UsageError(f"--{split}-frames must be >= 1, got {frames}")
@@ -57,6 +65,15 @@ def check_data_arguments(args: argparse.Namespace, splits: tuple[str, ...]) -> N
                 check_subjects(subjects)
             except ValueError as exc:
                 raise UsageError(f"--{split}-subjects: {exc}") from None
+
+
+def intrinsics_for(args: argparse.Namespace, split: str) -> Intrinsics:
+    """The camera the rendered split is rendered with (--<split>-intrinsics; the SR3000 by default)."""
+    text = getattr(args, f"{split}_intrinsics", None)
+    try:
+        return Intrinsics() if text is None else parse_intrinsics(text)
+    except ValueError as exc:
+        raise UsageError(f"--{split}-intrinsics: {exc}") from None
 
 
 def dataset_for(args: argparse.Namespace, split: str, timing: dict) -> Dataset:
@@ -71,8 +88,8 @@ def dataset_for(args: argparse.Namespace, split: str, timing: dict) -> Dataset:
     else:
         frames = getattr(args, f"{split}_frames")
         progress = Progress(f"rendering {split} split", frames)
-        ds = generate(split, frames, args.seed + (split == "test"), progress=progress.update,
-                      subjects=_subjects(args, split))
+        ds = generate(split, frames, args.seed + (split == "test"), intrinsics_for(args, split),
+                      progress=progress.update, subjects=_subjects(args, split))
         progress.done()
     timing[f"{split}_data_s"] = round(time.monotonic() - start, 3)
     return ds

@@ -164,7 +164,7 @@ class PixelTable:
                              if len(self.frame) else [])
         for start, stop in itertools.pairwise(bounds):
             d = distance[start:stop]
-            out[self.frame[start]] = rival_distance(d, self.xyz[start:stop], int(np.argmin(d)))
+            out[self.frame[start]] = rival_distance(d, self.xyz[start:stop])
         return out
 
     def _frame_min(self, values: np.ndarray, frame: np.ndarray) -> np.ndarray:

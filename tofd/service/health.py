@@ -125,6 +125,12 @@ def _track_metrics(track: TrackSnapshot) -> Iterator[Metric]:
     one = _unlabelled
     yield one(CounterMetricFamily, "tofd_nose_detected_frames", "Frames with an accepted nose detection.",
               track.detected_frames)
+    yield one(CounterMetricFamily, "tofd_nose_tip_frames", "Frames whose accepted detection was refined to a "
+              "sub-pixel nose tip.", track.tip_frames)
+    tip = GaugeMetricFamily("tofd_nose_tip_m", "The last refined nose tip, camera frame, metres.", labels=["axis"])
+    for axis, value in zip("xyz", track.tip_xyz_m or (), strict=False):
+        tip.add_metric([axis], float(value))
+    yield tip
     yield one(CounterMetricFamily, "tofd_nose_tracked_frames", "Frames with a reported nose track.",
               track.tracked_frames)
     yield one(CounterMetricFamily, "tofd_track_acquired", "Confirmed nose tracks begun (new or replacing one).",

@@ -43,7 +43,7 @@ class RunSummary(LedgerSummary):
     timings_ms: dict[str, list[float]]
     worker_restarts: int
     device_events: dict[str, int]
-    track: dict[str, str | float | int] | None
+    track: dict[str, str | float | int | tuple[float, float, float] | None] | None
     outputs_failed: dict[str, str]
     viewer: ViewerReport | None
     model: ModelRecord

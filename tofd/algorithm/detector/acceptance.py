@@ -41,8 +41,24 @@ PAPER_RULE = Margin()
 """No margin test: accepted iff inside the box at the scale."""
 
 
-def rival_distance(distance: np.ndarray, xyz_m: np.ndarray, best: int) -> float:
-    """Smallest of `distance` (one per candidate pixel) over the pixels whose 3-D point (xyz_m, (P, 3) metres) is
-    farther than RIVAL_RADIUS_M from pixel `best`'s; inf if there is none."""
-    far = np.sum((xyz_m - xyz_m[best]) ** 2, axis=1) > RIVAL_RADIUS_M**2
-    return float(distance[far].min()) if far.any() else float("inf")
+def region_bests(distance: np.ndarray, xyz_m: np.ndarray, count: int) -> list[int]:
+    """Indices of the best pixel (smallest finite distance) of up to `count` regions: each is the best pixel farther
+    than RIVAL_RADIUS_M from all those before it, so the first is the best pixel and the second its rival.
+    distance: (P,) per candidate pixel; xyz_m: (P, 3) their points, metres."""
+    order = np.argsort(distance, kind="stable")
+    order = order[np.isfinite(distance[order])]
+    chosen: list[int] = []
+    free = np.ones(len(distance), bool)
+    for _ in range(count):
+        left = order[free[order]]
+        if left.size == 0:
+            break
+        chosen.append(int(left[0]))
+        free &= np.sum((xyz_m - xyz_m[left[0]]) ** 2, axis=1) > RIVAL_RADIUS_M**2
+    return chosen
+
+
+def rival_distance(distance: np.ndarray, xyz_m: np.ndarray) -> float:
+    """The box distance of the best pixel's rival (region_bests' second region); inf if there is none."""
+    regions = region_bests(distance, xyz_m, 2)
+    return float(distance[regions[1]]) if len(regions) > 1 else float("inf")

@@ -7,6 +7,9 @@ pixel within FRONT_RADIUS_M (depth along the face's viewing direction) is never 
 scales with the expected noise at the pixel: front_depth_m + front_noise_factor * sigma, sigma the local range
 noise estimated from the frame itself (depth_noise_m), because range noise grows with distance and falls with
 amplitude and a fixed allowance rejects the true tip wherever the noise is larger than on the training data.
+
+The tests run on the foreground's bounding box (plus CROP_MARGIN_PX, aligned to CROP_ALIGN_PX so that successive
+frames share the crop's rays): at modern resolutions the face covers a fraction of the frame.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import numpy as np
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.params import DetectorConfig, SegmentationConfig
-from tofd.algorithm.segmentation import filtered
+from tofd.algorithm.segmentation import bounding_box, coarse_stride, filtered, upsampled
 
 
 def border_distance_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
@@ -43,15 +46,24 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
 
     Depth along `direction` (unit, camera frame; default the camera's z axis), median-filtered over median_px
     pixels (the segmentation's filter: a minimum of unfiltered noisy depths lies in front of the surface);
-    the disc's radius in pixels is radius_m at the mask's median depth.
+    the disc's radius in pixels is radius_m at the mask's median depth. On a camera of finer pixels the test runs
+    on every coarse_stride-th pixel and each pixel takes the gap of the sample nearest it, so that the median and
+    the minimum see the surface (and the noise) as on the reference camera.
     """
     depth, valid, smooth = _face_depth(mask, range_m, intrinsics, direction, median_px)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
     median_m = float(np.median(depth[valid]))
-    r_px = max(1, round(min(radius_m * intrinsics.fx / median_m if median_m > 0 else np.inf, max(valid.shape))))
+    stride = coarse_stride(intrinsics)
+    r_px = max(1, round(min(radius_m * intrinsics.fx / stride / median_m if median_m > 0 else np.inf,
+                            max(valid.shape))))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r_px + 1, 2 * r_px + 1))
-    return np.where(valid, smooth - cv2.erode(smooth, disc), 0.0).astype(np.float32)
+    if stride == 1:
+        gap = smooth - cv2.erode(smooth, disc)
+    else:
+        sampled = filtered(depth[::stride, ::stride], valid[::stride, ::stride], median_px)
+        gap = upsampled(sampled - cv2.erode(sampled, disc), smooth.shape, stride)
+    return np.where(valid, gap, 0.0).astype(np.float32)
 
 
 def _face_depth(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None,
@@ -86,6 +98,20 @@ def depth_noise_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
     return np.where(valid, np.nan_to_num(sigma), 0.0).astype(np.float32)
 
 
+CROP_MARGIN_PX = NOISE_WINDOW_PX + 5  # background ring about the foreground: wider than every filter's reach
+CROP_ALIGN_PX = 32  # crop corners on this grid: a head moving a little keeps its crop (and its cached rays)
+
+
+def foreground_crop(mask: np.ndarray, intrinsics: Intrinsics) -> tuple[tuple[slice, slice], Intrinsics]:
+    """The (rows, cols) slices of the mask's bounding box grown by CROP_MARGIN_PX and aligned to CROP_ALIGN_PX, and
+    the intrinsics of that sub-image (principal point shifted). The mask must have a pixel set."""
+    box = bounding_box(mask, CROP_MARGIN_PX, CROP_ALIGN_PX)
+    r0, c0 = box[0].start, box[1].start
+    crop = Intrinsics(box[1].stop - c0, box[0].stop - r0, intrinsics.fx, intrinsics.fy, intrinsics.cx - c0,
+                      intrinsics.cy - r0)
+    return box, crop
+
+
 @dataclass(frozen=True, slots=True)
 class Candidates:
     """Which foreground pixels may be the nose at all (module docstring); metres, 0 switches a test off."""
@@ -111,15 +137,34 @@ class Candidates:
              direction: np.ndarray | None = None) -> np.ndarray:
         """(H, W) bool: the candidate pixels of a frame's foreground (direction: the face's, see front_gap_m).
 
-        Only the tests that are on are computed; `keep` applies them.
+        Only the tests that are on are computed, on the foreground's crop (foreground_crop); `keep` applies them.
         """
+        foreground = np.asarray(foreground, dtype=bool)
+        out = np.zeros_like(foreground)
+        if foreground.any():
+            box, crop = foreground_crop(foreground, intrinsics)
+            out[box] = self._crop_mask(foreground[box], np.asarray(range_m)[box], crop, direction)
+        return out
+
+    def pixels(self, foreground: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
+               direction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, cols) of the candidate pixels, row-major: `mask`'s, found within the crop only."""
+        foreground = np.asarray(foreground, dtype=bool)
+        if not foreground.any():
+            return np.empty(0, np.intp), np.empty(0, np.intp)
+        box, crop = foreground_crop(foreground, intrinsics)
+        rows, cols = np.nonzero(self._crop_mask(foreground[box], np.asarray(range_m)[box], crop, direction))
+        return rows + box[0].start, cols + box[1].start
+
+    def _crop_mask(self, foreground: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
+                   direction: np.ndarray | None) -> np.ndarray:
         off = np.zeros(np.shape(foreground), np.float32)
         border = border_distance_m(foreground, range_m, intrinsics) if self.border_margin_m > 0 else off + np.inf
         front = self.front_depth_m > 0
         gap = front_gap_m(foreground, range_m, intrinsics, direction, median_px=self.median_px) if front else off
         noise = (depth_noise_m(foreground, range_m, intrinsics, direction, self.median_px)
                  if front and self.front_noise_factor > 0 else off)
-        return np.asarray(foreground, dtype=bool) & self.keep(border, gap, noise)
+        return foreground & self.keep(border, gap, noise)
 
 
 ALL_FOREGROUND = Candidates()

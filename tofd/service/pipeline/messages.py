@@ -13,12 +13,16 @@ from typing import NotRequired, TypedDict, final
 
 class DetectionMessage(TypedDict):
     """A Detection (tofd.algorithm.detector) as JSON: pixel (u, v), point (x, y, z) metres, score (inf: no
-    foreground), accepted."""
+    foreground), accepted, the refined sub-pixel tip (u, v) and its point (metres), and each alternative as one list
+    [u, v, x, y, z, score] (+ [tip x, y, z] when refined)."""
 
     nose_px: list[int] | None
     nose_xyz_m: list[float] | None
     score: float
     accepted: bool
+    tip_px: list[float] | None
+    tip_xyz_m: list[float] | None
+    alternatives: list[list[float]]
 
 
 class FeatureReply(TypedDict):

@@ -53,7 +53,8 @@ def track_from(d: dict | None) -> TrackState | None:
 
     return TrackState(status=d["status"], nose_xyz_m=vector(d["nose_xyz_m"]),
                       velocity_m_per_s=vector(d["velocity_m_per_s"]), confidence=float(d["confidence"]),
-                      associated=bool(d["associated"]), reacquired=bool(d["reacquired"]))
+                      associated=bool(d["associated"]), assisted=bool(d["assisted"]),
+                      reacquired=bool(d["reacquired"]), reported=bool(d["reported"]))
 
 
 def track_px(state: TrackState | None, intrinsics: Intrinsics) -> tuple[float, float] | None:
@@ -72,7 +73,7 @@ def track_record(state: TrackState | None, intrinsics: Intrinsics) -> dict | Non
     px = track_px(state, intrinsics)
     reported = px is not None
     return {"status": state.status, "confidence": state.confidence, "associated": state.associated,
-            "reacquired": state.reacquired,
+            "assisted": state.assisted, "reacquired": state.reacquired,
             "nose_px": [round(c, 2) for c in px] if px is not None else None,
             "nose_xyz_m": [round(c, 5) for c in state.nose_xyz_m] if reported and state.nose_xyz_m else None,
             "velocity_m_per_s": ([round(c, 5) for c in state.velocity_m_per_s]
@@ -80,8 +81,9 @@ def track_record(state: TrackState | None, intrinsics: Intrinsics) -> dict | Non
 
 
 def result_record(r: FrameResult) -> dict:
-    """The JSON-ready per-frame record written to the results file: the frame's detection, and beside it the nose
-    track after this frame (track_record; None without a detector model)."""
+    """The JSON-ready per-frame record written to the results file: the frame's detection (the accepted pixel and
+    its point, and the sub-pixel tip refined from it), and beside it the nose track after this frame (track_record;
+    None without a detector model)."""
     det = r.detection
     truth = r.frame.ground_truth
     return {
@@ -90,6 +92,8 @@ def result_record(r: FrameResult) -> dict:
         "foreground_px": int(np.count_nonzero(r.mask)),
         "nose_px": list(det.nose_px) if det is not None and det.nose_px is not None else None,
         "nose_xyz_m": [round(c, 5) for c in det.nose_xyz_m] if det is not None and det.nose_xyz_m else None,
+        "tip_px": [round(c, 2) for c in det.tip_px] if det is not None and det.tip_px else None,
+        "tip_xyz_m": [round(c, 5) for c in det.tip_xyz_m] if det is not None and det.tip_xyz_m else None,
         "score": finite_or_none(det.score) if det is not None else None,
         "accepted": bool(det.accepted) if det is not None else None,
         "track": track_record(r.track, r.frame.intrinsics),

@@ -9,7 +9,7 @@ import numpy as np
 
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
-from tofd.algorithm.detector import Detection, NoseDetector, NoseModel
+from tofd.algorithm.detector import Alternative, Detection, NoseDetector, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import FAMILIES, VARIANTS, VIEWED_FAMILIES, families_for, family_maps
 from tofd.config import Config
@@ -54,10 +54,14 @@ class FeatureStage:
 
 
 def detection_dict(det: Detection) -> DetectionMessage:
-    """A Detection as a JSON-ready dict (score may be inf: no foreground)."""
+    """A Detection as a JSON-ready dict (score may be inf: no foreground); each alternative as one list
+    [u, v, x, y, z, score] (+ [tip x, y, z] when refined)."""
     return DetectionMessage(nose_px=None if det.nose_px is None else list(det.nose_px),
                             nose_xyz_m=None if det.nose_xyz_m is None else list(det.nose_xyz_m), score=det.score,
-                            accepted=det.accepted)
+                            accepted=det.accepted, tip_px=None if det.tip_px is None else list(det.tip_px),
+                            tip_xyz_m=None if det.tip_xyz_m is None else list(det.tip_xyz_m),
+                            alternatives=[[*a.px, *a.xyz_m, a.score, *(a.tip_xyz_m or ())]
+                                          for a in det.alternatives])
 
 
 def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: FeatureReply, maps: tuple[str, ...], *,
@@ -84,8 +88,11 @@ def detection_from(d: DetectionMessage | None) -> Detection | None:
     """The Detection of detection_dict, or None (no detector)."""
     if d is None:
         return None
-    px, xyz = d["nose_px"], d["nose_xyz_m"]
+    px, xyz, tip_px, tip_xyz = d["nose_px"], d["nose_xyz_m"], d["tip_px"], d["tip_xyz_m"]
+    alternatives = tuple(Alternative((int(a[0]), int(a[1])), (a[2], a[3], a[4]), a[5],
+                                     (a[6], a[7], a[8]) if len(a) > 6 else None) for a in d["alternatives"])
     return Detection((int(px[0]), int(px[1])) if px else None,
                      (float(xyz[0]), float(xyz[1]), float(xyz[2])) if xyz else None, float(d["score"]),
-                     bool(d["accepted"]))
+                     bool(d["accepted"]), (float(tip_px[0]), float(tip_px[1])) if tip_px else None,
+                     (float(tip_xyz[0]), float(tip_xyz[1]), float(tip_xyz[2])) if tip_xyz else None, alternatives)
 

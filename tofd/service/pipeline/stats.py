@@ -58,7 +58,7 @@ class PipelineStats:
 @dataclass(frozen=True, slots=True)
 class TrackSnapshot:
     """The nose track as TrackStats reports it: the latest status ("none" before the first frame) and confidence
-    (0-1), and the frame and track counts of TrackStats."""
+    (0-1), the frame and track counts of TrackStats and the last refined tip."""
 
     status: str
     confidence: float
@@ -66,24 +66,31 @@ class TrackSnapshot:
     tracked_frames: int
     acquired: int
     lost: int
+    tip_frames: int  # frames whose accepted detection has a refined sub-pixel tip
+    tip_xyz_m: tuple[float, float, float] | None  # the last refined tip (camera frame, metres; None before one)
 
 
 class TrackStats:
     """The nose track as /metrics and the run summary report it: its latest state, frames with an accepted
-    detection and with a reported track nose, and how often a confirmed track began (acquired: a new track
-    confirmed, or a challenger replacing the track) or was lost (dropped without a confirmed successor, a new
-    tentative track started in the same frame included); coasting does not end a track."""
+    detection, with a sub-pixel tip refined from it, and with a reported track nose, the last refined tip (camera
+    frame, metres), and how often a confirmed track began (acquired: a new track confirmed, or a challenger
+    replacing the track) or was lost (dropped without a confirmed successor, a new tentative track started in the
+    same frame included); coasting does not end a track."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._last: TrackState | None = None
-        self._detected = self._tracked = self._acquired = self._lost = 0
+        self._detected = self._tips = self._tracked = self._acquired = self._lost = 0
+        self._tip: tuple[float, float, float] | None = None
 
     def record(self, detection: Detection | None, state: TrackState) -> None:
         """Count one frame's detection and the track after it (frames in pipeline order)."""
         with self._lock:
             before = self._last is not None and self._last.confirmed
             self._detected += detection is not None and detection.accepted
+            if detection is not None and detection.accepted and detection.tip_xyz_m is not None:
+                self._tips += 1
+                self._tip = detection.tip_xyz_m
             self._tracked += state.reported
             self._acquired += state.confirmed and (not before or state.reacquired)
             self._lost += before and not state.confirmed  # hits never fall: only a loss unconfirms
@@ -93,4 +100,4 @@ class TrackStats:
         with self._lock:
             last = self._last
             return TrackSnapshot("none" if last is None else last.status, 0.0 if last is None else last.confidence,
-                                 self._detected, self._tracked, self._acquired, self._lost)
+                                 self._detected, self._tracked, self._acquired, self._lost, self._tips, self._tip)

@@ -257,12 +257,13 @@ class RerunLogger:
             self._send_shown()
 
     def _add_nose_and_track(self, r: FrameResult, row: int, series_row: int) -> None:
-        """The detected nose (none: an empty row), and the confirmed track's box, point and confidence."""
+        """The detected nose (its refined tip, else the accepted pixel; none: an empty row), and the confirmed track's
+        box, point and confidence."""
         shown, det, track = self._shown, r.detection, r.track
         if det is not None:
-            found = det.nose_px is not None
-            shown.add(bp.NOSE_2D, row, positions=[det.nose_px] if found else np.empty((0, 2)))
-            shown.add(bp.NOSE_3D, row, positions=[det.nose_xyz_m] if found else np.empty((0, 3)))
+            found = det.answer_px is not None
+            shown.add(bp.NOSE_2D, row, positions=[det.answer_px] if found else np.empty((0, 2)))
+            shown.add(bp.NOSE_3D, row, positions=[det.answer_xyz_m] if found else np.empty((0, 3)))
         if track is None:
             return
         px = track_px(track, self.intrinsics)
