@@ -131,6 +131,22 @@ class RerunConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class FoxgloveConfig:
+    """The live Foxglove WebSocket server (tofd.service.foxglove), beside the Rerun sink."""
+
+    enabled: bool = False  # serve the live stream to Foxglove (also: --foxglove HOST:PORT)
+    bind: str = "127.0.0.1"  # listen address
+    port: int = 8765  # TCP port (0 = any free port)
+    backlog_messages: int = 64  # messages queued per client before its oldest are dropped (a stalled client)
+
+    def validate(self) -> None:
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"port: {self.port} is not a TCP port")
+        if self.backlog_messages < 1:
+            raise ValueError(f"backlog_messages: {self.backlog_messages} must be >= 1")
+
+
+@dataclass(frozen=True, slots=True)
 class HealthConfig:
     """The /healthz and /metrics HTTP endpoint (tofd.service.health) and the systemd watchdog."""
 
@@ -156,6 +172,7 @@ class Config:
     features: FeatureConfig = field(default_factory=FeatureConfig)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     rerun: RerunConfig = field(default_factory=RerunConfig)
+    foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
 

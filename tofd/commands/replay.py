@@ -6,7 +6,8 @@ Output in --out: <stem>.rrd (open it with `rerun <stem>.rrd`), <stem>.results.js
 and 3-D point, score, the nose track beside it, stage timings in ms; with --loop also the loop index),
 <stem>.summary.json (drop ledger, fps, p50/p99 timings, track counts, model path and SHA-256). A recording with
 ground truth also gets an accuracy line (detection and track) and <stem>.accuracy.png (nose error and score over
-frames). --rerun adds or replaces the viewer sink.
+frames). --rerun adds or replaces the viewer sink; --foxglove HOST:PORT streams the replay to Foxglove as well, at the
+recorded pace.
 --check GOLDEN compares the per-frame results with a golden file (docs/BATCH.md) and exits 1 on a regression.
 A ROS 1 or ROS 2 bag is imported to a temporary recording first (as `tofd import` does, with the same options).
 """
@@ -23,6 +24,7 @@ from typing import TYPE_CHECKING
 from tofd import arguments
 from tofd.config import Config
 from tofd.service.daemon import RERUN_SPEC_HELP
+from tofd.service.foxglove.spec import FOXGLOVE_SPEC_HELP, parse_foxglove_spec
 
 if TYPE_CHECKING:
     from tofd.algorithm.detector import NoseModel
@@ -46,6 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=arguments.positive_int, default=None, metavar="N", help="stop after N frames")
     parser.add_argument("--rerun", default=None, metavar="SINK",
                         help=f"{RERUN_SPEC_HELP}; default: save:OUT/<stem>.rrd")
+    parser.add_argument("--foxglove", default=None, metavar="HOST:PORT",
+                        help=f"{FOXGLOVE_SPEC_HELP}; the replay then runs at the recorded pace (--realtime)")
     parser.add_argument("--check", type=Path, default=None, metavar="GOLDEN",
                         help="compare the per-frame results with this golden file; exit 1 on a regression")
     parser.add_argument("--write-golden", type=Path, default=None, metavar="GOLDEN",
@@ -83,7 +87,7 @@ def main(args: argparse.Namespace) -> int:
     from drivers.rosbag import RangeOptions, is_rosbag
     from tofd.errors import UsageError
 
-    if args.speed is not None and not args.realtime:
+    if args.speed is not None and not (args.realtime or args.foxglove not in (None, "none")):
         raise UsageError("--speed needs --realtime (a lossless replay runs as fast as the pipeline goes)")
     stem = args.file.name.split(".")[0]
     if not is_rosbag(args.file):
@@ -114,15 +118,16 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     from tofd.service.pipeline import PipelineError, ResultsWriter
     from tofd.service.viewer import ViewerError
 
-    cfg = load_config(args.config)
+    cfg = parse_foxglove_spec(args.foxglove, load_config(args.config))
     cfg = parse_rerun_spec(args.rerun or f"save:{args.out / (stem + '.rrd')}", cfg)
+    realtime = args.realtime or (args.foxglove is not None and cfg.foxglove.enabled)  # someone watches it live
     cfg = replace(cfg, health=replace(cfg.health, enabled=False))
     policy = "lossless" if cfg.pipeline.policy == "auto" else cfg.pipeline.policy
     try:
         info = read_recording_info(recording)
         if args.seek is not None:
             _check_seek(recording, args.seek)
-        source = ReplaySource(recording, mode="realtime" if args.realtime else "lossless", speed=args.speed or 1.0,
+        source = ReplaySource(recording, mode="realtime" if realtime else "lossless", speed=args.speed or 1.0,
                               loop=args.loop, seek=args.seek)
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(f"{args.file}: {exc}") from None

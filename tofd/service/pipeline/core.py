@@ -56,7 +56,10 @@ class PipelineError(RuntimeError):
 
 
 class OfferingViewer(Protocol):
-    """A best-effort viewer: `offer` returns at once (or within `block_s`), False if it refused the frame."""
+    """A best-effort viewer: `offer` returns at once (or within `block_s`), False if it refused the frame, which
+    is ledgered as a viewer drop for `drop_reason`."""
+
+    drop_reason: str
 
     def offer(self, result: FrameResult, block_s: float) -> bool: ...
 
@@ -81,6 +84,7 @@ class Pipeline:
     """Run frames from a FrameSource through the stages; see the module docstring.
 
     `viewer`: an OfferingViewer, or a callable called inline on the sink thread after `writers`.
+    `live_viewers`: more OfferingViewers (Foxglove), offered every delivered frame without waiting.
     `model`: the workers run the nose detector of cfg.detector with this model (None: no detection).
     `live_source`: the frames' host receive times are this process's monotonic clock (a camera), so latency
     counts from there; else (replay) from the capture thread's arrival.
@@ -92,10 +96,11 @@ class Pipeline:
     def __init__(self, cfg: Config, policy: Policy, intrinsics: Intrinsics | None = None,
                  viewer: OfferingViewer | Sink | None = None, writers: tuple[Sink, ...] = (),
                  model: NoseModel | None = None, live_source: bool = True,
-                 result_maps: tuple[str, ...] | None = None):
+                 result_maps: tuple[str, ...] | None = None, live_viewers: tuple[OfferingViewer, ...] = ()):
         pc = cfg.pipeline
         self.cfg, self.policy, self.intrinsics = cfg, policy, intrinsics or cfg.intrinsics
         self.viewer, self.writers, self.live_source = viewer, writers, live_source
+        self.live_viewers = live_viewers
         self.ledger = DropLedger()
         self.stats = PipelineStats(pc.stats_window)
         spec = {"config": config_table(cfg), "intrinsics": self.intrinsics.to_dict(),
@@ -386,6 +391,9 @@ class Pipeline:
             self.stats.record(result.timings_ms)
             if offer is not None and not offer(result, block_s):
                 self.ledger.skip_viewer(result.seq, result.frame.frame_counter, "blocked")
+            for live in self.live_viewers:
+                if not live.offer(result, 0.0):
+                    self.ledger.skip_viewer(result.seq, result.frame.frame_counter, live.drop_reason)
 
     @staticmethod
     def _flush_inline(flush: Callable[[], None]) -> None:

@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
+from typing import Protocol
 
 from tofd.algorithm.heap import keep_arrays_on_the_heap
 from tofd.config import Config, config_from_dict, config_table
@@ -45,11 +46,46 @@ IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this lon
 VIEWER_NICE = 10  # the viewer process's niceness: on busy cores the feature workers go first
 
 
-def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, parent_pid: int, frames: Connection,
-                status: Connection, slots: tuple[str, int], free: Semaphore) -> None:
-    """Entry point of the viewer process: log every frame it is sent until CLOSE or the pipe closes, freeing
-    its slot (`slots`: the ring's name and size) after; what waits in the logger's batch is sent when no frame
-    came for IDLE_FLUSH_S, and at the end."""
+class ViewerBackend(Protocol):
+    """What a viewer process runs: called with each frame, flush() sends what it batches, close() ends it
+    within `timeout_s`; `web_url` is where a user looks (None: nowhere to open)."""
+
+    web_url: str | None
+
+    def __call__(self, r: FrameResult) -> None: ...
+
+    def flush(self) -> None: ...
+
+    def close(self, timeout_s: float) -> None: ...
+
+
+class RerunBackend:
+    """The Rerun stream of a viewer process: RerunTarget (where it goes) and RerunLogger (what it shows)."""
+
+    def __init__(self, cfg: Config, sink: str, batch_frames: int, footer: bool):
+        self.target = RerunTarget(cfg.rerun, sink, cfg.intrinsics.shape, footer=footer)
+        self.logger = RerunLogger(self.target.rec, cfg.intrinsics, cfg.rerun.point_cloud, batch_frames)
+        self.web_url = self.target.web_url
+        self.flush = self.logger.flush
+
+    def __call__(self, r: FrameResult) -> None:
+        self.logger(r)
+
+    def close(self, timeout_s: float) -> None:
+        self.target.close(timeout_s)
+
+
+OpenBackend = Callable[[Config, str, int, bool], ViewerBackend]
+"""Builds a viewer process's backend from (config, sink, frames per send, footer); a module-level function, so
+that the spawned child can be handed it."""
+
+
+def viewer_main(open_backend: OpenBackend, cfg_table: dict, sink: str, batch_frames: int, footer: bool,
+                parent_pid: int, frames: Connection, status: Connection, slots: tuple[str, int],
+                free: Semaphore) -> None:
+    """Entry point of the viewer process: log every frame it is sent to open_backend(...) until CLOSE or the
+    pipe closes, freeing its slot (`slots`: the ring's name and size) after; what waits in the backend's batch
+    is sent when no frame came for IDLE_FLUSH_S, and at the end."""
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -58,8 +94,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     cfg = config_from_dict(cfg_table)
     ring = SlotRing.attach(slots[0], slots[1], cfg.intrinsics.shape, wire.PLANES)
     try:
-        target = RerunTarget(cfg.rerun, sink, cfg.intrinsics.shape, footer=footer)
-        logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud, batch_frames)
+        target = open_backend(cfg, sink, batch_frames, footer)
     except Exception as exc:  # reported to the parent as one line
         status.send_bytes(json.dumps({"error": str(exc)}).encode())
         return
@@ -81,16 +116,16 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     while True:
         try:
             if not frames.poll(IDLE_FLUSH_S):
-                logging_step("batch", logger.flush)
+                logging_step("batch", target.flush)
                 continue
             header = frames.recv_bytes()
         except (EOFError, OSError):
             break
         if header == CLOSE:
             break
-        logged += logging_step("frame", lambda h: logger(wire.read(h, ring, cfg.intrinsics)), header)
+        logged += logging_step("frame", lambda h: target(wire.read(h, ring, cfg.intrinsics)), header)
         free.release()  # the logger keeps no view of the slot
-    logging_step("batch", logger.flush)
+    logging_step("batch", target.flush)
     ring.close()
     target.close(cfg.pipeline.shutdown_timeout_s)
     status.send_bytes(json.dumps({"closed": {"frames": logged, "errors": errors}}).encode())
@@ -110,20 +145,24 @@ def child_environment(values: dict[str, str]) -> Iterator[None]:
 class ViewerProcess:
     """The parent's handle: start the child (raising ViewerError if its sink cannot start), `offer` frames,
     `close` within a deadline. Use from one thread for offer and one for close. `footer`: whether a "save" sink
-    writes Rerun's footer (targets.file_footer)."""
+    writes Rerun's footer (targets.file_footer). `open_backend`: what the child runs (Rerun by default);
+    `name` names the child and the viewer's drops ("blocked" for Rerun, "<name>_blocked" for others)."""
 
     def __init__(self, cfg: Config, sink: str, batch_frames: int = 1, queue_frames: int = 8,
-                 start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True):
+                 start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True,
+                 open_backend: OpenBackend = RerunBackend, name: str = "rerun"):
         ctx = mp.get_context("spawn")
         self.queue_frames = queue_frames
         self._ring = SlotRing.create(queue_frames, cfg.intrinsics.shape, wire.PLANES, use="viewer")
-        self._free = ctx.Semaphore(queue_frames)  # slots the child has finished with
+        self._free: Semaphore | None = ctx.Semaphore(queue_frames)  # slots the child has finished with
         self._next = 0  # the slot the next frame goes to
         frames_r, self._frames = ctx.Pipe(duplex=False)
         self._status, status_w = ctx.Pipe(duplex=False)
-        self.process = ctx.Process(target=viewer_main, name="tofd-viewer", daemon=True,
-                                   args=(config_table(cfg), sink, batch_frames, footer, os.getpid(), frames_r,
-                                         status_w, (self._ring.name, queue_frames), self._free))
+        self.name = name
+        self.drop_reason = "blocked" if name == "rerun" else f"{name}_blocked"
+        self.process = ctx.Process(target=viewer_main, name=f"tofd-viewer-{name}", daemon=True,
+                                   args=(open_backend, config_table(cfg), sink, batch_frames, footer, os.getpid(),
+                                         frames_r, status_w, (self._ring.name, queue_frames), self._free))
         quiet = {} if footer or "RUST_LOG" in os.environ else {"RUST_LOG": QUIET_NO_FOOTER}
         with child_environment(quiet):
             self.process.start()
@@ -162,6 +201,8 @@ class ViewerProcess:
         """Hand a frame to the viewer; False (refused) if no slot frees up within `block_s` seconds or it is
         closing. Once a frame was refused, later offers do not wait until a slot is free again."""
         deadline = time.monotonic() + (0.0 if self.stalled else block_s)
+        if self._free is None:  # released
+            return False
         while not self._free.acquire(timeout=max(0.0, min(POLL_S, deadline - time.monotonic()))):
             if self._closing or time.monotonic() >= deadline:
                 self.stalled = True
@@ -193,7 +234,7 @@ class ViewerProcess:
                 pass  # the child is gone: no status message will come
         msg = self._status_message(max(0.0, deadline - time.monotonic()))
         self.process.join(max(0.0, min(1.0, deadline - time.monotonic())))
-        unsent = self.queue_frames - self._free.get_value()
+        unsent = self.queue_frames - (self._free.get_value() if self._free is not None else 0)
         if msg is None or self.process.is_alive():
             log.warning("the viewer did not finish in %.1f s (a stalled receiver?); abandoning it", timeout_s)
             self.report = {"exit": "killed", "unsent": unsent}
@@ -210,3 +251,6 @@ class ViewerProcess:
         self._frames.close()
         self._status.close()
         self._ring.close()
+        # the semaphore is unlinked (and multiprocessing's resource tracker told) when its last reference goes:
+        # here, since tofd's service commands end with os._exit, which runs no finalizers
+        self._free = None
