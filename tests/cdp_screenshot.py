@@ -54,7 +54,8 @@ def screenshot(url: str, out: Path, wait_s: float) -> list[str]:
         if tabs is None:
             raise RuntimeError("chromium's DevTools endpoint did not come up")
         page = next(t for t in tabs if t["type"] == "page")
-        ws = websocket.create_connection(page["webSocketDebuggerUrl"], timeout=60)
+        # no Origin header: Chromium refuses DevTools connections from an origin not allowed by a flag
+        ws = websocket.create_connection(page["webSocketDebuggerUrl"], timeout=60, suppress_origin=True)
         events: list[dict] = []
         counter = iter(range(1, 1 << 30))
 

@@ -25,7 +25,8 @@ tofd: scale-invariant range features (Haker et al. 2008) and nose detection for 
 cameras. It runs as a live camera daemon (Rerun viewer, /healthz, /metrics), records and replays MCAP
 recordings, and trains and evaluates the nose detector.
 
-Exit status: 0 success, 1 runtime failure (camera, viewer, pipeline), 2 usage or data error, 130 interrupted."""
+Exit status: 0 success, 1 runtime failure (camera, viewer, pipeline), 2 usage or data error, 130 interrupted
+(Ctrl-C; 143 when a replay is stopped by SIGTERM; `tofd run`, a service, exits 0 on either)."""
 
 EPILOG = "Start with `tofd run --emulate --rerun web` (no camera needed), or `tofd COMMAND --help`."
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -159,10 +160,15 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     written = ["results.jsonl", "summary.json"] + (["rrd"] if cfg.rerun.sink == "save" else [])
     skipped = source.counters["replay_dropped"]
     loops = source.counters["replay_loops"]
+    stopped_by = s["shutdown"]["reason"] if s["shutdown"]["reason"].startswith("SIG") else None
     print(f"tofd replay: {s['frames_out']} frames processed, {s['frames_dropped']} dropped"
           + (f", {skipped} skipped to keep the recorded pace" if skipped else "")
           + (f", {loops + 1} passes" if args.loop else "")
           + f", {s['fps']} fps; wrote {out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
+    if stopped_by:  # the outputs hold what was done; no golden check of a part
+        print(f"tofd replay: interrupted by {stopped_by} after {s['frames_out']} of "
+              f"{total if total is not None else 'the'} frames", file=sys.stderr)
+        return 128 + signal.Signals[stopped_by].value
     if golden is not None:
         return check_golden(args, golden.rows, stem, cfg, result.model) or result.exit_code
     return result.exit_code

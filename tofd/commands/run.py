@@ -85,7 +85,8 @@ def main(args: argparse.Namespace) -> int:
         print(f"tofd run: {exc}", file=sys.stderr)
         return 1
     s = result.summary
-    print(f"tofd run: frames in {s['frames_in']}, out {s['frames_out']}, dropped {s['frames_dropped']} "
-          f"{s['dropped_by_stage']}, device gaps {len(s['gaps'])}, {s['fps']} fps"
+    by_stage = ", ".join(f"{stage} {n}" for stage, n in s["dropped_by_stage"].items())
+    print(f"tofd run: frames in {s['frames_in']}, out {s['frames_out']}, dropped {s['frames_dropped']}"
+          + (f" ({by_stage})" if by_stage else "") + f", device gaps {len(s['gaps'])}, {s['fps']} fps"
           + (f"; error: {s['error']}" if s["error"] else ""), file=sys.stderr)
     return result.exit_code
