@@ -23,10 +23,12 @@ import os
 import signal
 import threading
 import time
+import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
+from pathlib import Path
 from typing import Protocol
 
 from tofd.algorithm.heap import keep_arrays_on_the_heap
@@ -36,6 +38,7 @@ from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.slots import SlotRing
 from tofd.service.viewer import wire
 from tofd.service.viewer.logger import RerunLogger
+from tofd.service.viewer.rotation import FileRotation
 from tofd.service.viewer.targets import QUIET_NO_FOOTER, RerunTarget, ViewerError
 
 log = logging.getLogger(__name__)
@@ -60,16 +63,30 @@ class ViewerBackend(Protocol):
 
 
 class RerunBackend:
-    """The Rerun stream of a viewer process: RerunTarget (where it goes) and RerunLogger (what it shows)."""
+    """The Rerun stream of a viewer process: RerunTarget (where it goes) and RerunLogger (what it shows); a "save"
+    sink with a size or time limit moves on to the next file segment when it is reached (rotation.py)."""
 
     def __init__(self, cfg: Config, sink: str, batch_frames: int, footer: bool):
-        self.target = RerunTarget(cfg.rerun, sink, cfg.intrinsics.shape, footer=footer)
-        self.logger = RerunLogger(self.target.rec, cfg.intrinsics, cfg.rerun.point_cloud, batch_frames)
+        self.cfg, self.sink, self.batch_frames, self.footer = cfg, sink, batch_frames, footer
+        self.rotation = FileRotation(cfg.rerun) if FileRotation.wanted(cfg.rerun, sink) else None
+        self.recording_id = str(uuid.uuid4())  # one recording over every segment
+        self._open(None if self.rotation is None else self.rotation.segment())
         self.web_url = self.target.web_url
-        self.flush = self.logger.flush
+
+    def _open(self, path: Path | None) -> None:
+        self.target = RerunTarget(self.cfg.rerun, self.sink, self.cfg.intrinsics.shape, footer=self.footer,
+                                  path=None if path is None else str(path), recording_id=self.recording_id)
+        self.logger = RerunLogger(self.target.rec, self.cfg.intrinsics, self.cfg.rerun.point_cloud, self.batch_frames)
 
     def __call__(self, r: FrameResult) -> None:
         self.logger(r)
+        if self.rotation is not None and self.rotation.due():
+            self.logger.flush()
+            self.target.close(self.cfg.pipeline.shutdown_timeout_s)
+            self._open(self.rotation.advance())
+
+    def flush(self) -> None:
+        self.logger.flush()
 
     def close(self, timeout_s: float) -> None:
         self.target.close(timeout_s)
