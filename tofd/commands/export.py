@@ -24,12 +24,12 @@ FORMATS = ("png", "ply", "npz")
 def frame_range(text: str) -> slice:
     """--frames A:B as a slice of frame positions (A, B >= 0, A < B when both are given)."""
     start, colon, stop = text.partition(":")
-    try:
-        a, b = (int(start) if start else None), (int(stop) if stop else None)
-    except ValueError:
-        a = b = -1
-    if not colon or (a is not None and a < 0) or (b is not None and b < 0) or (None not in (a, b) and a >= b):
-        raise argparse.ArgumentTypeError(f"expected A:B with 0 <= A < B (either may be left out), got {text}")
+    bad = argparse.ArgumentTypeError(f"expected A:B with 0 <= A < B (either may be left out), got {text}")
+    if not colon or not all(part.isdigit() for part in (start, stop) if part):
+        raise bad
+    a, b = (int(start) if start else None), (int(stop) if stop else None)
+    if a is not None and b is not None and a >= b:
+        raise bad
     return slice(a, b)
 
 
@@ -107,11 +107,12 @@ def main(args: argparse.Namespace) -> int:
                 for key in arrays:
                     arrays[key].append(getattr(frame, key))
     if args.to == "npz" and intrinsics is not None:
-        np.savez_compressed(out / f"{stem}.npz", range_m=np.stack(arrays["range_m"]),
-                            amplitude=np.stack(arrays["amplitude"]),
-                            frame_counter=np.asarray(arrays["frame_counter"], np.int64),
-                            timestamp_us=np.asarray(arrays["timestamp_us"], np.int64),
-                            **{k: np.asarray(v) for k, v in intrinsics.to_dict().items()})
+        npz: dict[str, np.ndarray] = {"range_m": np.stack(arrays["range_m"]),
+                                      "amplitude": np.stack(arrays["amplitude"]),
+                                      "frame_counter": np.asarray(arrays["frame_counter"], np.int64),
+                                      "timestamp_us": np.asarray(arrays["timestamp_us"], np.int64),
+                                      **{k: np.asarray(v) for k, v in intrinsics.to_dict().items()}}
+        np.savez_compressed(out / f"{stem}.npz", allow_pickle=False, **npz)
         written.append(f"{stem}.npz")
     if not summary.frames:
         raise UsageError(f"{args.file}: no frame at positions {sel.start or 0}:{'' if sel.stop is None else sel.stop}")
