@@ -178,3 +178,16 @@ def test_a_stalled_client_and_fifty_connections_cost_the_pipeline_nothing(tmp_pa
     else:  # the SDK's stop waits for the stalled client's closing handshake: the process is killed on time
         assert summary["foxglove"]["exit"] == "killed"
         assert any("foxglove" in part for part in summary["shutdown"]["abandoned"])
+
+
+def test_a_port_in_use_is_a_config_error_naming_the_key(tmp_path):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        run = subprocess.run([sys.executable, "-m", "tofd", "run", "--emulate", "--frames", "5", "--health-port", "0",
+                              "--config", write_config(tmp_path), "--foxglove", str(port)], cwd=ROOT,
+                             capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2, run.stderr
+    assert run.stderr.strip().splitlines()[-1] == (f"tofd run: config error: foxglove.port: port {port} on 127.0.0.1 "
+                                                   "is already in use (--foxglove HOST:PORT)")

@@ -116,6 +116,9 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
                                        cancelled=lambda: bool(stop), footer=file_footer(policy))
             if cfg.foxglove.enabled:
                 from tofd.service.foxglove.publisher import FoxglovePublisher
+                from tofd.service.foxglove.spec import check_port_free
+
+                check_port_free(cfg.foxglove)
 
                 foxglove = ViewerProcess(cfg, "foxglove", cancelled=lambda: bool(stop),
                                          open_backend=FoxglovePublisher, name="foxglove")
