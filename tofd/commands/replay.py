@@ -166,8 +166,8 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
           + (f", {loops + 1} passes" if args.loop else "")
           + f", {s['fps']} fps; wrote {out}/{stem}.{{{','.join(written)}}}", file=sys.stderr)
     if stopped_by:  # the outputs hold what was done; no golden check of a part
-        print(f"tofd replay: interrupted by {stopped_by} after {s['frames_out']} of "
-              f"{total if total is not None else 'the'} frames", file=sys.stderr)
+        print(f"tofd replay: interrupted by {stopped_by} after {s['frames_out']}"
+              + (f" of {total}" if total is not None else "") + " frames", file=sys.stderr)
         return 128 + signal.Signals[stopped_by].value
     if golden is not None:
         return check_golden(args, golden.rows, stem, cfg, result.model) or result.exit_code

@@ -44,7 +44,6 @@ class ServiceResult:
     summary: dict  # ledger summary + final snapshot
     model: NoseModel | None  # the nose model the run used (None: it ran without one)
     web_url: str | None = None
-    foxglove_url: str | None = None  # the Foxglove WebSocket server's address (None: not served)
 
 
 def run_identity(cfg: Config, model: ModelIdentity) -> dict[str, str]:
@@ -119,7 +118,6 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
                 from tofd.service.foxglove.spec import check_port_free
 
                 check_port_free(cfg.foxglove)
-
                 foxglove = ViewerProcess(cfg, "foxglove", cancelled=lambda: bool(stop),
                                          open_backend=FoxglovePublisher, name="foxglove")
             metrics = ServiceMetrics(lambda: pipeline.snapshot(), identity)
@@ -157,5 +155,4 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
         progress.done()
     if summary_path is not None:
         write_json_atomic(summary_path, summary)
-    return ServiceResult(1 if pipeline.error else 0, summary, model, viewer.web_url if viewer else None,
-                         foxglove.web_url if foxglove else None)
+    return ServiceResult(1 if pipeline.error else 0, summary, model, viewer.web_url if viewer else None)
