@@ -82,8 +82,8 @@ def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     assert has_footer(tmp_path / f"{stem}.rrd")  # a replay ends: its file keeps the index for random access
     nose = tables[bp.NOSE_2D][1]
     logged = dict(zip(nose.column("frame").to_pylist(), nose.column("Points2D:positions").to_pylist(), strict=True))
-    for x in accepted:  # the detected nose's refined tip is what the viewer shows
-        assert logged[x["frame_counter"]] == [pytest.approx(x["tip_px"], abs=0.006)]
+    for x in accepted:  # the detected nose's refined tip is what the viewer shows, its origin at the pixel's corner
+        assert logged[x["frame_counter"]] == [pytest.approx([c + 0.5 for c in x["tip_px"]], abs=0.006)]
     # beside it the track, through the viewer process's wire format: its box where the results put it
     confirmed = [x for x in lines if x["track"]["status"] == "tracking"]
     assert confirmed and all(x["track"]["nose_px"] is not None for x in confirmed)
@@ -95,7 +95,7 @@ def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     assert set(centers) == set(counters)
     for x in lines:
         want = x["track"]["nose_px"]
-        assert centers[x["frame_counter"]] == ([pytest.approx(want, abs=0.01)] if want else [])
+        assert centers[x["frame_counter"]] == ([pytest.approx([c + 0.5 for c in want], abs=0.01)] if want else [])
 
 
 def test_replay_of_a_missing_file_is_a_one_line_error(tmp_path):

@@ -26,7 +26,8 @@ tofd: scale-invariant range features (Haker et al. 2008) and nose detection for 
 cameras. It runs as a live camera daemon (Rerun viewer, /healthz, /metrics), records and replays MCAP
 recordings, and trains and evaluates the nose detector.
 
-Exit status: 0 success, 1 runtime failure (camera, viewer, pipeline), 2 usage or data error, 130 interrupted.
+Exit status: 0 success, 1 runtime failure (camera, viewer, pipeline), 2 usage or data error, 130 interrupted
+(Ctrl-C; 143 when a replay is stopped by SIGTERM; `tofd run`, a service, exits 0 on either).
 Signals: SIGTERM, SIGINT, SIGHUP and SIGQUIT stop (a running service drains, writes its summary and exits 0;
 while tofd loads: `interrupted`, 130); SIGUSR1 logs a status line."""
 

@@ -137,6 +137,9 @@ class RerunConfig:
     point_cloud: bool = True  # log the foreground as a 3-D point cloud coloured by NFFT eps0
     batch_frames: int = 15  # frames sent to Rerun together in replay and to .rrd files; live viewers get each at once
     analytics: bool = False  # let the Rerun SDK/viewer send anonymous usage data (off: tofd sets CI=1 for them)
+    rotate_mb: float = 0.0  # "save": start a new numbered .rrd segment at this size, MB (0: no size limit)
+    rotate_s: float = 0.0  # "save": ... or after this many seconds (0: no time limit)
+    keep_files: int = 0  # segments kept, the oldest deleted beyond it (0: keep all)
 
     def validate(self) -> None:
         if self.sink not in RERUN_SINKS:
@@ -145,6 +148,25 @@ class RerunConfig:
             if not 0 < getattr(self, key) < 65536:
                 raise ValueError(f"{key}: {getattr(self, key)} is not a TCP port")
         check_count("batch_frames", self.batch_frames, MAX_QUEUE)
+        for key in ("rotate_mb", "rotate_s", "keep_files"):
+            if not getattr(self, key) >= 0:
+                raise ValueError(f"{key}: {getattr(self, key)} must be >= 0")
+
+
+@dataclass(frozen=True, slots=True)
+class FoxgloveConfig:
+    """The live Foxglove WebSocket server (tofd.service.foxglove), beside the Rerun sink."""
+
+    enabled: bool = False  # serve the live stream to Foxglove (also: --foxglove HOST:PORT)
+    bind: str = "127.0.0.1"  # listen address
+    port: int = 8765  # TCP port (0 = any free port)
+    backlog_messages: int = 64  # messages queued per client before its oldest are dropped (a stalled client)
+
+    def validate(self) -> None:
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"port: {self.port} is not a TCP port")
+        if self.backlog_messages < 1:
+            raise ValueError(f"backlog_messages: {self.backlog_messages} must be >= 1")
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,6 +196,7 @@ class Config:
     features: FeatureConfig = field(default_factory=FeatureConfig)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     rerun: RerunConfig = field(default_factory=RerunConfig)
+    foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
 

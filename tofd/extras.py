@@ -15,6 +15,7 @@ MODULE_EXTRAS: dict[str, str | None] = {
     "prometheus_client": "service",
     "waitress": "service",
     "av": "service",
+    "foxglove": "service",
     "dask": "batch",
     "distributed": "batch",
     "pyarrow": "batch",
@@ -27,6 +28,7 @@ MODULE_EXTRAS: dict[str, str | None] = {
 
 COMMAND_EXTRAS: dict[str, str] = {
     "run": "service", "replay": "service", "record": "service", "convert": "service", "devices": "service",
+    "info": "service", "export": "service",
     "import": "rosbag", "batch": "batch", "train": "lab", "evaluate": "lab", "dataset": "lab", "experiment": "lab",
 }
 """`tofd` command -> the extra it needs."""

@@ -37,7 +37,7 @@ from tofd.service.model import load_service_model
 
 log = logging.getLogger(__name__)
 
-SUMMARY_NAME = "summary.json"
+SUMMARY_NAME = "_summary.json"  # "_": dataset readers (pyarrow, Spark) skip it; only Parquet parts are data
 CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "1s",
                   "distributed.worker.memory.monitor-interval": "1s", "distributed.admin.system-monitor.interval": "2s"}
 """Dask settings of the local cluster: no statistical profiler (it samples the running task's stack every 10 ms),
@@ -49,12 +49,17 @@ environment (docs/BATCH.md)."""
 @contextlib.contextmanager
 def batch_client(scheduler: str | None, workers: int) -> Iterator[Client]:
     """A Dask client: of the scheduler at `scheduler` (tcp://host:8786), else of a new LocalCluster of `workers`
-    single-threaded worker processes (with the dashboard when bokeh is installed)."""
+    single-threaded worker processes (with the dashboard when bokeh is installed); Dask's own INFO lines are not
+    shown unless tofd logs at debug level."""
+    if logging.getLogger().level > logging.DEBUG:  # Dask's INFO lines only when tofd logs at debug level
+        logging.getLogger("distributed").setLevel(logging.WARNING)
     if scheduler:
         with Client(scheduler) as client:
             yield client
         return
-    dashboard = "127.0.0.1:0" if importlib.util.find_spec("bokeh") else None
+    # the scheduler's HTTP server (and the dashboard, with bokeh) on loopback, any free port: Dask's default is
+    # port 8787 on every interface
+    dashboard = "127.0.0.1:0"
     with dask.config.set(CLUSTER_CONFIG), LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=dashboard,
             env=THREAD_ENV) as cluster, Client(cluster) as client:
@@ -129,7 +134,7 @@ def _remove_partial_files(parts: list[Partition]) -> None:
     """Delete the temporary files of tasks whose worker died while writing (each retry writes its own)."""
     for directory in {p.output.rsplit("/", 1)[0] for p in parts}:
         fs, path = fsspec.core.url_to_fs(directory)
-        for tmp in fs.glob(f"{path}/part-*.parquet.tmp-*"):
+        for tmp in fs.glob(f"{path}/.part-*.parquet.tmp-*"):
             fs.rm(tmp)
 
 

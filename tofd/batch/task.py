@@ -198,7 +198,8 @@ def run_partition(part_json: str, job_json: str) -> dict:
     stats["task_ms"] = (t0 - t_start) * 1e3
     fs, path = fsspec.core.url_to_fs(part.output)
     fs.makedirs(fs._parent(path), exist_ok=True)
-    tmp = f"{path}.tmp-{os.getpid()}"
+    parent, name = path.rsplit("/", 1)
+    tmp = f"{parent}/.{name}.tmp-{os.getpid()}"  # a leading ".": dataset readers skip it until it is renamed
     meta = {STATS_KEY: json.dumps(stats).encode()}
     with fs.open(tmp, "wb") as fh:
         pq.write_table(table.replace_schema_metadata(meta), fh)

@@ -4,9 +4,10 @@ INPUTS are recordings (.mcap), dataset files (.npz, as `tofd dataset generate` w
 Femto recordings (.mkv; a local file named otherwise is recognised by its content), directories (searched for all
 three) or glob patterns, local or fsspec URLs. Each input is cut into partitions of --partition-frames frames,
 read by the tasks (a recording through its index, a dataset by frame range, an .mkv whole). Output in --out:
-recording=<name>/part-<first>-<stop>-<key>.parquet (key: digests of input, partition, config, model, tofd version)
-and summary.json (frames in/out/dropped with reasons, stage times, throughput, digests, and where the inputs carry
-ground truth the nose accuracy overall and per distance and `tofd evaluate`'s tables of the model's variants).
+recording=<name>/part-<first>-<stop>-<key>.parquet (key: digests of input, partition, config, model, tofd version),
+a Hive-partitioned Parquet dataset that pyarrow, DuckDB and Spark open as it is, and _summary.json (frames
+in/out/dropped with reasons, stage times, throughput, digests, and where the inputs carry ground truth the nose
+accuracy overall and per distance and `tofd evaluate`'s tables of the model's variants).
 Default: a LocalCluster of --workers processes; --scheduler tcp://host:8786 uses an existing Dask cluster.
 """
 
@@ -36,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     import sys
 
-    from tofd.batch.runner import RunOptions, batch_client, prepare, run_plan
+    from tofd.batch.runner import SUMMARY_NAME, RunOptions, batch_client, prepare, run_plan
     from tofd.config import load_config
     from tofd.lab.accuracy import accuracy_table
 
@@ -54,7 +55,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"tofd batch: {inp.url}: {inp.error}", file=sys.stderr)
     if not any(inp.partitions for inp in inputs):
         print("tofd batch: no input can be processed", file=sys.stderr)
-        return 1
+        return 2  # a data error: every input is missing, empty or unreadable
     try:
         with batch_client(args.scheduler, args.workers) as client:
             summary = run_plan(client, inputs, job, args.out, digests, RunOptions(args.resume, args.retries))
@@ -72,5 +73,6 @@ def main(args: argparse.Namespace) -> int:
     p = summary["partitions"]
     print(f"tofd batch: {summary['frames_out']} frames processed, {summary['frames_dropped']} dropped, "
           f"{p['computed']} partitions computed, {p['resumed']} resumed, {p['failed']} failed; "
-          f"{summary['throughput_fps']} frames/s; wrote {args.out}/summary.json", file=sys.stderr)
+          + (f"{summary['throughput_fps']} frames/s" if summary["throughput_fps"] is not None else "nothing computed")
+          + f"; wrote {args.out}/{SUMMARY_NAME}", file=sys.stderr)
     return 1 if bad else 0

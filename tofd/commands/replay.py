@@ -6,17 +6,19 @@ Output in --out: <stem>.rrd (open it with `rerun <stem>.rrd`), <stem>.results.js
 and 3-D point, score, the nose track beside it, stage timings in ms; with --loop also the loop index),
 <stem>.summary.json (drop ledger, fps, p50/p99 timings, track counts, model path and SHA-256). A recording with
 ground truth also gets an accuracy line (detection and track) and <stem>.accuracy.png (nose error and score over
-frames). --rerun adds or replaces the viewer sink.
+frames). --rerun adds or replaces the viewer sink; --foxglove HOST:PORT streams the replay to Foxglove as well, at the
+recorded pace.
 --check GOLDEN compares the per-frame results with a golden file (docs/BATCH.md) and exits 1 on a regression.
 Inputs are recognised by content (drivers.opener): a ROS 1 or ROS 2 bag is imported to a temporary recording first
 (as `tofd import` does, with the same options); an Azure Kinect / Orbbec Femto .mkv is read directly, or imported
-first for --realtime, --loop and --seek.
+first for --realtime, --foxglove, --loop and --seek.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -25,6 +27,7 @@ from typing import TYPE_CHECKING
 from tofd import arguments
 from tofd.config import Config
 from tofd.service.daemon import RERUN_SPEC_HELP
+from tofd.service.foxglove.spec import FOXGLOVE_SPEC_HELP, parse_foxglove_spec
 
 if TYPE_CHECKING:
     from drivers.intrinsics import Intrinsics
@@ -51,6 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=arguments.positive_int, default=None, metavar="N", help="stop after N frames")
     parser.add_argument("--rerun", default=None, metavar="SINK",
                         help=f"{RERUN_SPEC_HELP}; default: save:OUT/<stem>.rrd")
+    parser.add_argument("--foxglove", default=None, metavar="HOST:PORT",
+                        help=f"{FOXGLOVE_SPEC_HELP}; the replay then runs at the recorded pace (--realtime)")
     parser.add_argument("--check", type=Path, default=None, metavar="GOLDEN",
                         help="compare the per-frame results with this golden file; exit 1 on a regression")
     parser.add_argument("--write-golden", type=Path, default=None, metavar="GOLDEN",
@@ -75,7 +80,7 @@ def main(args: argparse.Namespace) -> int:
     from drivers.rosbag import RangeOptions
     from tofd.errors import UsageError
 
-    if args.speed is not None and not args.realtime:
+    if args.speed is not None and not (args.realtime or args.foxglove not in (None, "none")):
         raise UsageError("--speed needs --realtime (a lossless replay runs as fast as the pipeline goes)")
     stem = args.file.name.split(".")[0]
     try:
@@ -86,7 +91,8 @@ def main(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.file} is a {fmt.description}: the ROS bag options are for ROS bags")
     if fmt.read_as == "recording":
         return _replay(args, args.file, stem)
-    if fmt.read_as == "source" and not (args.realtime or args.loop or args.seek is not None):
+    if fmt.read_as == "source" and not (args.realtime or args.foxglove not in (None, "none") or args.loop
+                                        or args.seek is not None):
         return _replay_source(args, stem)
     import tempfile
 
@@ -107,8 +113,9 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     from tofd.errors import UsageError
 
     cfg = _replay_config(args, load_config(args.config), stem)
+    realtime = args.realtime or (args.foxglove is not None and cfg.foxglove.enabled)  # someone watches it live
     try:
-        source = ReplaySource(recording, mode="realtime" if args.realtime else "lossless", speed=args.speed or 1.0,
+        source = ReplaySource(recording, mode="realtime" if realtime else "lossless", speed=args.speed or 1.0,
                               loop=args.loop, seek=args.seek)
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(f"{args.file}: {exc}") from None
@@ -141,6 +148,7 @@ def _replay_source(args: argparse.Namespace, stem: str) -> int:
 def _replay_config(args: argparse.Namespace, cfg: Config, stem: str) -> Config:
     from tofd.service.daemon import parse_rerun_spec
 
+    cfg = parse_foxglove_spec(args.foxglove, cfg)
     cfg = parse_rerun_spec(args.rerun or f"save:{args.out / (stem + '.rrd')}", cfg)
     return replace(cfg, health=replace(cfg.health, enabled=False))
 
@@ -199,11 +207,17 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
     not_written = [name for name, path in outputs.items() if str(path) in failed]
     skipped = source.counters["replay_dropped"]
     loops = source.counters["replay_loops"]
+    reason = str(s["shutdown"]["reason"])
+    stopped_by = reason if reason.startswith("SIG") else None
     print(f"tofd replay: {s['frames_out']} frames processed, {s['frames_dropped']} dropped"
           + (f", {skipped} skipped to keep the recorded pace" if skipped else "")
           + (f", {loops + 1} passes" if args.loop else "")
           + f", {s['fps']} fps; wrote " + (f"{out}/{stem}.{{{','.join(written)}}}" if written else "nothing")
           + (f"; failed: {', '.join(not_written)}" if not_written else ""), file=sys.stderr)
+    if stopped_by:  # the outputs hold what was done; no golden check of a part
+        print(f"tofd replay: interrupted by {stopped_by} after {s['frames_out']}"
+              + (f" of {total}" if total is not None else "") + " frames", file=sys.stderr)
+        return 128 + signal.Signals[stopped_by].value
     code = 1 if failed else result.exit_code
     if golden is not None:
         return check_golden(args, golden.rows, stem, cfg, result.model) or code

@@ -1,5 +1,6 @@
 """Run the live service: attach to the camera, process frames, stream to Rerun, serve /healthz and /metrics.
 
+--foxglove HOST:PORT also serves the live stream to Foxglove (its WebSocket protocol; 127.0.0.1 by default).
 Attaches to the camera with the configured serial (or --serial, else the first one found), or to the
 emulated camera with --emulate. Live queues are latest-wins: when processing falls behind, the oldest
 frames are dropped and counted in the drop ledger. SIGTERM/SIGINT drain the queues and exit 0 (also while
@@ -17,6 +18,7 @@ from pathlib import Path
 
 from tofd import arguments
 from tofd.service.daemon import RERUN_SPEC_HELP
+from tofd.service.foxglove.spec import FOXGLOVE_SPEC_HELP, parse_foxglove_spec
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--serial", type=arguments.serial, default=None,
                         help="camera serial number (8 hex digits; overrides the config)")
     parser.add_argument("--rerun", default=None, metavar="SINK", help=RERUN_SPEC_HELP)
+    parser.add_argument("--foxglove", default=None, metavar="HOST:PORT", help=FOXGLOVE_SPEC_HELP)
     parser.add_argument("--frames", type=arguments.positive_int, default=None, metavar="N", help="stop after N frames")
     parser.add_argument("--health-port", type=int, default=None, metavar="PORT",
                         help="port of /healthz and /metrics (overrides health.port; 0 = any free port)")
@@ -59,7 +62,7 @@ def main(args: argparse.Namespace) -> int:
     from tofd.service.signals import StopSignals
     from tofd.service.viewer import ViewerError
 
-    cfg = parse_rerun_spec(args.rerun, load_config(args.config))
+    cfg = parse_foxglove_spec(args.foxglove, parse_rerun_spec(args.rerun, load_config(args.config)))
     if args.serial is not None:
         cfg = replace(cfg, camera=replace(cfg.camera, serial=args.serial))
     if args.health_port is not None:
@@ -85,7 +88,8 @@ def main(args: argparse.Namespace) -> int:
         print(f"tofd run: {exc}", file=sys.stderr)
         return 1
     s = result.summary
-    print(f"tofd run: frames in {s['frames_in']}, out {s['frames_out']}, dropped {s['frames_dropped']} "
-          f"{s['dropped_by_stage']}, device gaps {len(s['gaps'])}, {s['fps']} fps"
+    by_stage = ", ".join(f"{stage} {n}" for stage, n in s["dropped_by_stage"].items())
+    print(f"tofd run: frames in {s['frames_in']}, out {s['frames_out']}, dropped {s['frames_dropped']}"
+          + (f" ({by_stage})" if by_stage else "") + f", device gaps {len(s['gaps'])}, {s['fps']} fps"
           + (f"; error: {s['error']}" if s["error"] else ""), file=sys.stderr)
     return result.exit_code

@@ -69,10 +69,11 @@ def _health(cfg: Config, pipeline: Pipeline, metrics: ServiceMetrics) -> HealthS
 
 
 def _close(shutdown: Shutdown, pipeline: Pipeline | None, health: HealthServer | None,
-           viewer: ViewerProcess | None) -> LedgerSummary | None:
+           viewers: tuple[ViewerProcess | None, ViewerProcess | None]) -> LedgerSummary | None:
     """Stop what was started, each part within its share of the shutdown budget: drain half of what is left
     (at most pipeline.drain_timeout_s), give the threads and workers a quarter of the rest before killing
-    them, then the viewer the rest before killing it; the ledger summary (None: no pipeline was made)."""
+    them, then the viewers (`viewers`: Foxglove's, a fifth of the rest, then Rerun's, the rest) before killing
+    them; the ledger summary (None: no pipeline was made)."""
     summary = None
     if pipeline is not None:
         with shutdown.phase("pipeline"):
@@ -82,11 +83,13 @@ def _close(shutdown: Shutdown, pipeline: Pipeline | None, health: HealthServer |
     if health is not None:
         with shutdown.phase("health"):
             health.close()
-    if viewer is not None:
-        with shutdown.phase("viewer"):
-            report = viewer.close(shutdown.left_s())
-        if report["exit"] == "killed":
-            shutdown.abandoned.append(f"viewer ({report['exit']}, {report['unsent']} frame(s) unsent)")
+    for viewer, share in zip(viewers, (0.2, 1.0), strict=True):
+        if viewer is not None:
+            part = "viewer" if viewer.name == "rerun" else viewer.name
+            with shutdown.phase(part):
+                report = viewer.close(shutdown.left_s(share))
+            if report["exit"] == "killed":
+                shutdown.abandoned.append(f"{part} ({report['exit']}, {report['unsent']} frame(s) unsent)")
     return summary
 
 
@@ -101,6 +104,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     health: HealthServer | None = None
     pipeline: Pipeline | None = None
     viewer: ViewerProcess | None = None
+    foxglove: ViewerProcess | None = None
     ledger: LedgerSummary | None = None
     run_s, started_s = 0.0, time.monotonic()
     with StopSignals() as stop:  # from here a signal is a stop request, also while the children start
@@ -115,12 +119,20 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             if cfg.rerun.sink != "none":
                 viewer = ViewerProcess(cfg, cfg.rerun.sink, frames_per_send(cfg.rerun, policy),
                                        cancelled=lambda: bool(stop), footer=file_footer(policy))
+            if cfg.foxglove.enabled:
+                from tofd.service.foxglove.publisher import FoxglovePublisher
+                from tofd.service.foxglove.spec import check_port_free
+
+                check_port_free(cfg.foxglove)
+                foxglove = ViewerProcess(cfg, "foxglove", cancelled=lambda: bool(stop),
+                                         open_backend=FoxglovePublisher, name="foxglove")
             made: list[Pipeline] = []  # the metrics are one of the pipeline's sinks, so they come first
             metrics = ServiceMetrics(lambda: made[0].snapshot(), identity)
             model = service_model(cfg, model_file)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe), model=model,
-                                live_source=live_source,
-                                result_maps=maps_read(viewer is not None, writers_read_maps))
+                                live_source=live_source, live_viewers=() if foxglove is None else (foxglove,),
+                                result_maps=maps_read(viewer is not None or foxglove is not None,
+                                                      writers_read_maps))
             made.append(pipeline)
             health = _health(cfg, pipeline, metrics)
             pipeline.start(source, max_frames, cancelled=lambda: bool(stop))
@@ -128,6 +140,8 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             sd_notify("READY=1")
             if viewer is not None and viewer.web_url:
                 log.info("web viewer: %s", viewer.web_url)
+            if foxglove is not None and foxglove.web_url:
+                log.info("foxglove: %s (Foxglove: Open connection, Foxglove WebSocket)", foxglove.web_url)
             supervise(pipeline, stop, progress)
             if not stop:
                 pipeline.wait(pc.drain_timeout_s)
@@ -136,13 +150,14 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             sd_notify("STOPPING=1")
             shutdown = Shutdown.start(stop.name or ("error" if pipeline is None or pipeline.error else "end"),
                                       pc.shutdown_timeout_s, stop.first_at_s)
-            ledger = _close(shutdown, pipeline, health, viewer)
+            ledger = _close(shutdown, pipeline, health, (foxglove, viewer))
             viewer_report = None if viewer is None else viewer.report
     assert pipeline is not None and ledger is not None  # else the try block raised
     snap = pipeline.snapshot()
     summary = run_summary(ledger, snap, run_s, viewer_report,
                           ModelRecord(path=identity["model_path"], sha256=identity["model_sha256"]),
-                          identity["config_sha256"], shutdown.report())
+                          identity["config_sha256"], shutdown.report(),
+                          None if foxglove is None else foxglove.report)
     if progress is not None:
         show_progress(progress, snap)
         progress.done()

@@ -87,12 +87,13 @@ class _SnapshotCollector:
             viewer.add_metric([reason], float(n))
         yield viewer
         yield one(GaugeMetricFamily, "tofd_fps", "Delivered frames per second (last 5 s).", snap.fps)
-        rolling = GaugeMetricFamily("tofd_stage_duration_rolling_seconds",
-                                    "Per-frame stage durations over the rolling window, by quantile.",
-                                    labels=["stage", "quantile"])
+        # a summary (a quantile label on a gauge fails `promtool check metrics`): the quantiles of the rolling
+        # window; the run's counts and sums per stage are the histogram tofd_stage_duration_seconds'
+        rolling = Metric("tofd_stage_duration_rolling_seconds", "Per-frame stage durations over the rolling "
+                         "window (pipeline.stats_window frames), by quantile.", "summary")
         for stage, quantiles in sorted(snap.timings_ms.items()):
             for q, v in zip(("0.5", "0.99"), quantiles, strict=True):
-                rolling.add_metric([stage, q], v / 1e3)
+                rolling.add_sample(rolling.name, {"stage": stage, "quantile": q}, v / 1e3)
         yield rolling
         depth = GaugeMetricFamily("tofd_queue_depth", "Frames waiting in each queue (workers: being processed).",
                                   labels=["queue"])

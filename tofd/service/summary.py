@@ -36,7 +36,8 @@ class RunSummary(LedgerSummary):
     """The run summary (<stem>.summary.json): the ledger summary, fps over the whole run, timing quantiles (ms,
     p50 and p99 per stage), worker restarts, device events, the error if any, the nose track's counts (None: no
     detector), the outputs that failed (file -> why), the viewer's end report (None: no viewer), the model and
-    config the run used and the shutdown's report (tofd.service.shutdown)."""
+    config the run used, the shutdown's report (tofd.service.shutdown) and the Foxglove viewer process's end
+    report (None: no Foxglove server)."""
 
     error: str | None
     fps: float
@@ -49,10 +50,12 @@ class RunSummary(LedgerSummary):
     model: ModelRecord
     config_sha256: str
     shutdown: dict[str, object]
+    foxglove: ViewerReport | None
 
 
 def run_summary(ledger_summary: LedgerSummary, snap: PipelineSnapshot, run_s: float, viewer: ViewerReport | None,
-                model: ModelRecord, config_sha256: str, shutdown: dict[str, object]) -> RunSummary:
+                model: ModelRecord, config_sha256: str, shutdown: dict[str, object],
+                foxglove: ViewerReport | None = None) -> RunSummary:
     """The run summary of a run of `run_s` seconds (see RunSummary)."""
     return RunSummary(
         **ledger_summary, error=snap.error,
@@ -63,7 +66,7 @@ def run_summary(ledger_summary: LedgerSummary, snap: PipelineSnapshot, run_s: fl
         outputs_failed={**snap.outputs_failed,
                         **({viewer["path"]: viewer["failed"]} if viewer and viewer.get("failed") else {})},
         viewer=viewer, model=model,
-        config_sha256=config_sha256, shutdown=shutdown)
+        config_sha256=config_sha256, shutdown=shutdown, foxglove=foxglove)
 
 
 def write_json_atomic(path: Path, data: object) -> None:

@@ -59,7 +59,10 @@ class PipelineError(RuntimeError):
 
 
 class OfferingViewer(Protocol):
-    """A best-effort viewer: `offer` returns at once (or within `block_s`), False if it refused the frame."""
+    """A best-effort viewer: `offer` returns at once (or within `block_s`), False if it refused the frame, which
+    is ledgered as a viewer drop for `drop_reason`."""
+
+    drop_reason: str
 
     def offer(self, result: FrameResult, block_s: float) -> bool: ...
 
@@ -97,6 +100,7 @@ class Pipeline:
 
     `viewer`: a best-effort OfferingViewer, offered each frame after it was delivered (the daemon's viewer
     process); `inline_viewer`: one called on the sink thread before `writers` (its time is the "logging" stage).
+    `live_viewers`: more OfferingViewers (Foxglove), offered every delivered frame without waiting.
     `model`: the workers run the nose detector of cfg.detector with this model (None: no detection).
     `live_source`: the frames' host receive times are this process's monotonic clock (a camera), so latency
     counts from there; else (replay) from the capture thread's arrival.
@@ -109,10 +113,11 @@ class Pipeline:
                  viewer: OfferingViewer | None = None, inline_viewer: InlineViewer | None = None,
                  writers: tuple[Sink, ...] = (),
                  model: NoseModel | None = None, live_source: bool = True,
-                 result_maps: tuple[str, ...] | None = None):
+                 result_maps: tuple[str, ...] | None = None, live_viewers: tuple[OfferingViewer, ...] = ()):
         pc = cfg.pipeline
         self.cfg, self.policy, self.intrinsics = cfg, policy, intrinsics or cfg.intrinsics
         self.viewer, self.inline_viewer, self.writers, self.live_source = viewer, inline_viewer, writers, live_source
+        self.live_viewers = live_viewers
         self.ledger = DropLedger()
         self.stats = PipelineStats(pc.stats_window)
         spec = {"config": config_table(cfg), "intrinsics": self.intrinsics.to_dict(),
@@ -395,6 +400,9 @@ class Pipeline:
                 self.ledger.skip_viewer(result.seq, result.frame.frame_counter, "blocked")
             if self.viewer is not None and (failure := self.viewer.failure()) is not None:
                 self._output_failed(*failure)
+            for live in self.live_viewers:
+                if not live.offer(result, 0.0):
+                    self.ledger.skip_viewer(result.seq, result.frame.frame_counter, live.drop_reason)
 
     def _write_outputs(self, result: FrameResult) -> None:
         """Hand the result to every writer whose output has not failed; an OSError (a full disk, a permission)

@@ -4,7 +4,7 @@ Per frame (~0.3 MB): z-depth under the Pinhole (what Rerun's DepthImage means, s
 the camera's radial range is it over each ray's z), amplitude (uint16), mask, four feature maps cropped to the
 foreground's bounding box (they are 0 outside it; the box is ~10 % of the frame) with the translation that puts
 the crop where it lies in the image, the foreground cloud (~3000 points), the detected nose in 2-D and 3-D,
-beside it the confirmed nose track (a box of TRACK_BOX_M about its pixel, labelled with its confidence, and its
+beside it the confirmed nose track (a box of pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its
 3-D point) and the track's confidence, one scalar per stage timing.
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
 
@@ -31,7 +31,7 @@ from rerun.encodings import ColorModelLike
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.names import FAMILY_TABLE
 from tofd.config import RerunConfig
-from tofd.service.pipeline.results import FrameResult, track_px
+from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.stats import TIMED_STAGES
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.columns import (
@@ -44,12 +44,12 @@ from tofd.service.viewer.columns import (
     offsets_of,
     row_columns,
 )
+from tofd.service.viewer.pixels import corner_origin, track_box_px
 from tofd.service.viewer.wire import OWN_TIMINGS
 
 POINT_COLOUR_MAP = FAMILY_TABLE["range_nfft"].map_name("eps0")  # colours the foreground's 3-D points
 NOSE_COLOR = (255, 0, 255)
 TRACK_COLOR = (0, 200, 255)
-TRACK_BOX_M = 0.03  # metres: side of the track's box in the image, at the track's depth (a nose's size)
 MAX_BATCH_AGE_S = 0.5  # a batch is sent once its first frame waited this long, however few frames it holds
 SERIES_FRAMES = 15  # the time series (stage timings, track confidence) go out at least this many frames at once
 
@@ -208,7 +208,7 @@ class RerunLogger:
         self._shown, self._series = self._new_shown(), Batch()
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
         rec.log(bp.CAMERA, rr.Pinhole(focal_length=[intrinsics.fx, intrinsics.fy],
-                                      principal_point=[intrinsics.cx + 0.5, intrinsics.cy + 0.5],
+                                      principal_point=corner_origin((intrinsics.cx, intrinsics.cy)),
                                       width=intrinsics.width, height=intrinsics.height), static=True)
         rec.log(bp.MASK, rr.AnnotationContext([(0, "background", (0, 0, 0)), (1, "foreground", (230, 60, 40))]),
                 static=True)
@@ -262,14 +262,13 @@ class RerunLogger:
         shown, det, track = self._shown, r.detection, r.track
         if det is not None:
             found = det.answer_px is not None
-            shown.add(bp.NOSE_2D, row, positions=[det.answer_px] if found else np.empty((0, 2)))
+            shown.add(bp.NOSE_2D, row, positions=[corner_origin(det.answer_px)] if found else np.empty((0, 2)))
             shown.add(bp.NOSE_3D, row, positions=[det.answer_xyz_m] if found else np.empty((0, 3)))
         if track is None:
             return
-        px = track_px(track, self.intrinsics)
-        if px is not None and track.nose_xyz_m is not None:
-            half = TRACK_BOX_M / 2 * self.intrinsics.fx / track.nose_xyz_m[2]
-            shown.add(bp.TRACK_2D, row, centers=[px], half_sizes=[[half, half]],
+        box = track_box_px(track, self.intrinsics)
+        if box is not None and track.nose_xyz_m is not None:
+            shown.add(bp.TRACK_2D, row, centers=[box[0]], half_sizes=[[box[1], box[1]]],
                       labels=[f"track {track.confidence:.2f}"])
             shown.add(bp.TRACK_3D, row, positions=[track.nose_xyz_m])
         else:

@@ -25,12 +25,13 @@ import os
 import shutil
 import threading
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import replace
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
 from pathlib import Path
-from typing import NotRequired, TypedDict
+from typing import NotRequired, Protocol, TypedDict
 
 from tofd.config import Config, config_from_dict, config_table
 from tofd.outputs import finish_output, temp_path
@@ -42,6 +43,7 @@ from tofd.service.signals import children_start, ignore_in_child
 from tofd.service.summary import ViewerReport
 from tofd.service.viewer import wire
 from tofd.service.viewer.logger import RerunLogger
+from tofd.service.viewer.rotation import FileRotation
 from tofd.service.viewer.targets import QUIET_NO_FOOTER, RerunTarget, ViewerError
 
 log = logging.getLogger(__name__)
@@ -76,11 +78,63 @@ def _send_status(status: Connection, message: ViewerStatus) -> None:
     status.send_bytes(json.dumps(message).encode())
 
 
-def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, parent_pid: int, frames: Connection,
-                status: Connection, slots: tuple[str, int], free: Semaphore) -> None:
-    """Entry point of the viewer process: log every frame it is sent until CLOSE or the pipe closes, freeing
-    its slot (`slots`: the ring's name and size) after; what waits in the logger's batch is sent when no frame
-    came for IDLE_FLUSH_S, and at the end."""
+class ViewerBackend(Protocol):
+    """What a viewer process runs: called with each frame, flush() sends what it batches, close() ends it
+    within `timeout_s`; `web_url` is where a user looks (None: nowhere to open)."""
+
+    @property
+    def web_url(self) -> str | None: ...
+
+    def __call__(self, r: FrameResult) -> None: ...
+
+    def flush(self) -> None: ...
+
+    def close(self, timeout_s: float) -> None: ...
+
+
+class RerunBackend:
+    """The Rerun stream of a viewer process: RerunTarget (where it goes) and RerunLogger (what it shows); a "save"
+    sink with a size or time limit moves on to the next file segment when it is reached (rotation.py). `path`: the
+    file a "save" sink writes now (None for other sinks)."""
+
+    def __init__(self, cfg: Config, sink: str, batch_frames: int, footer: bool):
+        self.cfg, self.sink, self.batch_frames, self.footer = cfg, sink, batch_frames, footer
+        self.rotation = FileRotation(cfg.rerun) if FileRotation.wanted(cfg.rerun, sink) else None
+        self.recording_id = str(uuid.uuid4())  # one recording over every segment
+        self._open(None if self.rotation is None else self.rotation.segment())
+        self.web_url = self.target.web_url
+
+    def _open(self, path: Path | None) -> None:
+        self.target = RerunTarget(self.cfg.rerun, self.sink, self.cfg.intrinsics.shape, footer=self.footer,
+                                  path=None if path is None else str(path), recording_id=self.recording_id)
+        self.logger = RerunLogger(self.target.rec, self.cfg.intrinsics, self.cfg.rerun.point_cloud, self.batch_frames)
+        self.path = None if self.sink != "save" else path or Path(self.cfg.rerun.path)
+
+    def __call__(self, r: FrameResult) -> None:
+        self.logger(r)
+        if self.rotation is not None and self.rotation.due():
+            self.logger.flush()
+            self.target.close(self.cfg.pipeline.shutdown_timeout_s)
+            self._open(self.rotation.advance())
+
+    def flush(self) -> None:
+        self.logger.flush()
+
+    def close(self, timeout_s: float) -> None:
+        self.target.close(timeout_s)
+
+
+OpenBackend = Callable[[Config, str, int, bool], ViewerBackend]
+"""Builds a viewer process's backend from (config, sink, frames per send, footer); a module-level function, so
+that the spawned child can be handed it."""
+
+
+def viewer_main(open_backend: OpenBackend, cfg_table: dict, sink: str, batch_frames: int, footer: bool,
+                parent_pid: int, frames: Connection, status: Connection, slots: tuple[str, int],
+                free: Semaphore) -> None:
+    """Entry point of the viewer process: log every frame it is sent to open_backend(...) until CLOSE or the
+    pipe closes, freeing its slot (`slots`: the ring's name and size) after; what waits in the backend's batch
+    is sent when no frame came for IDLE_FLUSH_S, and at the end."""
     die_with_parent(parent_pid)
     ignore_in_child()  # the parent decides when we stop
     keep_arrays_on_the_heap()
@@ -88,8 +142,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     cfg = config_from_dict(cfg_table)
     ring = SlotRing.attach(slots[0], slots[1], cfg.intrinsics.shape, wire.PLANES)
     try:
-        target = RerunTarget(cfg.rerun, sink, cfg.intrinsics.shape, footer=footer)
-        logger = RerunLogger(target.rec, cfg.intrinsics, cfg.rerun.point_cloud, batch_frames)
+        target = open_backend(cfg, sink, batch_frames, footer)
     except Exception as exc:  # reported to the parent as one line
         _send_status(status, ViewerStatus(error=str(exc)))
         return
@@ -97,17 +150,20 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
     logged = errors = 0
     failed, checked_s, size_seen, logged_seen = False, time.monotonic(), -1, 0
 
+    rerun_file = target if isinstance(target, RerunBackend) and sink == "save" else None
+
     def file_sink_failed(closing: bool = False) -> bool:
         """For a "save" sink, at most every SINK_CHECK_S (and when `closing`): whether Rerun's file writer has
         stopped. It says so only on its own stderr, so: a file that did not grow while frames were logged, or a
         full disk, is asked for a bounded flush, and one that cannot finish it has failed; the parent is told."""
         nonlocal failed, checked_s, size_seen, logged_seen
-        if sink != "save" or failed or (not closing and time.monotonic() - checked_s < SINK_CHECK_S):
+        if rerun_file is None or rerun_file.path is None or failed or (
+                not closing and time.monotonic() - checked_s < SINK_CHECK_S):
             return failed
-        checked_s = time.monotonic()
+        checked_s, path = time.monotonic(), rerun_file.path
         try:
-            size = os.stat(cfg.rerun.path).st_size
-            full = shutil.disk_usage(Path(cfg.rerun.path).parent).free < FULL_DISK_BYTES
+            size = os.stat(path).st_size
+            full = shutil.disk_usage(path.parent).free < FULL_DISK_BYTES
         except OSError:
             size, full = -1, True
         stalled = full or (size == size_seen and logged > logged_seen)
@@ -115,10 +171,10 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
         if not stalled:
             return False
         try:
-            target.rec.flush(timeout_sec=SINK_FLUSH_TIMEOUT_S)
+            rerun_file.target.rec.flush(timeout_sec=SINK_FLUSH_TIMEOUT_S)
         except RuntimeError:
             failed = True
-            _send_status(status, ViewerStatus(failed=file_problem(cfg.rerun.path)))
+            _send_status(status, ViewerStatus(failed=file_problem(str(path))))
         return failed
 
     def logging_step(what: str, step: Callable[..., None], *args: object) -> bool:
@@ -137,7 +193,7 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
         try:
             if not frames.poll(IDLE_FLUSH_S):
                 if not failed:
-                    logging_step("batch", logger.flush)
+                    logging_step("batch", target.flush)
                 file_sink_failed()
                 continue
             header = frames.recv_bytes()
@@ -148,10 +204,10 @@ def viewer_main(cfg_table: dict, sink: str, batch_frames: int, footer: bool, par
         if file_sink_failed():  # nothing more is logged: it would only pile up in memory
             errors += 1
         else:
-            logged += logging_step("frame", lambda h: logger(wire.read(h, ring, cfg.intrinsics)), header)
+            logged += logging_step("frame", lambda h: target(wire.read(h, ring, cfg.intrinsics)), header)
         free.release()  # the logger keeps no view of the slot
     if not failed:
-        logging_step("batch", logger.flush)
+        logging_step("batch", target.flush)
     ring.close()
     file_sink_failed(closing=True)  # bounded: a stopped file writer would hold target.close's flush
     target.close(0.1 if failed else cfg.pipeline.shutdown_timeout_s)  # a failed file takes nothing more
@@ -174,26 +230,31 @@ def file_problem(path: str) -> str:
 class ViewerProcess:
     """The parent's handle: start the child (raising ViewerError if its sink cannot start), `offer` frames,
     `close` within a deadline. Use from one thread for offer and one for close. `footer`: whether a "save" sink
-    writes Rerun's footer (targets.file_footer)."""
+    writes Rerun's footer (targets.file_footer). `open_backend`: what the child runs (Rerun by default);
+    `name` names the child and the viewer's drops ("blocked" for Rerun, "<name>_blocked" for others)."""
 
     def __init__(self, cfg: Config, sink: str, batch_frames: int = 1, queue_frames: int = 8,
-                 start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True):
+                 start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True,
+                 open_backend: OpenBackend = RerunBackend, name: str = "rerun"):
         ctx = mp.get_context("spawn")
         self.queue_frames = queue_frames
         self.output = Path(cfg.rerun.path) if sink == "save" else None  # the .rrd, once finished
-        self._writing = None if self.output is None else temp_path(self.output)  # where it grows meanwhile
+        # where it grows meanwhile (numbered segments, rotation.py, are written under their own names)
+        self._writing = None if self.output is None or FileRotation.wanted(cfg.rerun, sink) else temp_path(self.output)
         self.failed: str | None = None  # why the output failed, once the child said so
         self._failure_told = False
         if self._writing is not None:
             cfg = replace(cfg, rerun=replace(cfg.rerun, path=str(self._writing)))
         self._ring = SlotRing.create(queue_frames, cfg.intrinsics.shape, wire.PLANES, use="viewer")
-        self._free = ctx.Semaphore(queue_frames)  # slots the child has finished with
+        self._free: Semaphore | None = ctx.Semaphore(queue_frames)  # slots the child has finished with
         self._next = 0  # the slot the next frame goes to
         frames_r, self._frames = ctx.Pipe(duplex=False)
         self._status, status_w = ctx.Pipe(duplex=False)
-        self.process = ctx.Process(target=viewer_main, name="tofd-viewer", daemon=True,
-                                   args=(config_table(cfg), sink, batch_frames, footer, os.getpid(), frames_r,
-                                         status_w, (self._ring.name, queue_frames), self._free))
+        self.name = name
+        self.drop_reason = "blocked" if name == "rerun" else f"{name}_blocked"
+        self.process = ctx.Process(target=viewer_main, name=f"tofd-viewer-{name}", daemon=True,
+                                   args=(open_backend, config_table(cfg), sink, batch_frames, footer, os.getpid(),
+                                         frames_r, status_w, (self._ring.name, queue_frames), self._free))
         if sink == "save":
             quiet = {"RUST_LOG": f"{os.environ.get('RUST_LOG', 'warn')},{FILE_SINK_LOG}"}
         else:
@@ -243,6 +304,8 @@ class ViewerProcess:
         """Hand a frame to the viewer; False (refused) if no slot frees up within `block_s` seconds or it is
         closing. Once a frame was refused, later offers do not wait until a slot is free again."""
         deadline = time.monotonic() + (0.0 if self.stalled else block_s)
+        if self._free is None:  # released
+            return False
         while not self._free.acquire(timeout=max(0.0, min(POLL_S, deadline - time.monotonic()))):
             if self._closing or time.monotonic() >= deadline:
                 self.stalled = True
@@ -289,7 +352,7 @@ class ViewerProcess:
                 pass  # the child is gone: no status message will come
         msg = self._status_message(max(0.0, deadline - time.monotonic()))
         self.process.join(max(0.0, min(1.0, deadline - time.monotonic())))
-        unsent = self.queue_frames - self._free.get_value()
+        unsent = self.queue_frames - (self._free.get_value() if self._free is not None else 0)
         if msg is None or "closed" not in msg or self.process.is_alive():
             log.warning("the viewer did not finish in %.1f s (a stalled receiver?); abandoning it", timeout_s)
             self.report = ViewerReport(exit="killed", unsent=unsent)
@@ -331,3 +394,6 @@ class ViewerProcess:
         self._frames.close()
         self._status.close()
         self._ring.close()
+        # the semaphore is unlinked (and multiprocessing's resource tracker told) when its last reference goes:
+        # here, since tofd's service commands end with os._exit, which runs no finalizers
+        self._free = None

@@ -1,0 +1,134 @@
+"""Every input tofd reads as a FrameSource, and what one says about itself (for `tofd info` and `tofd export`).
+
+open_input opens what drivers.opener recognises (the one table of input kinds); a kind whose file has a header
+worth showing gets a branch there that describes it; everything else (frames, duration, rate, camera,
+intrinsics, damage) is read from the frames and the source's counters, the same for every kind.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+from drivers.frame import DeviceInfo, Frame
+from drivers.intrinsics import Intrinsics
+from drivers.source import FrameSource
+
+
+@dataclass(frozen=True, slots=True)
+class InputFormat:
+    """What kind of file an input is: a one-line description and its format version ("" where it has none)."""
+
+    kind: str  # e.g. "tofd recording (MCAP)", "ROS 2 bag"
+    version: str
+    details: tuple[tuple[str, str], ...] = ()  # more (name, value) lines: writer, creation time, storage
+
+
+@dataclass(slots=True)
+class InputSummary:
+    """An input read to its end: frame count, device-clock span, camera, intrinsics, damage."""
+
+    path: Path
+    format: InputFormat
+    frames: int = 0
+    first_counter: int | None = None
+    last_counter: int | None = None
+    first_us: int | None = None  # device timestamps, microseconds
+    last_us: int | None = None
+    device: DeviceInfo | None = None
+    intrinsics: Intrinsics | None = None
+    rejected: Counter[str] = field(default_factory=Counter)  # frames the source did not deliver, by reason class
+    counters: dict[str, int] = field(default_factory=dict)  # the source's fault counters
+    stopped: str = ""  # why reading stopped early (a damaged or truncated file), "" when it read to the end
+
+    @property
+    def duration_s(self) -> float:
+        """Seconds between the first and the last frame's device timestamps (0 with fewer than two frames)."""
+        return 0.0 if self.first_us is None or self.last_us is None else (self.last_us - self.first_us) / 1e6
+
+    @property
+    def rate_hz(self) -> float:
+        """Mean frames per second over the duration (NaN with fewer than two frames)."""
+        return (self.frames - 1) / self.duration_s if self.frames > 1 and self.duration_s > 0 else math.nan
+
+    def add(self, frame: Frame) -> None:
+        """Count one delivered frame."""
+        self.frames += 1
+        if self.first_counter is None:
+            self.first_counter, self.first_us = frame.frame_counter, frame.timestamp_us
+            self.device, self.intrinsics = frame.device, frame.intrinsics
+        self.last_counter, self.last_us = frame.frame_counter, frame.timestamp_us
+
+    @property
+    def damaged(self) -> bool:
+        return bool(self.rejected or self.stopped)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: every field, with duration_s and rate_hz (None when undefined)."""
+        rate = self.rate_hz
+        return {"path": str(self.path), "format": self.format.kind, "format_version": self.format.version,
+                "details": dict(self.format.details), "frames": self.frames,
+                "frame_counters": [self.first_counter, self.last_counter], "duration_s": self.duration_s,
+                "rate_hz": None if math.isnan(rate) else rate,
+                "camera": None if self.device is None else {"model": self.device.model, "serial": self.device.serial,
+                                                            "firmware": self.device.firmware,
+                                                            "backend": self.device.backend},
+                "intrinsics": None if self.intrinsics is None else self.intrinsics.to_dict(),
+                "damage": {"rejected": dict(self.rejected), "stopped": self.stopped or None}}
+
+
+def open_input(path: Path) -> tuple[FrameSource, InputFormat]:
+    """A lossless FrameSource on `path` and its format, recognised by drivers.opener; DriverError (or OSError)
+    when it cannot be read."""
+    from drivers.opener import identify
+    from drivers.source import DriverError
+
+    try:
+        fmt = identify(path)
+    except ValueError as exc:
+        raise DriverError(str(exc)) from None
+    if fmt.read_as == "bag":
+        from drivers.bags import open_bag
+
+        if fmt.name != "rosbag":  # a vendor SDK's recording
+            return open_bag(path), InputFormat(fmt.description, "")
+        kind = "ROS 1 bag" if path.suffix == ".bag" else "ROS 2 bag"
+        storage = "mcap" if path.suffix == ".mcap" or any(path.glob("*.mcap")) else "sqlite3"
+        return open_bag(path), InputFormat(kind, "", () if kind == "ROS 1 bag" else (("storage", storage),))
+    if fmt.read_as == "source" and fmt.open is not None:
+        return fmt.open(path), InputFormat(fmt.description, "")
+    from drivers.recording.reader import read_recording_info
+    from drivers.recording.replay import ReplaySource
+
+    info = read_recording_info(path)
+    created = datetime.fromtimestamp(info.created_wall_s, UTC).strftime("%Y-%m-%d %H:%M:%S UTC") \
+        if math.isfinite(info.created_wall_s) else "unknown"
+    return ReplaySource(path), InputFormat("tofd recording (MCAP)", str(info.format_version),
+                                           (("written by", f"tofd {info.software_version}"), ("created", created)))
+
+
+def frames_with_rejects(source: FrameSource, summary: InputSummary) -> Iterator[Frame]:
+    """The source's frames; the frames it rejects (damage) are counted in summary.rejected on the way, and why
+    it stopped early (a replayed recording's stopped_reason) in summary.stopped."""
+    for frame in source:
+        summary.rejected.update(r.reason.split(":")[0] for r in source.take_rejected())
+        yield frame
+    summary.rejected.update(r.reason.split(":")[0] for r in source.take_rejected())
+    summary.counters = {k: v for k, v in source.counters.items() if v}
+    reason = getattr(source, "stopped_reason", None)
+    if reason not in (None, "end"):
+        summary.stopped = f"{reason}: {getattr(source, 'stop_detail', '')}"
+
+
+def summarize(path: Path) -> InputSummary:
+    """Read the input at `path` to its end (InputSummary); DriverError/OSError when it cannot be opened."""
+    source, fmt = open_input(path)
+    summary = InputSummary(path, fmt)
+    with source:
+        for frame in frames_with_rejects(source, summary):
+            summary.add(frame)
+    return summary

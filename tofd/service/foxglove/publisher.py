@@ -1,0 +1,180 @@
+"""Publishes FrameResults over the Foxglove WebSocket protocol (foxglove-sdk's server); runs in a viewer process.
+
+The server is the SDK's own (Rust, its own threads): a log call encodes the message (protobuf) and queues it for
+each subscribed client, at most `[foxglove] backlog_messages` per client, dropping the client's oldest when its
+queue is full; a log call never waits for a client, so a stalled or slow client costs only its own messages.
+The viewer process around it (tofd.service.viewer.process) keeps the pipeline from ever waiting on this one.
+
+Per frame (topics.py): range, amplitude and mask images, the calibration, the nose and the nose track as image
+annotations, the foreground as a point cloud, the viewed feature maps as images and the world -> camera
+transform; every message of a frame has the host's wall-clock time of its arrival as timestamp and log time.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import foxglove
+import numpy as np
+from foxglove.channels import (
+    CameraCalibrationChannel,
+    FrameTransformChannel,
+    ImageAnnotationsChannel,
+    PointCloudChannel,
+    RawImageChannel,
+)
+from foxglove.messages import (
+    CameraCalibration,
+    Color,
+    FrameTransform,
+    ImageAnnotations,
+    KeyValuePair,
+    PackedElementField,
+    PackedElementFieldNumericType,
+    Point2,
+    PointCloud,
+    PointsAnnotation,
+    PointsAnnotationType,
+    Quaternion,
+    RawImage,
+    TextAnnotation,
+    Timestamp,
+    Vector3,
+)
+
+from drivers.intrinsics import Intrinsics
+from tofd.config import Config
+from tofd.service.foxglove import topics as t
+from tofd.service.pipeline.results import FrameResult
+from tofd.service.viewer.pixels import corner_origin, track_box_px
+
+log = logging.getLogger(__name__)
+
+NOSE_COLOR = Color(r=1.0, g=0.0, b=1.0, a=1.0)
+TRACK_COLOR = Color(r=0.0, g=0.78, b=1.0, a=1.0)
+STOP_WAIT_S = 1.0  # seconds close() waits for the clients' closing handshakes (readers finish in milliseconds)
+NOSE_POINT_PX = 6.0  # diameter of the nose's point in the image, pixels
+CLOUD_FIELDS = ("x", "y", "z", "eps0")  # float32 each: metres in CAMERA_FRAME, then NFFT eps0
+CLOUD_DTYPE = np.dtype([(name, "<f4") for name in CLOUD_FIELDS])
+
+
+def _image(stamp: Timestamp, plane: np.ndarray, encoding: str) -> RawImage:
+    """A RawImage in CAMERA_FRAME of a C-contiguous (H, W) plane (little-endian, as x86 and ARM hosts are)."""
+    height, width = plane.shape
+    return RawImage(timestamp=stamp, frame_id=t.CAMERA_FRAME, width=width, height=height,
+                                      encoding=encoding, step=width * plane.itemsize, data=plane.tobytes())
+
+
+def calibration(intrinsics: Intrinsics, stamp: Timestamp) -> CameraCalibration:
+    """The camera's CameraCalibration (no distortion): K and P in ROS's convention, (0, 0) the top-left pixel's
+    centre, as tofd's intrinsics and recordings."""
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    return CameraCalibration(timestamp=stamp, frame_id=t.CAMERA_FRAME, width=intrinsics.width,
+                             height=intrinsics.height, distortion_model="plumb_bob", D=[0.0] * 5,
+                             K=[fx, 0, cx, 0, fy, cy, 0, 0, 1], R=[1, 0, 0, 0, 1, 0, 0, 0, 1],
+                             P=[fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0])
+
+
+class FoxglovePublisher:
+    """A viewer process's backend (viewer.process.ViewerBackend): the Foxglove WebSocket server on
+    cfg.foxglove's address and one channel per topic; call it with each frame."""
+
+    def __init__(self, cfg: Config, sink: str = "foxglove", batch_frames: int = 1, footer: bool = False):
+        fc = cfg.foxglove
+        self.intrinsics = intrinsics = cfg.intrinsics
+        self.context = foxglove.Context()  # our channels only: another server in this process sees none of them
+        try:
+            self.server = foxglove.start_server(name="tofd", host=fc.bind, port=fc.port, context=self.context,
+                                                message_backlog_size=fc.backlog_messages)
+        except Exception as exc:  # the SDK raises its own error type for a port in use
+            raise RuntimeError(f"foxglove: cannot listen on {fc.bind}:{fc.port} (foxglove.bind / foxglove.port): "
+                               f"{exc}") from None
+        host = "127.0.0.1" if fc.bind in ("0.0.0.0", "") else fc.bind
+        self.web_url = f"ws://{host}:{self.server.port}"
+        ctx = self.context
+        self.images = {topic: RawImageChannel(topic, context=ctx)
+                       for topic in (t.RANGE, t.AMPLITUDE, t.MASK, *t.FEATURES.values())}
+        self.calibration = CameraCalibrationChannel(t.CALIBRATION, context=ctx)
+        self.nose = ImageAnnotationsChannel(t.NOSE, context=ctx)
+        self.track = ImageAnnotationsChannel(t.NOSE_TRACK, context=ctx)
+        self.cloud = PointCloudChannel(t.FOREGROUND, context=ctx)
+        self.transform = FrameTransformChannel(t.TRANSFORM, context=ctx)
+        self._rays = intrinsics.unit_rays().astype(np.float32).reshape(-1, 3)
+        self._zeros = np.zeros(intrinsics.shape, np.float32)
+        self._fields = [PackedElementField(name=name, offset=4 * i, type=PackedElementFieldNumericType.Float32)
+                        for i, name in enumerate(CLOUD_FIELDS)]
+
+    def __call__(self, r: FrameResult) -> None:
+        wall_s = time.time() - (time.monotonic() - r.arrival_s)  # arrival_s: this host's monotonic clock
+        ns = int(wall_s * 1e9)
+        stamp = Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
+        frame = r.frame
+        amplitude = np.minimum(np.rint(np.fmax(frame.amplitude, self._zeros)), 65535).astype("<u2")
+        planes = {t.RANGE: (frame.range_m, "32FC1"), t.AMPLITUDE: (amplitude, "16UC1"),
+                  t.MASK: (np.where(r.mask, np.uint8(255), np.uint8(0)), "mono8"),
+                  **{topic: (np.fmax(r.features[name], self._zeros), "32FC1") for name, topic in t.FEATURES.items()}}
+        self.transform.log(FrameTransform(timestamp=stamp, parent_frame_id=t.WORLD_FRAME,
+                                          child_frame_id=t.CAMERA_FRAME, translation=Vector3(x=0, y=0, z=0),
+                                          rotation=Quaternion(**dict(zip("xyzw", t.OPTICAL_IN_WORLD, strict=True)))),
+                           log_time=ns)
+        self.calibration.log(calibration(self.intrinsics, stamp), log_time=ns)
+        for topic, (plane, encoding) in planes.items():
+            self.images[topic].log(_image(stamp, np.ascontiguousarray(plane), encoding), log_time=ns)
+        self.cloud.log(self._foreground(r, stamp), log_time=ns)
+        self.nose.log(self._nose(r, stamp), log_time=ns)
+        self.track.log(self._track(r, stamp), log_time=ns)
+
+    def _foreground(self, r: FrameResult, stamp: Timestamp) -> PointCloud:
+        """The foreground's points in CAMERA_FRAME with their NFFT eps0."""
+        at = np.flatnonzero(r.mask)
+        points = np.empty(at.size, CLOUD_DTYPE)
+        xyz = np.take(self._rays, at, axis=0) * np.take(r.frame.range_m.reshape(-1), at)[:, None]
+        for axis, name in enumerate("xyz"):
+            points[name] = xyz[:, axis]
+        points["eps0"] = np.take(r.features["range_nfft_eps0"].reshape(-1), at)
+        return PointCloud(timestamp=stamp, frame_id=t.CAMERA_FRAME, point_stride=CLOUD_DTYPE.itemsize,
+                          fields=self._fields, data=points.tobytes())
+
+    @staticmethod
+    def _nose(r: FrameResult, stamp: Timestamp) -> ImageAnnotations:
+        """The detected nose tip as a point (Foxglove's pixel origin: the top-left pixel's corner); none: empty.
+        Metadata "frame_counter": the device's frame counter, as in the results file."""
+        det, meta = r.detection, [KeyValuePair(key="frame_counter", value=str(r.frame.frame_counter))]
+        if det is None or det.nose_px is None:
+            return ImageAnnotations(timestamp=stamp, metadata=meta)
+        u, v = corner_origin(det.nose_px)
+        return ImageAnnotations(timestamp=stamp, metadata=meta, points=[PointsAnnotation(
+            timestamp=stamp, type=PointsAnnotationType.Points, points=[Point2(x=u, y=v)], outline_color=NOSE_COLOR,
+            fill_color=NOSE_COLOR, thickness=NOSE_POINT_PX)])
+
+    def _track(self, r: FrameResult, stamp: Timestamp) -> ImageAnnotations:
+        """The confirmed nose track's box and a label with its confidence; no reported track: empty. Metadata as
+        _nose's."""
+        box = track_box_px(r.track, self.intrinsics)
+        meta = [KeyValuePair(key="frame_counter", value=str(r.frame.frame_counter))]
+        if box is None or r.track is None:
+            return ImageAnnotations(timestamp=stamp, metadata=meta)
+        (u, v), half = box
+        corners = [Point2(x=u + du * half, y=v + dv * half) for du, dv in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+        return ImageAnnotations(
+            timestamp=stamp, metadata=meta,
+            points=[PointsAnnotation(timestamp=stamp, type=PointsAnnotationType.LineLoop, points=corners,
+                                     outline_color=TRACK_COLOR, thickness=1.0)],
+            texts=[TextAnnotation(timestamp=stamp, position=Point2(x=u - half, y=v - half - 2),
+                                  text=f"track {r.track.confidence:.2f}", font_size=10.0, text_color=TRACK_COLOR)])
+
+    def flush(self) -> None:
+        """Nothing waits: each frame is published when it comes."""
+
+    def close(self, timeout_s: float) -> None:
+        """Stop the server (its clients are disconnected) within `timeout_s`: the SDK's stop() waits for every
+        client's closing handshake, which a client that does not read never completes, so it runs on a thread
+        that is left behind (the viewer process ends with os._exit, which does not wait for it)."""
+        stopping = threading.Thread(target=self.server.stop, name="foxglove-stop", daemon=True)
+        stopping.start()
+        stopping.join(min(timeout_s, STOP_WAIT_S))
+        if stopping.is_alive():
+            log.warning("foxglove: a client did not close its connection in %.1f s (it stopped reading); leaving it",
+                        min(timeout_s, STOP_WAIT_S))

@@ -1,0 +1,37 @@
+"""Image geometry shared by the viewers (Rerun, Foxglove): the pixel-centre convention and the track's box.
+
+tofd (Intrinsics, detections, results) puts (0, 0) at the CENTRE of the top-left pixel, as ROS CameraInfo and
+OpenCV do; Rerun (Pinhole principal point, 2-D points and boxes) and Foxglove's ImageAnnotations put it at the
+top-left pixel's CORNER. A pixel coordinate goes to a viewer plus CENTRE_TO_CORNER_PX; calibrations in ROS's
+convention (foxglove.CameraCalibration K, P) keep tofd's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drivers.intrinsics import Intrinsics
+from tofd.algorithm.tracking import TrackState
+from tofd.service.pipeline.results import track_px
+
+CENTRE_TO_CORNER_PX = 0.5
+"""Pixels added to a tofd pixel coordinate (u or v) for a viewer whose origin is the top-left pixel's corner."""
+
+
+def corner_origin(uv: np.ndarray | tuple[float, float]) -> np.ndarray:
+    """(..., 2) float64 pixel coordinates (u, v) with the origin at the top-left pixel's corner, from tofd's
+    (origin at that pixel's centre)."""
+    return np.asarray(uv, dtype=np.float64) + CENTRE_TO_CORNER_PX
+
+
+TRACK_BOX_M = 0.03
+"""Metres: side of the box drawn about the nose track in the image, at the track's depth (a nose's size)."""
+
+
+def track_box_px(track: TrackState | None, intrinsics: Intrinsics) -> tuple[np.ndarray, float] | None:
+    """The confirmed track's box in a viewer's pixels: its centre (2,) with the origin at the top-left pixel's
+    corner, and its half side in pixels; None while no track is reported."""
+    px = track_px(track, intrinsics)
+    if px is None or track is None or track.nose_xyz_m is None:
+        return None
+    return corner_origin(px), TRACK_BOX_M / 2 * intrinsics.fx / track.nose_xyz_m[2]
