@@ -170,7 +170,8 @@ class _Ros1Scan:
     """ROS 1 bag records in file order (format 2.0: op-coded records, chunks of connections and messages)."""
 
     def __init__(self, path: Path) -> None:
-        self.path, self.damage = path, None
+        self.path = path
+        self.damage: str | None = None
         self._data = path.read_bytes()
         self.connections: dict[int, tuple[str, str, str]] = {}  # conn id -> topic, type, definition
         self._counts: dict[int, int] = {}
@@ -275,7 +276,8 @@ class _SqliteScan:
     """
 
     def __init__(self, path: Path) -> None:
-        self.path, self.damage = path, None
+        self.path = path
+        self.damage: str | None = None
         data = path.read_bytes()
         if len(data) < 100 or not data.startswith(b"SQLite format 3\x00"):
             raise BagError(f"{path}: not an sqlite3 file")
@@ -312,7 +314,8 @@ class _McapScan:
     def __init__(self, path: Path) -> None:
         from mcap.reader import NonSeekingReader
 
-        self.path, self.damage = path, None
+        self.path = path
+        self.damage: str | None = None
         self._file = open(path, "rb")  # noqa: SIM115 (closed by close())
         self._reader = NonSeekingReader(self._file)
         self.topics: dict[str, Topic] = {}

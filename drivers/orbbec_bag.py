@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import re
 import struct
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -143,7 +143,7 @@ class OrbbecSource(BagSource):
         for parts in pending.values():
             self._unpaired(parts)
 
-    def _unpaired(self, parts: dict[str, object]) -> None:
+    def _unpaired(self, parts: Collection[str]) -> None:
         for role in parts:
             self.counters["unpaired_range" if role == "depth" else "unpaired_amplitude"] += 1
 
