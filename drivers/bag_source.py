@@ -13,7 +13,7 @@ import numpy as np
 from drivers.bag_scan import BagError, BagReader, RawMessage
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
-from drivers.source import FrameSource
+from drivers.source import FrameSource, Rejected
 
 
 def depth_metres(raw: np.ndarray, metres_per_unit: float) -> np.ndarray:
@@ -98,3 +98,30 @@ class BagSource(FrameSource):
             self.bag.damage = f"{self.bag.damage or 'damaged'}; {exc}"
         if self.bag.damage is not None:
             self.reject(counter, f"damaged: {self.path}: the rest is unreadable ({self.bag.damage})")
+
+
+class RejectsAfter(FrameSource):
+    """`source`'s frames, then the frames an earlier stage rejected: what importing a bag ledgered (its damaged
+    tail) reaches the pipeline's ledger when the imported recording is replayed. Counters and other attributes
+    are `source`'s."""
+
+    def __init__(self, source: FrameSource, rejected: list[Rejected]) -> None:
+        super().__init__()
+        self.source, self._pending = source, list(rejected)
+        self.counters = source.counters
+
+    def __iter__(self) -> Iterator[Frame]:
+        for frame in self.source:
+            self._rejected.extend(self.source.take_rejected())
+            yield frame
+        self._rejected.extend(self.source.take_rejected())
+        for item in self._pending:
+            self.reject(item.frame_counter, item.reason)
+        self._pending.clear()
+
+    def close(self) -> None:
+        super().close()
+        self.source.close()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.source, name)

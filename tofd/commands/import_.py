@@ -23,7 +23,7 @@ from tofd import arguments
 
 if TYPE_CHECKING:
     from drivers.rosbag import RangeOptions
-    from drivers.source import FrameSource
+    from drivers.source import FrameSource, Rejected
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,9 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     arguments.add_bag_arguments(parser)
 
 
-def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import") -> str:
+def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import",
+            rejected: list[Rejected] | None = None) -> str:
     """Write the frames of `bag` to the recording `out` (renamed into place when complete) with a progress bar;
-    returns what was written, e.g. "12 frames of 176x144". UsageError names a bad bag."""
+    returns what was written, e.g. "12 frames of 176x144". The frames the source rejected (a damaged tail) are
+    added to `rejected`. UsageError names a bad bag."""
     from drivers.bags import open_bag
     from drivers.opener import identify, open_source
     from drivers.recording.writer import RecordingWriter
@@ -77,7 +79,10 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
             raise UsageError(f"{bag}: no header stamp has a range image, an amplitude image and a camera_info "
                              f"({unpaired or 'its topics are empty'}{why}); nothing written" if fmt.read_as == "bag"
                              else f"{bag}: no frame could be read; nothing written")
-    lost = len(source.take_rejected())
+    lost_frames = source.take_rejected()
+    lost = len(lost_frames)
+    if rejected is not None:
+        rejected.extend(lost_frames)
     skipped = "; ".join(filter(None, [unpaired, f"{lost} frames lost or damaged (see the log)" if lost else ""]))
     size = f"{intrinsics.width}x{intrinsics.height}"
     damaged = f"; damaged, the rest unread: {damage}" if damage else ""

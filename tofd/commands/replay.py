@@ -27,7 +27,7 @@ from tofd.service.daemon import RERUN_SPEC_HELP
 
 if TYPE_CHECKING:
     from drivers.intrinsics import Intrinsics
-    from drivers.source import FrameSource
+    from drivers.source import FrameSource, Rejected
     from tofd.algorithm.detector import NoseModel
 
 log = logging.getLogger(__name__)
@@ -107,13 +107,16 @@ def main(args: argparse.Namespace) -> int:
 
     with tempfile.TemporaryDirectory(prefix="tofd-replay-") as tmp:
         recording = Path(tmp) / f"{stem}.mcap"
-        done = convert(args.file, recording, arguments.bag_options(args), "replay: import")
+        rejected: list[Rejected] = []
+        done = convert(args.file, recording, arguments.bag_options(args), "replay: import", rejected)
         print(f"tofd replay: imported {done} from {args.file}", file=sys.stderr)
-        return _replay(args, recording, stem)
+        return _replay(args, recording, stem, rejected)
 
 
-def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
-    """Replay the tofd recording `recording` (args.file, or the recording a bag was imported to)."""
+def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list[Rejected] | None = None) -> int:
+    """Replay the tofd recording `recording` (args.file, or the recording a bag was imported to, with the frames
+    its import rejected ledgered after its own)."""
+    from drivers.bag_source import RejectsAfter
     from drivers.recording.replay import ReplaySource, read_recording_info
     from drivers.source import DriverError
     from tofd.config import load_config
@@ -124,10 +127,12 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
         info = read_recording_info(recording)
         if args.seek is not None:
             _check_seek(recording, args.seek)
-        source = ReplaySource(recording, mode="realtime" if args.realtime else "lossless", speed=args.speed or 1.0,
-                              loop=args.loop, seek=args.seek)
+        source: FrameSource = ReplaySource(recording, mode="realtime" if args.realtime else "lossless",
+                                           speed=args.speed or 1.0, loop=args.loop, seek=args.seek)
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(f"{args.file}: {exc}") from None
+    if rejected:
+        source = RejectsAfter(source, rejected)
     return _serve(args, cfg, source, info.intrinsics, args.frames or (None if args.loop else info.frame_count), stem)
 
 
