@@ -174,41 +174,47 @@ def _distort_radial_tangential(x: np.ndarray, y: np.ndarray, d: tuple[float, ...
             y * radial + p1 * (r2 + 2 * y2) + 2 * p2 * xy)
 
 
+def _newton_terms(x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray, d: tuple[float, ...]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """At undistorted (x, y) aiming at distorted (xd, yd): Newton's step (dx, dy) to subtract, the residual's
+    length, the radial factor and the Jacobian's determinant (analytic; d(r2)/dx = 2x, d(r2)/dy = 2y)."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = d
+    x2, y2, xy = x * x, y * y, x * y
+    r2 = x2 + y2
+    num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    radial = num / den
+    d_radial = ((k1 + r2 * (2 * k2 + 3 * k3 * r2)) * den - (k4 + r2 * (2 * k5 + 3 * k6 * r2)) * num) / (den * den)
+    fx = x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x2) - xd
+    fy = y * radial + p1 * (r2 + 2 * y2) + 2 * p2 * xy - yd
+    j11 = radial + 2 * x2 * d_radial + 2 * p1 * y + 6 * p2 * x
+    j12 = 2 * xy * d_radial + 2 * p1 * x + 2 * p2 * y
+    j22 = radial + 2 * y2 * d_radial + 6 * p1 * y + 2 * p2 * x
+    det = j11 * j22 - j12 * j12  # j21 == j12
+    return (j22 * fx - j12 * fy) / det, (j11 * fy - j12 * fx) / det, np.hypot(fx, fy), radial, det
+
+
 def _undistort_radial_tangential(xd: np.ndarray, yd: np.ndarray, d: tuple[float, ...]
                                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted normalised coordinates whose distortion is (xd, yd): Newton's method on the 2x2 system with
-    the analytic Jacobian, from (xd, yd); NaN where it does not converge to UNDISTORT_TOLERANCE."""
-    k1, k2, p1, p2, k3, k4, k5, k6 = d
-    x, y = xd.astype(np.float64, copy=True), yd.astype(np.float64, copy=True)
-    for _ in range(UNDISTORT_MAX_ITERATIONS):
-        x2, y2, xy = x * x, y * y, x * y
-        r2 = x2 + y2
-        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-        radial = num / den
-        d_radial = ((k1 + r2 * (2 * k2 + 3 * k3 * r2)) * den - (k4 + r2 * (2 * k5 + 3 * k6 * r2)) * num) / (den * den)
-        fx = x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x2) - xd
-        fy = y * radial + p1 * (r2 + 2 * y2) + 2 * p2 * xy - yd
-        # Jacobian; d(r2)/dx = 2x, d(r2)/dy = 2y
-        j11 = radial + 2 * x2 * d_radial + 2 * p1 * y + 6 * p2 * x
-        j12 = 2 * xy * d_radial + 2 * p1 * x + 2 * p2 * y
-        j21 = 2 * xy * d_radial + 2 * p1 * x + 2 * p2 * y
-        j22 = radial + 2 * y2 * d_radial + 6 * p1 * y + 2 * p2 * x
-        det = j11 * j22 - j12 * j21
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x = x - (j22 * fx - j12 * fy) / det
-            y = y - (j11 * fy - j21 * fx) / det
-            if not np.nanmax(np.abs(fx) + np.abs(fy), initial=0.0) > UNDISTORT_TOLERANCE:
+    """Undistorted normalised coordinates whose distortion is (xd, yd): Newton's method on the 2x2 system from
+    (xd, yd), each point until its residual is below UNDISTORT_TOLERANCE; NaN where it does not get there."""
+    shape = np.shape(xd)
+    xd, yd = np.ravel(xd).astype(np.float64), np.ravel(yd).astype(np.float64)
+    x, y = xd.copy(), yd.copy()
+    active = np.arange(xd.size)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for _ in range(UNDISTORT_MAX_ITERATIONS):
+            if not active.size:
                 break
-    with np.errstate(invalid="ignore"):
-        rx, ry = _distort_radial_tangential(x, y, d)
+            dx, dy, residual, _, _ = _newton_terms(x[active], y[active], xd[active], yd[active], d)
+            x[active] -= dx
+            y[active] -= dy
+            active = active[~(residual <= UNDISTORT_TOLERANCE)]  # converged before this step: done
+        _, _, residual, radial, det = _newton_terms(x, y, xd, yd, d)
         # radial > 0 and det > 0: the solution is on the pixel's side of the axis and the lens maps its
         # neighbourhood one to one (not a root folded back past the radius where the polynomial turns over)
-        bad = ~((np.hypot(rx - xd, ry - yd) <= UNDISTORT_TOLERANCE * np.maximum(1.0, np.hypot(xd, yd)))
-                & (radial > 0) & (det > 0))
-    x[bad] = np.nan
-    y[bad] = np.nan
-    return x, y
+        good = (residual <= UNDISTORT_TOLERANCE * np.maximum(1.0, np.hypot(xd, yd))) & (radial > 0) & (det > 0)
+    return np.where(good, x, np.nan).reshape(shape), np.where(good, y, np.nan).reshape(shape)
 
 
 def _fisheye_theta_d(theta: np.ndarray, d: tuple[float, ...]) -> np.ndarray:
@@ -242,5 +248,4 @@ def _fisheye_rays(xd: np.ndarray, yd: np.ndarray, d: tuple[float, ...]) -> np.nd
                 & (theta >= 0) & (theta < np.pi))
         scale = np.where(theta_d > 0, np.sin(theta) / np.where(theta_d > 0, theta_d, 1.0), 1.0)
     rays = np.stack([xd * scale, yd * scale, np.cos(theta)], axis=-1)
-    rays[bad] = np.nan
-    return rays
+    return np.where(bad[..., None], np.nan, rays)

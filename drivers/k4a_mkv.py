@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -156,7 +156,7 @@ class K4aRecordingSource(FrameSource):
     def shape(self) -> tuple[int, int]:
         return self.intrinsics.shape
 
-    def _captures(self) -> Iterator[_Capture]:
+    def _captures(self) -> Generator[_Capture, None, None]:
         """Captures in time order: the DEPTH and IR blocks of each timestamp (None where a track has none).
         Stops (setting stopped_reason) where the demuxer cannot go on."""
         import av

@@ -73,6 +73,7 @@ def test_project_applies_the_distortion_like_opencv_and_inverts_the_rays(name):
     np.testing.assert_allclose(i.project(i.unit_rays() * 1.3), pixel_grid(i), rtol=0, atol=1e-8)
     uv = np.array([[3.25, 7.5], [161.0, 100.25]])
     np.testing.assert_allclose(i.project(i.pixel_rays(uv[:, 0], uv[:, 1])), uv, atol=1e-8)
+    np.testing.assert_allclose(i.project(i.pixel_rays(3.25, 7.5)), uv[0], atol=1e-8)  # scalars too
 
 
 def test_radial_range_from_z_depth_goes_along_the_lens_rays():
@@ -138,3 +139,15 @@ def test_pinhole_frames_are_encoded_as_before_lens_models():
     calibration = CameraCalibration.FromString(messages[3])
     assert calibration.distortion_model == "plumb_bob" and list(calibration.D) == [0.0] * 5
     assert fmt.decode_frame(*messages[:3]).intrinsics == Intrinsics()
+
+
+def test_the_config_takes_a_lens_and_names_a_bad_one():
+    from tofd.config import ConfigError, config_from_dict, config_table
+
+    table = {"intrinsics": {**PLUMB_BOB.to_dict()}}
+    cfg = config_from_dict(table)
+    assert cfg.intrinsics == PLUMB_BOB and config_from_dict(config_table(cfg)) == cfg
+    with pytest.raises(ConfigError, match=r"intrinsics\.distortion: model 'plumb_bob' takes 5"):
+        config_from_dict({"intrinsics": {"distortion_model": "plumb_bob"}})
+    with pytest.raises(ConfigError, match=r"intrinsics\.distortion_model: 'fisheye' is not one of"):
+        config_from_dict({"intrinsics": {"distortion_model": "fisheye"}})

@@ -23,7 +23,9 @@ from tofd.batch import rows
 from tofd.lab.dataset import DATASET_SUFFIX, DatasetError, DatasetFile
 
 RECORDING_SUFFIX = ".mcap"
-INPUT_SUFFIXES = (RECORDING_SUFFIX, DATASET_SUFFIX)
+SOURCE_SUFFIXES = (".mkv",)
+"""Other files a directory is searched for (recognised by content when planned: drivers.opener)."""
+INPUT_SUFFIXES = (RECORDING_SUFFIX, DATASET_SUFFIX, *SOURCE_SUFFIXES)
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,6 +42,7 @@ class Partition:
     frame_channels: tuple[tuple[int, str], ...]  # (channel id, role): drivers.recording.index.FrameIndex
     output: str  # URL of the partition's Parquet file
     dataset: bool = False
+    reader: str = ""  # a drivers.opener format whose FrameSource reads the whole file sequentially (e.g. "k4a")
 
     def to_json(self) -> str:
         return json.dumps(asdict(self))
@@ -117,6 +120,8 @@ def plan_inputs(inputs: list[InputPlan], out: str, run_digest: str, partition_fr
             _plan_dataset(inp, out, run_digest, partition_frames, taken)
         elif inp.url.endswith(RECORDING_SUFFIX):
             _plan_recording(inp, out, run_digest, partition_frames, taken)
+        elif "://" not in inp.url:
+            _plan_by_content(inp, out, run_digest, partition_frames, taken)
         else:
             inp.error = f"not a recording or dataset (expected {' or '.join(INPUT_SUFFIXES)})"
 
@@ -176,6 +181,29 @@ def _plan_recording(inp: InputPlan, out: str, run_digest: str, partition_frames:
     inp.partitions = [Partition(inp.url, inp.recording, first, stop, tuple(offsets[first:stop]), channels,
                                 _output(out, inp.recording, first, stop, input_digest, run_digest))
                       for first, stop in bounds]
+
+
+def _plan_by_content(inp: InputPlan, out: str, run_digest: str, partition_frames: int, taken: set[str]) -> None:
+    """A local file named otherwise, recognised by its content (drivers.opener): a tofd recording, or a file a
+    FrameSource reads (one sequential partition, like a recording without an index)."""
+    from drivers.opener import identify
+
+    try:
+        fmt = identify(inp.url)
+    except ValueError as exc:
+        inp.error = str(exc).removeprefix(f"{inp.url}: ")
+        return
+    if fmt.read_as == "recording":
+        _plan_recording(inp, out, run_digest, partition_frames, taken)
+        return
+    if fmt.read_as != "source":
+        inp.error = f"a {fmt.description}: convert it with `tofd import` first"
+        return
+    with open(inp.url, "rb") as f:
+        input_digest = hashlib.file_digest(f, "sha256").hexdigest()
+    inp.recording, inp.indexed = _name(inp.url, taken), False
+    inp.partitions = [Partition(inp.url, inp.recording, 0, 0, (), (),
+                                _output(out, inp.recording, 0, 0, input_digest, run_digest), reader=fmt.name)]
 
 
 RESULT_SECTIONS = ("segmentation", "features", "detector")

@@ -65,14 +65,15 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
     if part.dataset:
         yield from _dataset_frames(part, stats, errors)
         return
-    if not part.offsets:  # no index: the whole recording, sequentially, up to its last intact frame
+    if not part.offsets:  # no index, or a file a FrameSource reads: the whole file, sequentially
+        from drivers.opener import open_source
         from drivers.recording.replay import ReplaySource
-        from drivers.source import DriverError
+        from drivers.source import DriverError, FrameSource
 
         t0 = time.perf_counter()
         try:
-            source = ReplaySource(part.url)
-        except (DriverError, OSError) as exc:
+            source: FrameSource = open_source(part.url) if part.reader else ReplaySource(part.url)
+        except (DriverError, OSError, ValueError) as exc:
             errors.append(str(exc))
             return
         with source:
@@ -80,8 +81,15 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
                 stats["frames_in"] += 1
                 yield frame, (time.perf_counter() - t0) * 1e3
                 t0 = time.perf_counter()
-            if source.stopped_reason not in (None, "end"):
-                errors.append(f"{source.stopped_reason} after frame {source.last_good_counter}: {source.stop_detail}")
+            lost = source.take_rejected()
+            if lost:
+                stats["frames_in"] += len(lost)
+                stats["dropped"]["damaged"] += len(lost)
+                errors.append(f"{len(lost)} frames lost or damaged, the first: {lost[0].reason}")
+            stopped = getattr(source, "stopped_reason", None)
+            if stopped not in (None, "end"):
+                errors.append(f"{stopped} after frame {getattr(source, 'last_good_counter', None)}: "
+                              f"{getattr(source, 'stop_detail', '')}")
         return
     offsets = (0,) * part.first + part.offsets
     index = FrameIndex(offsets, frozenset(part.frame_channels), "")

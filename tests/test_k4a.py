@@ -1,0 +1,227 @@
+"""Azure Kinect / Orbbec Femto .mkv recordings written by Microsoft's own recorder (libk4arecord, through ctypes),
+read by tofd; the lens of each depth mode against the SDK's calibration (libk4a's k4a_calibration_get_from_raw
+and k4a_calibration_2d_to_3d)."""
+
+from __future__ import annotations
+
+import functools
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.intrinsics import Intrinsics
+from drivers.k4a_mkv import K4aRecordingError, K4aRecordingSource
+from drivers.lens_k4a import DEPTH_MODES, depth_lens
+from tests.k4a_helpers import CALIBRATION_JSON, K4A, k4a_libraries
+from tests.rrd_helpers import read_entities
+
+ROOT = Path(__file__).resolve().parents[1]
+RAW = CALIBRATION_JSON.read_bytes()
+SERIAL = "000123456789"
+PERIOD_US = 33_333
+
+
+@pytest.fixture(scope="module")
+def k4a() -> K4A:
+    return k4a_libraries()
+
+
+def mode_size(mode: str) -> tuple[int, int]:
+    """(H, W) of a depth mode's images."""
+    w, h = DEPTH_MODES[mode].output
+    return h, w
+
+
+@functools.cache
+def sdk_rays(mode: str) -> np.ndarray:
+    """(H, W, 3) the SDK's k4a_calibration_2d_to_3d of every pixel at 1 m depth, in metres (NaN: invalid)."""
+    k4a = k4a_libraries()
+    h, w = mode_size(mode)
+    v, u = np.indices((h, w))
+    uv = np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64)
+    return k4a.unproject(k4a.calibration(RAW, mode), uv, 1000.0).reshape(h, w, 3) / 1000.0
+
+
+def tofd(*args: object) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "tofd", *map(str, args)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=600, env={"RUST_LOG": "error", **__import__("os").environ})
+
+
+@pytest.mark.parametrize("mode", ["NFOV_2X2BINNED", "NFOV_UNBINNED", "WFOV_2X2BINNED", "WFOV_UNBINNED"])
+def test_each_depth_mode_lens_is_the_sdks(k4a, mode):
+    cal = k4a.calibration(RAW, mode)
+    lens = depth_lens(RAW, mode)
+    i = lens.intrinsics
+    assert (i.width, i.height) == (cal.depth.resolution_width, cal.depth.resolution_height)
+    np.testing.assert_allclose([i.cx, i.cy, i.fx, i.fy], list(cal.depth.parameters)[:4], rtol=0, atol=1e-3)
+    # the SDK's rays of a sample of pixels, the corners and the image border included
+    h, w = i.shape
+    rng = np.random.default_rng(3)
+    v, u = rng.integers(0, h, 1500), rng.integers(0, w, 1500)
+    edge = np.arange(0, max(h, w), 7)
+    u = np.concatenate([u, np.minimum(edge, w - 1), np.zeros_like(edge), np.full_like(edge, w - 1)])
+    v = np.concatenate([v, np.zeros_like(edge), np.minimum(edge, h - 1), np.minimum(edge, h - 1)])
+    sdk = k4a.unproject(cal, np.stack([u, v], axis=-1).astype(np.float64), 1000.0) / 1000.0
+    sdk_valid = np.isfinite(sdk[:, 0])
+    np.testing.assert_array_equal(lens.valid_pixels()[v, u], sdk_valid)
+    assert sdk_valid.mean() > 0.5
+    rays = i.pixel_rays(u, v)
+    mine = rays / rays[:, 2:]  # the point at z = 1 m
+    np.testing.assert_allclose(mine[sdk_valid], sdk[sdk_valid], rtol=0, atol=2e-5)  # 0.02 mm at 1 m (float32 SDK)
+    # and the lens matters: a pinhole with the same fx, fy, cx, cy is metres off... well, centimetres at 1 m
+    pinhole = Intrinsics(i.width, i.height, i.fx, i.fy, i.cx, i.cy).pixel_rays(u, v)
+    assert np.nanmax(np.abs(pinhole / pinhole[:, 2:] - sdk)[sdk_valid]) > 0.05
+
+
+def record(k4a: K4A, path: Path, mode: str, depth_mm: list[np.ndarray], ir: list[np.ndarray],
+           timestamps_us: list[int]) -> Path:
+    return k4a.write_recording(path, mode, depth_mm, ir, timestamps_us, calibration=RAW, serial=SERIAL)
+
+
+def test_recording_gives_radial_range_ir_amplitude_and_the_devices_clock(k4a, tmp_path):
+    mode = "NFOV_2X2BINNED"
+    h, w = mode_size(mode)
+    rng = np.random.default_rng(0)
+    depth = [rng.integers(500, 3000, (h, w)).astype(np.uint16) for _ in range(6)]
+    for d in depth:
+        d[:4, :7] = 0  # no return
+    ir = [rng.integers(0, 4000, (h, w)).astype(np.uint16) for _ in range(6)]
+    stamps = [7_000_000 + PERIOD_US * n for n in range(6)]
+    keep = [0, 1, 2, 4, 5]  # the recorder dropped capture 3
+    path = record(k4a, tmp_path / "k.mkv", mode, [depth[n] for n in keep], [ir[n] for n in keep],
+                  [stamps[n] for n in keep])
+    source = K4aRecordingSource(path)
+    frames = list(source)
+    assert [f.frame_counter for f in frames] == keep
+    assert [(r.frame_counter, r.reason.split(":")[0]) for r in source.take_rejected()] == [(3, "damaged")]
+    assert source.stopped_reason == "end" and source.fps == pytest.approx(1e6 / PERIOD_US, rel=1e-4)
+    lens = depth_lens(RAW, mode)
+    rays = sdk_rays(mode)
+    for f, n in zip(frames, keep, strict=True):
+        assert f.timestamp_us == stamps[n] and f.intrinsics == lens.intrinsics
+        np.testing.assert_array_equal(f.amplitude, ir[n].astype(np.float32))
+        z = depth[n] / 1000.0
+        expected = z * np.linalg.norm(rays, axis=-1)  # the SDK's point at that depth, its distance from the camera
+        assert np.all(np.isnan(f.range_m[:4, :7]))
+        valid = depth[n] > 0
+        np.testing.assert_allclose(f.range_m[valid], expected[valid], rtol=2e-6, atol=2e-6)
+    assert frames[0].device.serial == SERIAL and frames[0].device.model == "Azure Kinect"
+    assert frames[1].host_wall_s - frames[0].host_wall_s == pytest.approx(PERIOD_US / 1e6, abs=1e-6)
+
+
+def test_a_damaged_recording_gives_its_intact_captures_and_ledgers_the_rest(k4a, tmp_path):
+    mode = "NFOV_2X2BINNED"
+    h, w = mode_size(mode)
+    n = 16
+    depth = [np.full((h, w), 900 + k, np.uint16) for k in range(n)]
+    ir = [np.full((h, w), 100 + k, np.uint16) for k in range(n)]
+    path = record(k4a, tmp_path / "k.mkv", mode, depth, ir, [3_000_000 + PERIOD_US * k for k in range(n)])
+    data = path.read_bytes()
+
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    source = K4aRecordingSource(cut)
+    got = [f.frame_counter for f in source]
+    assert got == list(range(len(got))) and 5 <= len(got) < n
+    assert [r.frame_counter for r in source.take_rejected()] == list(range(len(got), n))
+    assert source.stopped_reason == "truncated" and source.last_good_counter == len(got) - 1
+
+    garbled = tmp_path / "garbled.mkv"
+    start, stop = len(data) // 2, len(data) // 2 + 2 * h * w * 2
+    garbled.write_bytes(data[:start] + np.random.default_rng(1).bytes(stop - start) + data[stop:])
+    source = K4aRecordingSource(garbled)
+    frames = list(source)
+    lost = [r.frame_counter for r in source.take_rejected()]
+    assert lost and sorted([f.frame_counter for f in frames] + lost) == list(range(n))
+    assert source.stopped_reason == "end"
+    # Matroska blocks carry no checksum: a block whose pixels (not its framing) were hit cannot be told from an
+    # intact one; every frame whose blocks lie outside the damaged bytes is delivered as recorded
+    for f in frames:
+        k = f.frame_counter
+        spans = [(data.find(plane[k].astype(">u2").tobytes()), h * w * 2) for plane in (depth, ir)]
+        if all(0 <= at and (at + size <= start or at >= stop) for at, size in spans):
+            assert np.all(f.amplitude == 100 + k)
+            np.testing.assert_allclose(f.range_m * depth_lens(RAW, mode).intrinsics.unit_rays()[..., 2],
+                                       (900 + k) / 1000, rtol=1e-6)
+    assert sum(1 for f in frames if np.all(f.amplitude == 100 + f.frame_counter)) >= n - len(lost) - 2
+
+
+def test_unreadable_recordings_are_one_line_and_exit_2(k4a, tmp_path):
+    mode = "NFOV_2X2BINNED"
+    h, w = mode_size(mode)
+    plane = np.full((h, w), 1000, np.uint16)
+    uncalibrated = k4a.write_recording(tmp_path / "uncalibrated.mkv", mode, [plane], [plane], [1_000_000])
+    garbage = tmp_path / "garbage.mkv"
+    garbage.write_bytes(b"\x1a\x45\xdf\xa3" + bytes(range(256)) * 8)
+    unknown = tmp_path / "notes.mcap"
+    unknown.write_text("hello")
+    for path, words in ((uncalibrated, ["uncalibrated.mkv", "attachment calibration.json", "missing"]),
+                        (garbage, ["garbage.mkv", "not a readable Matroska file"]),
+                        (unknown, ["notes.mcap", "not a recording tofd reads", "Azure Kinect"])):
+        proc = tofd("replay", path, "--out", tmp_path / "out", "--rerun", "none")
+        err = proc.stderr.strip()
+        assert proc.returncode == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+        assert all(word in err for word in words), (words, err)
+    with pytest.raises(K4aRecordingError, match="attachment calibration.json"):
+        K4aRecordingSource(uncalibrated)
+
+
+def render_scene(mode: str, sphere_px: tuple[int, int], distance_m: float, radius_m: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """uint16 z-depth (mm) and IR (1 / range^2) of a bright sphere (centre on the SDK's ray of pixel sphere_px,
+    distance_m away) before a dark plane tilted 20 degrees about the x axis, seen through the SDK's lens; and the
+    sphere's centre."""
+    rays = sdk_rays(mode)  # (x, y, 1): z = 1
+    centre = distance_m * rays[sphere_px[1], sphere_px[0]] / np.linalg.norm(rays[sphere_px[1], sphere_px[0]])
+    dd = np.einsum("ijk,ijk->ij", rays, rays)
+    dc = rays @ centre
+    disc = dc * dc - dd * (centre @ centre - radius_m ** 2)
+    with np.errstate(invalid="ignore"):
+        t_sphere = np.where(disc >= 0, (dc - np.sqrt(disc)) / dd, np.inf)
+        normal = np.array([0.0, -np.sin(np.radians(20)), np.cos(np.radians(20))])
+        t_plane = 1.4 * normal[2] / (rays @ normal)
+        z = np.fmin(t_sphere, np.where(t_plane > 0, t_plane, np.inf))
+        depth = np.where(np.isfinite(z), np.rint(z * 1000), 0).astype(np.uint16)
+        albedo = np.where(t_sphere <= z, 1.0, 0.15)  # a bright ball before a dark wall
+        ir = np.where(depth > 0, np.clip(albedo * 4000 * (0.5 / (z * np.sqrt(dd))) ** 2, 0, 65535), 0)
+    return depth, ir.astype(np.uint16), centre
+
+
+@pytest.mark.slow
+# sphere centres 40 and 45 degrees off axis, where a pinhole misplaces the pixel by 72 and 56 px
+@pytest.mark.parametrize(("mode", "sphere_px"), [("NFOV_UNBINNED", (100, 90)), ("WFOV_2X2BINNED", (130, 120))])
+def test_a_sphere_in_the_distorted_corner_comes_back_on_the_sphere(k4a, tmp_path, mode, sphere_px):
+    radius = 0.10
+    depth, ir, centre = render_scene(mode, sphere_px, 0.65, radius)
+    path = record(k4a, tmp_path / "sphere.mkv", mode, [depth] * 3, [ir] * 3,
+                  [4_000_000 + PERIOD_US * k for k in range(3)])
+    out = tmp_path / "out"
+    proc = tofd("replay", path, "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    _, table = read_entities(str(out / "sphere.rrd"))["/world/foreground"]
+    clouds = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in table.column("Points3D:positions").to_pylist()]
+    assert len(clouds) == 3 and all(len(c) > 500 for c in clouds)
+    points = np.concatenate(clouds)
+    off = np.abs(np.linalg.norm(points - centre, axis=1) - radius)
+    assert np.median(off) < 0.002 and np.percentile(off, 90) < 0.005, (np.median(off), np.percentile(off, 90))
+    # the plane behind, in every corner, through tofd's frames
+    frame = next(iter(K4aRecordingSource(path)))
+    xyz = frame.intrinsics.backproject(frame.range_m)
+    normal = np.array([0.0, -np.sin(np.radians(20)), np.cos(np.radians(20))])
+    on_plane = np.isfinite(frame.range_m) & (np.linalg.norm(xyz - centre, axis=-1) > radius + 0.01)
+    h, w = frame.range_m.shape
+    for rows, cols in ((slice(0, h // 4), slice(0, w // 4)), (slice(0, h // 4), slice(-w // 4, None)),
+                       (slice(-h // 4, None), slice(0, w // 4)), (slice(-h // 4, None), slice(-w // 4, None))):
+        corner = on_plane[rows, cols]
+        if corner.sum() < 50:
+            continue
+        err = np.abs(xyz[rows, cols][corner] @ normal - 1.4 * normal[2])
+        assert np.median(err) < 0.002 and np.percentile(err, 90) < 0.005
+    # a pinhole with the same focal lengths and centre puts that sphere centimetres away
+    pinhole = Intrinsics(w, h, frame.intrinsics.fx, frame.intrinsics.fy, frame.intrinsics.cx, frame.intrinsics.cy)
+    sphere = np.isfinite(frame.range_m) & (np.abs(np.linalg.norm(xyz - centre, axis=-1) - radius) < 0.005)
+    wrong = pinhole.backproject(frame.range_m)[sphere]
+    assert np.median(np.abs(np.linalg.norm(wrong - centre, axis=1) - radius)) > 0.01
