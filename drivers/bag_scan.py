@@ -22,6 +22,8 @@ from typing import Any
 from drivers.source import DriverError
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 OP_MESSAGE, OP_CHUNK, OP_CONNECTION = 0x02, 0x05, 0x07
 
 
@@ -120,6 +122,8 @@ def _open_rosbags(path: Path, ros1: bool) -> Any:
     from rosbags.rosbag1 import Reader as Reader1
     from rosbags.rosbag2 import Reader as Reader2
 
+    if not ros1 and path.is_file() and path.suffix not in (".db3", ".mcap"):
+        raise BagError(f"a ROS 2 storage file named {path.suffix or 'without a suffix'} (rosbags goes by .db3/.mcap)")
     reader = Reader1(path) if ros1 else Reader2(path)
     reader.open()
     return reader
@@ -150,17 +154,18 @@ def _typestore(definitions: list[tuple[str, str]], ros1: bool) -> Any:
 
 
 def _fallback(path: Path, ros1: bool, exc: Exception) -> _Ros1Scan | _SqliteScan | _McapScan:
-    """A record-by-record reader of a bag rosbags could not open, or BagError when that cannot read it either."""
+    """A record-by-record reader of a bag rosbags could not open (chosen by content: a renamed file too), or
+    BagError when that cannot read it either."""
     why = f"{type(exc).__name__}: {exc}"
-    db3 = path if path.suffix == ".db3" else next(iter(sorted(path.glob("*.db3"))), None) if path.is_dir() else None
-    mcap = path if path.suffix == ".mcap" else next(iter(sorted(path.glob("*.mcap"))), None) if path.is_dir() else None
+    files = sorted(path.glob("*.db3")) + sorted(path.glob("*.mcap")) if path.is_dir() else [path]
     try:
         if ros1:
             return _Ros1Scan(path)
-        if db3 is not None:
-            return _SqliteScan(db3)
-        if mcap is not None:
-            return _McapScan(mcap)
+        for candidate in files:
+            if _starts_with(candidate, SQLITE_MAGIC):
+                return _SqliteScan(candidate)
+            if _starts_with(candidate, MCAP_MAGIC):
+                return _McapScan(candidate)
     except Exception as second:  # noqa: BLE001 (unreadable either way: say what rosbags said, and ours)
         why = f"{why}; read record by record: {type(second).__name__}: {second}"
     raise BagError(f"{path}: not a readable ROS bag ({why})")
@@ -279,7 +284,7 @@ class _SqliteScan:
         self.path = path
         self.damage: str | None = None
         data = path.read_bytes()
-        if len(data) < 100 or not data.startswith(b"SQLite format 3\x00"):
+        if len(data) < 100 or not data.startswith(SQLITE_MAGIC):
             raise BagError(f"{path}: not an sqlite3 file")
         page_size = struct.unpack(">H", data[16:18])[0]
         page_size = 65536 if page_size == 1 else page_size

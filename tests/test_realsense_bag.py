@@ -133,3 +133,12 @@ def test_replay_of_a_cut_recording_ledgers_the_unreadable_rest(recording, tmp_pa
     assert 1 <= len(rows) < N_FRAMES
     assert [(d["frame_counter"], d["stage"]) for d in drops] == [(100 + len(rows), "capture")]
     assert drops[0]["reason"].startswith(f"damaged: {cut}: the rest is unreadable")
+
+
+def test_a_renamed_recording_is_read_by_its_content(recording, tmp_path):
+    kind, path, _ = recording
+    renamed = tmp_path / ("capture.bag" if kind == "db3" else "capture.db3")
+    renamed.write_bytes(path.read_bytes())
+    proc = tofd("import", str(renamed), str(tmp_path / "out.mcap"))
+    assert proc.returncode == 0 and f"{N_FRAMES} frames of 256x192" in proc.stderr, proc.stderr
+    assert "damaged" not in proc.stderr
