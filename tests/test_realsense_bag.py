@@ -142,3 +142,12 @@ def test_a_renamed_recording_is_read_by_its_content(recording, tmp_path):
     proc = tofd("import", str(renamed), str(tmp_path / "out.mcap"))
     assert proc.returncode == 0 and f"{N_FRAMES} frames of 256x192" in proc.stderr, proc.stderr
     assert "damaged" not in proc.stderr
+
+
+@pytest.mark.slow
+def test_batch_takes_the_recording_directly(recording, tmp_path):
+    kind, path, _ = recording
+    proc = tofd("batch", "--out", str(tmp_path / "res"), str(path))
+    assert proc.returncode == 0, proc.stderr
+    assert f"{N_FRAMES} frames processed, 0 dropped" in proc.stderr, proc.stderr
+    assert len(list((tmp_path / "res" / "recording=rs").glob("part-*.parquet"))) == 1
