@@ -1,13 +1,15 @@
 """Import a ROS bag (ROS 1 .bag; ROS 2 directory, .db3 or .mcap) or an Azure Kinect / Orbbec Femto .mkv as a tofd
 recording that `tofd replay` takes (inputs are recognised by content: drivers.opener).
 
-Each header stamp with a range image, an amplitude image and a CameraInfo becomes one frame; the intrinsics come
-from the CameraInfo, so any image size works. Defaults are the topics of the SwissRanger ROS driver
-(swissranger_camera, node SwissRanger): /SwissRanger/distance/image_raw16 (mono16 device units),
-/SwissRanger/intensity/image_raw16 and /SwissRanger/camera_info. Range images: 32FC1 in metres, or 16UC1/mono16
-in device units (--range-unit device: raw / 65535 x c / (2 f_mod), 0xFFFF = no return) or millimetres
-(--range-unit mm, REP 118: 0 = no return); radial range or z-depth along the optical axis (--depth z, converted
-to radial range with the CameraInfo's rays). The recording is written to a temporary file and renamed to OUT
+A RealSense SDK recording (librealsense's ROS 2 .db3 or legacy ROS 1 .bag) or an Orbbec SDK v2 .bag is read
+as its SDK wrote it (depth + infrared by frame number, units, lens and device from the file). In a camera
+driver's bag each header stamp with a range image, an amplitude image and a CameraInfo becomes one frame, on the
+topics of the driver the bag's topics show (swissranger_camera, orbbec_camera, azure_kinect_ros_driver,
+realsense2_camera, royale; drivers.driver_layouts) or those named by the options. Range images: 32FC1 in metres,
+or 16UC1/mono16 in device units (--range-unit device: raw / 65535 x c / (2 f_mod), 0xFFFF = no return) or
+millimetres (--range-unit mm, REP 118: 0 = no return); radial range or z-depth along the optical axis (--depth z,
+converted to radial range with the CameraInfo's undistorted rays). A damaged bag gives the frames before the
+damage. The recording is written to a temporary file and renamed to OUT
 only when every frame is in; a bad bag is one line and exit status 2. `tofd replay BAG` imports on the fly.
 """
 
