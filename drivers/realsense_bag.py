@@ -187,7 +187,9 @@ class RealSenseSource(BagSource):
                 del waiting[(role, message.log_ns)]
                 yield role, self._ros2_image(entry["image"], entry["metadata"])
             while len(waiting) > MAX_PENDING:
-                waiting.pop(next(iter(waiting)))
+                self.counters[f"unpaired_{next(iter(waiting.pop(next(iter(waiting)))))}"] += 1
+        for entry in waiting.values():  # an image without its metadata, or metadata without its image
+            self.counters[f"unpaired_{next(iter(entry))}"] += 1
 
     def _legacy_image(self, message: RawMessage) -> _Image:
         try:
