@@ -99,3 +99,12 @@ def test_batch_takes_a_kinect_recording_by_its_content(tmp_path, k4a_recording):
     (entry,) = summary["inputs"]
     assert entry["input"] == str(renamed) and entry["frames_in"] == 6 and entry["status"] == "ok", entry
     assert entry["frames_out"] == 6
+
+
+def test_replay_seek_on_a_kinect_recording_goes_through_an_import(tmp_path, k4a_recording):
+    out = tmp_path / "out"
+    proc = tofd("replay", k4a_recording, "--seek", "3", "--out", out, "--rerun", "none")
+    assert proc.returncode == 0, proc.stderr
+    assert "imported 6 frames of 320x288" in proc.stderr
+    records = [json.loads(line) for line in (out / "room.results.jsonl").read_text().splitlines()]
+    assert [r["frame_counter"] for r in records] == [3, 4, 5]

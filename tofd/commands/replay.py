@@ -9,7 +9,8 @@ ground truth also gets an accuracy line (detection and track) and <stem>.accurac
 frames). --rerun adds or replaces the viewer sink.
 --check GOLDEN compares the per-frame results with a golden file (docs/BATCH.md) and exits 1 on a regression.
 Inputs are recognised by content (drivers.opener): a ROS 1 or ROS 2 bag is imported to a temporary recording first
-(as `tofd import` does, with the same options); an Azure Kinect / Orbbec Femto .mkv is read directly (lossless).
+(as `tofd import` does, with the same options); an Azure Kinect / Orbbec Femto .mkv is read directly, or imported
+first for --realtime, --loop and --seek.
 """
 
 from __future__ import annotations
@@ -99,7 +100,7 @@ def main(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.file} is a {fmt.description}: the ROS bag options are for ROS bags")
     if fmt.read_as == "recording":
         return _replay(args, args.file, stem)
-    if fmt.read_as == "source":
+    if fmt.read_as == "source" and not (args.realtime or args.loop or args.seek is not None):
         return _replay_source(args, stem)
     import tempfile
 
@@ -137,15 +138,13 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list
 
 
 def _replay_source(args: argparse.Namespace, stem: str) -> int:
-    """Replay a file a FrameSource reads directly (drivers.opener), lossless, from its first frame."""
+    """Replay a file a FrameSource reads directly (drivers.opener), lossless, from its first frame: its lost
+    frames are ledgered as the pipeline meets them."""
     from drivers.opener import open_source
     from drivers.source import DriverError
     from tofd.config import load_config
     from tofd.errors import UsageError
 
-    for flag, given in (("--realtime", args.realtime), ("--loop", args.loop), ("--seek", args.seek is not None)):
-        if given:
-            raise UsageError(f"{flag} replays tofd recordings: `tofd import {args.file} OUT.mcap` first")
     cfg = _replay_config(args, load_config(args.config), stem)
     try:
         source = open_source(args.file)
