@@ -322,13 +322,12 @@ class _McapScan:
         self.path = path
         self.damage: str | None = None
         self._file = open(path, "rb")  # noqa: SIM115 (closed by close())
-        self._reader = NonSeekingReader(self._file)
         self.topics: dict[str, Topic] = {}
         self.definitions: list[tuple[str, str]] = []
         counts: dict[str, int] = {}
         types: dict[str, str] = {}
         try:
-            for schema, channel, _ in self._reader.iter_messages():
+            for schema, channel, _ in NonSeekingReader(self._file).iter_messages(log_time_order=False):
                 counts[channel.topic] = counts.get(channel.topic, 0) + 1
                 if schema is not None and channel.topic not in types:
                     types[channel.topic] = schema.name
@@ -343,11 +342,11 @@ class _McapScan:
 
         self._file.seek(0)
         try:
-            for _, channel, message in NonSeekingReader(self._file).iter_messages():
+            for _, channel, message in NonSeekingReader(self._file).iter_messages(log_time_order=False):
                 if not topics or channel.topic in topics:
                     yield RawMessage(channel.topic, message.log_time, message.data)
         except Exception as exc:  # noqa: BLE001 (the first record the stream reader cannot take ends the bag)
-            self.damage = f"mcap: {type(exc).__name__}: {exc}"
+            self.damage = f"mcap: a record cut short or damaged ({type(exc).__name__}{f': {exc}' if str(exc) else ''})"
 
     def close(self) -> None:
         self._file.close()
