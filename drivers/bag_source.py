@@ -94,7 +94,7 @@ class BagSource(FrameSource):
                 yield frame
         except BagError as exc:
             if not self.bag.recovering:
-                raise
+                raise exc if str(exc).startswith(str(self.path)) else BagError(f"{self.path}: {exc}") from None
             self.bag.damage = f"{self.bag.damage or 'damaged'}; {exc}"
         if self.bag.damage is not None:
             self.reject(counter, f"damaged: {self.path}: the rest is unreadable ({self.bag.damage})")

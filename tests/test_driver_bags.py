@@ -127,13 +127,11 @@ def test_a_bag_of_no_known_driver_lists_its_topics(tmp_path):
 
 
 def test_an_unsupported_lens_model_is_refused_naming_it(tmp_path):
-    ts = typestore("sqlite3")
     messages = driver_messages("sqlite3", "orbbec_camera", K4A_LIKE, Scene(), "16UC1", n_frames=1)
     info = messages[2][1]
     messages[2] = (messages[2][0], dataclasses.replace(info, distortion_model="fov", d=np.array([0.3])))
     bag = write_bag(bag_path(tmp_path, "sqlite3"), "sqlite3", messages)
-    del ts
-    one_line_error(tofd("import", str(bag), str(tmp_path / "out.mcap")), 2, "/camera/depth/camera_info",
+    one_line_error(tofd("import", str(bag), str(tmp_path / "out.mcap")), 2, f"{bag}: /camera/depth/camera_info",
                    "distortion model 'fov'", "rational_polynomial")
 
 
