@@ -31,6 +31,15 @@ class BagError(DriverError):
     """A bag that cannot be imported: unreadable, a topic missing or of the wrong type, an image tofd cannot use."""
 
 
+class DamagedMessage(BagError):
+    """A message whose bytes do not decode (garbled in the file): its frame is ledgered and the bag read on.
+    frame_number: the device's number of the frame it belongs to, when known."""
+
+    def __init__(self, message: str, frame_number: int | None = None) -> None:
+        super().__init__(message)
+        self.frame_number = frame_number
+
+
 @dataclass(frozen=True, slots=True)
 class Topic:
     """A topic of a bag: its message type (ROS 2 spelling, pkg/msg/Name) and message count (-1: unknown)."""
@@ -103,7 +112,7 @@ class BagReader:
                 return self.typestore.deserialize_ros1(bytes(raw), msgtype)
             return self.typestore.deserialize_cdr(bytes(raw), msgtype)
         except Exception as exc:  # noqa: BLE001 (any decoding failure is a message tofd cannot read)
-            raise BagError(f"{msgtype}: unreadable message ({type(exc).__name__}: {exc})") from None
+            raise DamagedMessage(f"{msgtype}: unreadable message ({type(exc).__name__}: {exc})") from None
 
     def close(self) -> None:
         if self._reader is not None:

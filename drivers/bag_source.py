@@ -3,6 +3,7 @@ account of a damaged tail, and what the file says about the device and its setti
 
 from __future__ import annotations
 
+import logging
 from abc import abstractmethod
 from collections.abc import Iterator
 from pathlib import Path
@@ -10,10 +11,12 @@ from typing import Any
 
 import numpy as np
 
-from drivers.bag_scan import BagError, BagReader, RawMessage
+from drivers.bag_scan import BagError, BagReader, DamagedMessage, RawMessage
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource, Rejected
+
+log = logging.getLogger(__name__)
 
 
 def depth_metres(raw: np.ndarray, metres_per_unit: float) -> np.ndarray:
@@ -60,8 +63,21 @@ class BagSource(FrameSource):
     def decode(self, message: RawMessage, msgtype: str) -> Any:
         try:
             return self.bag.deserialize(message.raw, msgtype)
-        except BagError as exc:
-            raise BagError(f"{self.path}: {message.topic}: {exc}") from None
+        except DamagedMessage as exc:
+            raise DamagedMessage(f"{self.path}: {message.topic}: {exc}") from None
+
+    def damaged(self, frame_number: int | None, exc: DamagedMessage) -> None:
+        """A garbled message: its frame ledgered as damaged (by `frame_number`, when known; else counted in
+        counters["damaged_message"]) and the bag read on. In a bag read record by record after damage it ends
+        the readable part instead (its bytes may be the zeros standing in for a missing page)."""
+        if self.bag.recovering:
+            raise exc
+        why = str(exc) if str(exc).startswith(str(self.path)) else f"{self.path}: {exc}"
+        if frame_number is None:
+            self.counters["damaged_message"] += 1
+            log.warning("%s", why)
+        else:
+            self.reject(frame_number % (1 << 32), f"damaged: {why}")
 
     def check_calibration(self, intrinsics: Intrinsics, where: str, when: str) -> Intrinsics:
         """`intrinsics` if it is the first calibration or the same as before; BagError (naming the topic or stream

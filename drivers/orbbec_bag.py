@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers import ros1_wire
-from drivers.bag_scan import BagError, RawMessage, Topic
+from drivers.bag_scan import BagError, DamagedMessage, RawMessage, Topic
 from drivers.bag_source import BagSource, depth_metres
 from drivers.frame import DeviceInfo, Frame
 from drivers.intrinsics import Intrinsics
@@ -124,20 +124,29 @@ class OrbbecSource(BagSource):
         try:
             return ros1_wire.extended_image(message.raw)
         except ros1_wire.WireError as exc:
-            raise BagError(f"{self.path}: {message.topic}: unreadable image ({exc})") from None
+            raise DamagedMessage(f"{self.path}: {message.topic}: unreadable image ({exc})") from None
 
     def frames(self) -> Iterator[Frame]:
         """Frames in the order their second image arrives."""
         roles = {self.depth_topic: "depth", self.ir_topic: "infrared"}
         pending: dict[int, dict[str, tuple[ros1_wire.ExtendedImage, RawMessage]]] = {}
         for message in self.messages(set(roles)):
-            image = self._image(message)
+            try:
+                image = self._image(message)
+            except DamagedMessage as exc:
+                self.damaged(None, exc)
+                continue
             number = image.number if image.number is not None else image.header.seq
             parts = pending.setdefault(number, {})
             parts[roles[message.topic]] = (image, message)
             if len(parts) == 2:
                 del pending[number]
-                yield self._frame(number, parts["depth"], parts["infrared"])
+                try:
+                    frame = self._frame(number, parts["depth"], parts["infrared"])
+                except DamagedMessage as exc:
+                    self.damaged(number, exc)
+                    continue
+                yield frame
             while len(pending) > MAX_PENDING:
                 self._unpaired(pending.pop(next(iter(pending))))
         for parts in pending.values():

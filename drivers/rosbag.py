@@ -27,7 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from drivers.bag_scan import BagError, RawMessage
+from drivers.bag_scan import BagError, DamagedMessage, RawMessage
 from drivers.bag_source import BagSource, depth_metres
 from drivers.driver_layouts import CAMERA_INFO_TYPE, Layout, describe_topics, detect_layout, no_layout_error
 from drivers.frame import DeviceInfo, Frame, Registers
@@ -177,14 +177,25 @@ class RosbagSource(BagSource):
         pending: dict[int, dict[str, tuple[Any, RawMessage]]] = {}
         counter = 0
         for message in self.messages(set(roles)):
-            msg, role = self.decode(message, types[message.topic]), roles[message.topic]
+            role = roles[message.topic]
+            try:
+                msg = self.decode(message, types[message.topic])
+            except DamagedMessage as exc:  # a garbled range image is a frame lost; another message leaves its
+                self.damaged(counter if role == "range" else None, exc)  # frame's other messages unpaired
+                counter += role == "range"
+                continue
             parts = pending.setdefault(_stamp(msg), {})
             if role in parts:  # a second message of this role and stamp: the first one stays unpaired
                 self.counters[f"unpaired_{role}"] += 1
             parts[role] = (msg, message)
             if len(parts) == len(roles):
                 del pending[_stamp(msg)]
-                yield self._frame(counter, parts)
+                try:
+                    frame = self._frame(counter, parts)
+                except DamagedMessage as exc:
+                    self.damaged(counter, exc)
+                else:
+                    yield frame
                 counter += 1
             while len(pending) > MAX_PENDING_STAMPS:
                 self._unpaired(pending.pop(next(iter(pending))))

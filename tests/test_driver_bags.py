@@ -156,3 +156,27 @@ def test_a_driver_bag_cut_short_imports_the_frames_before_the_cut(tmp_path, kind
     assert [r.frame_counter for r in rejected] == [written] and rejected[0].reason.startswith(f"damaged: {bag}")
     z, _, _ = render(K4A_LIKE, Scene())
     assert np.nanmax(np.abs(frames[-1].range_m - K4A_LIKE.radial_from_z(z))) <= 1e-3  # intact frames, not garbage
+
+
+def test_a_garbled_frame_in_the_middle_is_ledgered_and_the_rest_read(tmp_path):
+    """A compressedDepth image whose PNG is garbled, and an IR image shorter than its rows: the first frame is
+    ledgered as damaged by its counter, the second's range image is left unpaired; the others are read."""
+    messages = driver_messages("sqlite3", "realsense2_camera", RS_LIKE, RS_SCENE, "compressed", n_frames=4)
+    depth_topic, depth = messages[3]  # frame 1's depth
+    data = np.array(depth.data)
+    data[40:80] = 0xEE
+    messages[3] = (depth_topic, dataclasses.replace(depth, data=data))
+    ir_topic, ir = messages[7]  # frame 2's IR
+    messages[7] = (ir_topic, dataclasses.replace(ir, data=np.array(ir.data)[:-100]))
+    bag = write_bag(bag_path(tmp_path, "sqlite3"), "sqlite3", messages)
+    with RosbagSource(bag) as source:
+        frames = list(source)
+        rejected = source.take_rejected()
+        counters = dict(source.counters)
+    assert [f.frame_counter for f in frames] == [0, 3]
+    assert [r.frame_counter for r in rejected] == [1, 2]
+    assert rejected[0].reason.startswith(f"damaged: {bag}") and "do not decode" in rejected[0].reason
+    assert "infra1/image_rect_raw" in rejected[1].reason and "expected 192 rows" in rejected[1].reason
+    assert counters == {"damaged": 2}
+    proc = tofd("import", str(bag), str(tmp_path / "out.mcap"))
+    assert proc.returncode == 0 and "2 frames of 256x192; skipped 2 frames lost or damaged" in proc.stderr, proc.stderr

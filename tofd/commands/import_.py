@@ -104,7 +104,10 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _unpaired(counters: dict[str, int]) -> str:
-    """The messages left without the others of their stamp, e.g. "3 range, 1 camera_info messages unpaired"."""
+    """The messages left without the others of their stamp and those that did not decode, e.g. "3 range,
+    1 camera_info messages unpaired; 1 garbled message skipped"."""
     parts = [f"{n} {key.removeprefix('unpaired_')}" for key, n in sorted(counters.items())
              if key.startswith("unpaired_") and n]
-    return f"{', '.join(parts)} messages unpaired" if parts else ""
+    garbled = counters.get("damaged_message", 0)
+    return "; ".join(filter(None, [f"{', '.join(parts)} messages unpaired" if parts else "",
+                                   f"{garbled} garbled message{'s' * (garbled != 1)} skipped" if garbled else ""]))
