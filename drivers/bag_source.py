@@ -42,8 +42,13 @@ class BagSource(FrameSource):
         self.bag = BagReader(self.path)
         self.intrinsics: Intrinsics | None = None
         self.settings: dict[str, Any] = {}
-        self.range_messages = 0
-        """Range images in the bag (an upper bound on the frames; 0 when unknown)."""
+        self.range_messages: int | None = None
+        """Range images in the bag (an upper bound on the frames; None when unknown)."""
+
+    def message_count(self, topic: str) -> int | None:
+        """Messages of `topic` in the bag, None when unknown (a damaged sqlite3 bag read row by row)."""
+        n = self.bag.topics[topic].count
+        return n if n >= 0 else None
 
     @property
     def damage(self) -> str | None:

@@ -66,7 +66,7 @@ class OrbbecSource(BagSource):
             self.bag.close()
             raise
         self._units_mm = units_mm
-        self.range_messages = max(0, self.bag.topics[self.depth_topic].count)
+        self.range_messages = self.message_count(self.depth_topic)
         self.settings |= {"format": "Orbbec SDK v2 .bag", "depth_topic": self.depth_topic,
                          "infrared_topic": self.ir_topic, "depth_unit_property_mm": units_mm,
                          "amplitude": "infrared", "properties": properties}

@@ -80,7 +80,7 @@ class RealSenseSource(BagSource):
         except BagError:
             self.bag.close()
             raise
-        self.range_messages = max(0, self.bag.topics[self.depth.image_topic].count)
+        self.range_messages = self.message_count(self.depth.image_topic)
         self.settings = {"format": "RealSense SDK " + ("ROS 1 .bag (librealsense <= 2.56)" if self.bag.ros1 else
                                                          "ROS 2 .db3 (librealsense >= 2.57)"),
                          "depth_topic": self.depth.image_topic, "infrared_topic": self.infrared.image_topic,

@@ -115,7 +115,7 @@ class RosbagSource(BagSource):
         except BagError:
             self.bag.close()
             raise
-        self.range_messages = max(0, self.bag.topics[self.options.topics["range"]].count)
+        self.range_messages = self.message_count(self.options.topics["range"])
         index = protocol.mod_freq_index(round(options.mod_freq_mhz * 1000))
         self._registers = Registers() if index is None else Registers(mod_freq_index=index)
         self.settings = {"driver": self.options.driver, "topics": self.options.topics,
