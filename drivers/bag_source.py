@@ -84,16 +84,6 @@ class BagSource(FrameSource):
         else:
             self.reject(frame_number % (1 << 32), f"damaged: {why}")
 
-    def check_calibration(self, intrinsics: Intrinsics, where: str, when: str) -> Intrinsics:
-        """`intrinsics` if it is the first calibration or the same as before; BagError (naming the topic or stream
-        `where` and e.g. `when` = "at stamp 1.000000000") when it changes."""
-        if self.intrinsics is None:
-            self.intrinsics = intrinsics
-        elif intrinsics != self.intrinsics:
-            raise BagError(f"{where}: the calibration changes {when} ({self.intrinsics} -> {intrinsics}); a tofd "
-                           "recording holds one camera calibration")
-        return intrinsics
-
     def check_sizes(self, where: str, **planes: tuple[int, int]) -> None:
         """BagError when the named (H, W) shapes differ."""
         if len(set(planes.values())) > 1:

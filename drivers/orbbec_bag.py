@@ -60,7 +60,7 @@ class OrbbecSource(BagSource):
         super().__init__(path)
         try:
             self.depth_topic, self.ir_topic = self._topics()
-            self._lens = self._calibration()
+            self.intrinsics = self._calibration()  # the depth stream's profile, known before the first frame
             self.device, units_mm, properties = self._device_and_units()
         except BagError:
             self.bag.close()
@@ -159,7 +159,8 @@ class OrbbecSource(BagSource):
     def _frame(self, number: int, depth: tuple[ros1_wire.ExtendedImage, RawMessage],
                infrared: tuple[ros1_wire.ExtendedImage, RawMessage]) -> Frame:
         (image, message), (ir_image, _) = depth, infrared
-        intrinsics = self.check_calibration(self._lens, f"{self.path}: {self.depth_topic}", "")
+        intrinsics = self.intrinsics
+        assert intrinsics is not None
         raw = image_plane(image, RANGE_ENCODINGS, self.depth_topic)
         amplitude = image_plane(ir_image, AMPLITUDE_ENCODINGS, self.ir_topic).astype(np.float32)
         self.check_sizes(f"{self.path}: frame {number}", depth_image=raw.shape, infrared_image=amplitude.shape,

@@ -74,7 +74,7 @@ class RealSenseSource(BagSource):
         super().__init__(path)
         try:
             self.depth, self.infrared = self._streams()
-            self._lens = self._calibration()
+            self.intrinsics = self._calibration()  # one per stream, known before the first frame
             self._option_units = self._depth_units_option()
             self.device = self._device()
         except BagError:
@@ -253,7 +253,8 @@ class RealSenseSource(BagSource):
             self.counters["unpaired_range" if role == "depth" else "unpaired_amplitude"] += 1
 
     def _frame(self, depth: _Image, infrared: _Image) -> Frame:
-        intrinsics = self.check_calibration(self._lens, f"{self.path}: {self.depth.base}", "")
+        intrinsics = self.intrinsics
+        assert intrinsics is not None
         amplitude = infrared.array.astype(np.float32)
         self.check_sizes(f"{self.path}: frame {depth.number}", depth_image=depth.array.shape,
                          infrared_image=amplitude.shape, calibration=intrinsics.shape)

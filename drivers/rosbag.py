@@ -152,11 +152,21 @@ class RosbagSource(BagSource):
                                "" if named or layout is None else layout.driver,
                                layout.amplitude if layout and not named else "amplitude")
 
+    def _check_calibration(self, intrinsics: Intrinsics, where: str, when: str) -> Intrinsics:
+        """`intrinsics` if it is the first calibration or the same as before; BagError (naming the topic or stream
+        `where` and e.g. `when` = "at stamp 1.000000000") when it changes."""
+        if self.intrinsics is None:
+            self.intrinsics = intrinsics
+        elif intrinsics != self.intrinsics:
+            raise BagError(f"{where}: the calibration changes {when} ({self.intrinsics} -> {intrinsics}); a tofd "
+                           "recording holds one camera calibration")
+        return intrinsics
+
     def _frame(self, counter: int, parts: dict[str, tuple[Any, RawMessage]]) -> Frame:
         """The Frame of one stamp's range image, amplitude image and CameraInfo."""
         topics = self.options.topics
         (rng, raw_range), (amp, _), (info, _) = parts["range"], parts["amplitude"], parts["camera_info"]
-        intrinsics = self.check_calibration(camera_info_intrinsics(info, topics["camera_info"]),
+        intrinsics = self._check_calibration(camera_info_intrinsics(info, topics["camera_info"]),
                                             topics["camera_info"], f"at stamp {_seconds(info)}")
         range_image = plane(rng, self.bag.topics[topics["range"]].msgtype, RANGE_ENCODINGS, topics["range"])
         amplitude = plane(amp, self.bag.topics[topics["amplitude"]].msgtype, AMPLITUDE_ENCODINGS,
