@@ -17,7 +17,7 @@ from vendor_bag_helpers import assert_on_sphere, logged_foreground, pinhole_erro
 from drivers.bags import open_bag
 from drivers.driver_layouts import LAYOUTS
 from drivers.intrinsics import Intrinsics
-from drivers.rosbag import RosbagSource
+from drivers.rosbag import RangeOptions, RosbagSource
 
 LAYOUT = {layout.driver: layout for layout in LAYOUTS}
 N_FRAMES = 3
@@ -99,8 +99,6 @@ def test_options_override_what_the_driver_layout_says(tmp_path):
                                                                           "32FC1", namespace="/tof"))
     topics = {"range_topic": "/tof/depth_image", "amplitude_topic": "/tof/gray_image",
               "camera_info_topic": "/tof/camera_info"}
-    from drivers.rosbag import RangeOptions
-
     with RosbagSource(bag, RangeOptions(**topics, depth="radial")) as source:
         radial_as_given = next(iter(source))
         assert source.options.driver == ""
