@@ -94,7 +94,7 @@ def test_replay_of_an_orbbec_driver_bag_puts_the_foreground_on_the_sphere(tmp_pa
 
 
 def test_options_override_what_the_driver_layout_says(tmp_path):
-    """16UC1 taken as SwissRanger device units on request; every topic named by hand works without a layout."""
+    """--depth radial takes the depth image as it is; with every topic named no driver layout is needed."""
     bag = write_bag(bag_path(tmp_path, "mcap"), "mcap", driver_messages("mcap", "royale", FISHEYE_LIKE, Scene(),
                                                                           "32FC1", namespace="/tof"))
     topics = {"range_topic": "/tof/depth_image", "amplitude_topic": "/tof/gray_image",
