@@ -22,11 +22,22 @@ from typing import Any
 from drivers.source import DriverError
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 OP_MESSAGE, OP_CHUNK, OP_CONNECTION = 0x02, 0x05, 0x07
 
 
 class BagError(DriverError):
     """A bag that cannot be imported: unreadable, a topic missing or of the wrong type, an image tofd cannot use."""
+
+
+class DamagedMessage(BagError):
+    """A message whose bytes do not decode (garbled in the file): its frame is ledgered and the bag read on.
+    frame_number: the device's number of the frame it belongs to, when known."""
+
+    def __init__(self, message: str, frame_number: int | None = None) -> None:
+        super().__init__(message)
+        self.frame_number = frame_number
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,7 +112,7 @@ class BagReader:
                 return self.typestore.deserialize_ros1(bytes(raw), msgtype)
             return self.typestore.deserialize_cdr(bytes(raw), msgtype)
         except Exception as exc:  # noqa: BLE001 (any decoding failure is a message tofd cannot read)
-            raise BagError(f"{msgtype}: unreadable message ({type(exc).__name__}: {exc})") from None
+            raise DamagedMessage(f"{msgtype}: unreadable message ({type(exc).__name__}: {exc})") from None
 
     def close(self) -> None:
         if self._reader is not None:
@@ -120,6 +131,8 @@ def _open_rosbags(path: Path, ros1: bool) -> Any:
     from rosbags.rosbag1 import Reader as Reader1
     from rosbags.rosbag2 import Reader as Reader2
 
+    if not ros1 and path.is_file() and path.suffix not in (".db3", ".mcap"):
+        raise BagError(f"a ROS 2 storage file named {path.suffix or 'without a suffix'} (rosbags goes by .db3/.mcap)")
     reader = Reader1(path) if ros1 else Reader2(path)
     reader.open()
     return reader
@@ -150,17 +163,18 @@ def _typestore(definitions: list[tuple[str, str]], ros1: bool) -> Any:
 
 
 def _fallback(path: Path, ros1: bool, exc: Exception) -> _Ros1Scan | _SqliteScan | _McapScan:
-    """A record-by-record reader of a bag rosbags could not open, or BagError when that cannot read it either."""
+    """A record-by-record reader of a bag rosbags could not open (chosen by content: a renamed file too), or
+    BagError when that cannot read it either."""
     why = f"{type(exc).__name__}: {exc}"
-    db3 = path if path.suffix == ".db3" else next(iter(sorted(path.glob("*.db3"))), None) if path.is_dir() else None
-    mcap = path if path.suffix == ".mcap" else next(iter(sorted(path.glob("*.mcap"))), None) if path.is_dir() else None
+    files = sorted(path.glob("*.db3")) + sorted(path.glob("*.mcap")) if path.is_dir() else [path]
     try:
         if ros1:
             return _Ros1Scan(path)
-        if db3 is not None:
-            return _SqliteScan(db3)
-        if mcap is not None:
-            return _McapScan(mcap)
+        for candidate in files:
+            if _starts_with(candidate, SQLITE_MAGIC):
+                return _SqliteScan(candidate)
+            if _starts_with(candidate, MCAP_MAGIC):
+                return _McapScan(candidate)
     except Exception as second:  # noqa: BLE001 (unreadable either way: say what rosbags said, and ours)
         why = f"{why}; read record by record: {type(second).__name__}: {second}"
     raise BagError(f"{path}: not a readable ROS bag ({why})")
@@ -170,7 +184,8 @@ class _Ros1Scan:
     """ROS 1 bag records in file order (format 2.0: op-coded records, chunks of connections and messages)."""
 
     def __init__(self, path: Path) -> None:
-        self.path, self.damage = path, None
+        self.path = path
+        self.damage: str | None = None
         self._data = path.read_bytes()
         self.connections: dict[int, tuple[str, str, str]] = {}  # conn id -> topic, type, definition
         self._counts: dict[int, int] = {}
@@ -275,9 +290,10 @@ class _SqliteScan:
     """
 
     def __init__(self, path: Path) -> None:
-        self.path, self.damage = path, None
+        self.path = path
+        self.damage: str | None = None
         data = path.read_bytes()
-        if len(data) < 100 or not data.startswith(b"SQLite format 3\x00"):
+        if len(data) < 100 or not data.startswith(SQLITE_MAGIC):
             raise BagError(f"{path}: not an sqlite3 file")
         page_size = struct.unpack(">H", data[16:18])[0]
         page_size = 65536 if page_size == 1 else page_size
@@ -312,15 +328,15 @@ class _McapScan:
     def __init__(self, path: Path) -> None:
         from mcap.reader import NonSeekingReader
 
-        self.path, self.damage = path, None
+        self.path = path
+        self.damage: str | None = None
         self._file = open(path, "rb")  # noqa: SIM115 (closed by close())
-        self._reader = NonSeekingReader(self._file)
         self.topics: dict[str, Topic] = {}
         self.definitions: list[tuple[str, str]] = []
         counts: dict[str, int] = {}
         types: dict[str, str] = {}
         try:
-            for schema, channel, _ in self._reader.iter_messages():
+            for schema, channel, _ in NonSeekingReader(self._file).iter_messages(log_time_order=False):
                 counts[channel.topic] = counts.get(channel.topic, 0) + 1
                 if schema is not None and channel.topic not in types:
                     types[channel.topic] = schema.name
@@ -335,11 +351,11 @@ class _McapScan:
 
         self._file.seek(0)
         try:
-            for _, channel, message in NonSeekingReader(self._file).iter_messages():
+            for _, channel, message in NonSeekingReader(self._file).iter_messages(log_time_order=False):
                 if not topics or channel.topic in topics:
                     yield RawMessage(channel.topic, message.log_time, message.data)
         except Exception as exc:  # noqa: BLE001 (the first record the stream reader cannot take ends the bag)
-            self.damage = f"mcap: {type(exc).__name__}: {exc}"
+            self.damage = f"mcap: a record cut short or damaged ({type(exc).__name__}{f': {exc}' if str(exc) else ''})"
 
     def close(self) -> None:
         self._file.close()

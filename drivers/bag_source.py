@@ -3,6 +3,7 @@ account of a damaged tail, and what the file says about the device and its setti
 
 from __future__ import annotations
 
+import logging
 from abc import abstractmethod
 from collections.abc import Iterator
 from pathlib import Path
@@ -10,10 +11,12 @@ from typing import Any
 
 import numpy as np
 
-from drivers.bag_scan import BagError, BagReader, RawMessage
+from drivers.bag_scan import BagError, BagReader, DamagedMessage, RawMessage
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
-from drivers.source import FrameSource
+from drivers.source import FrameSource, Rejected
+
+log = logging.getLogger(__name__)
 
 
 def depth_metres(raw: np.ndarray, metres_per_unit: float) -> np.ndarray:
@@ -39,8 +42,13 @@ class BagSource(FrameSource):
         self.bag = BagReader(self.path)
         self.intrinsics: Intrinsics | None = None
         self.settings: dict[str, Any] = {}
-        self.range_messages = 0
-        """Range images in the bag (an upper bound on the frames; 0 when unknown)."""
+        self.range_messages: int | None = None
+        """Range images in the bag (an upper bound on the frames; None when unknown)."""
+
+    def message_count(self, topic: str) -> int | None:
+        """Messages of `topic` in the bag, None when unknown (a damaged sqlite3 bag read row by row)."""
+        n = self.bag.topics[topic].count
+        return n if n >= 0 else None
 
     @property
     def damage(self) -> str | None:
@@ -60,18 +68,21 @@ class BagSource(FrameSource):
     def decode(self, message: RawMessage, msgtype: str) -> Any:
         try:
             return self.bag.deserialize(message.raw, msgtype)
-        except BagError as exc:
-            raise BagError(f"{self.path}: {message.topic}: {exc}") from None
+        except DamagedMessage as exc:
+            raise DamagedMessage(f"{self.path}: {message.topic}: {exc}") from None
 
-    def check_calibration(self, intrinsics: Intrinsics, where: str, when: str) -> Intrinsics:
-        """`intrinsics` if it is the first calibration or the same as before; BagError (naming the topic or stream
-        `where` and e.g. `when` = "at stamp 1.000000000") when it changes."""
-        if self.intrinsics is None:
-            self.intrinsics = intrinsics
-        elif intrinsics != self.intrinsics:
-            raise BagError(f"{where}: the calibration changes {when} ({self.intrinsics} -> {intrinsics}); a tofd "
-                           "recording holds one camera calibration")
-        return intrinsics
+    def damaged(self, frame_number: int | None, exc: DamagedMessage) -> None:
+        """A garbled message: its frame ledgered as damaged (by `frame_number`, when known; else counted in
+        counters["damaged_message"]) and the bag read on. In a bag read record by record after damage it ends
+        the readable part instead (its bytes may be the zeros standing in for a missing page)."""
+        if self.bag.recovering:
+            raise exc
+        why = str(exc) if str(exc).startswith(str(self.path)) else f"{self.path}: {exc}"
+        if frame_number is None:
+            self.counters["damaged_message"] += 1
+            log.warning("%s", why)
+        else:
+            self.reject(frame_number % (1 << 32), f"damaged: {why}")
 
     def check_sizes(self, where: str, **planes: tuple[int, int]) -> None:
         """BagError when the named (H, W) shapes differ."""
@@ -94,7 +105,34 @@ class BagSource(FrameSource):
                 yield frame
         except BagError as exc:
             if not self.bag.recovering:
-                raise
+                raise exc if str(exc).startswith(str(self.path)) else BagError(f"{self.path}: {exc}") from None
             self.bag.damage = f"{self.bag.damage or 'damaged'}; {exc}"
         if self.bag.damage is not None:
             self.reject(counter, f"damaged: {self.path}: the rest is unreadable ({self.bag.damage})")
+
+
+class RejectsAfter(FrameSource):
+    """`source`'s frames, then the frames an earlier stage rejected: what importing a bag ledgered (its damaged
+    tail) reaches the pipeline's ledger when the imported recording is replayed. Counters and other attributes
+    are `source`'s."""
+
+    def __init__(self, source: FrameSource, rejected: list[Rejected]) -> None:
+        super().__init__()
+        self.source, self._pending = source, list(rejected)
+        self.counters = source.counters
+
+    def __iter__(self) -> Iterator[Frame]:
+        for frame in self.source:
+            self._rejected.extend(self.source.take_rejected())
+            yield frame
+        self._rejected.extend(self.source.take_rejected())
+        for item in self._pending:
+            self.reject(item.frame_counter, item.reason)
+        self._pending.clear()
+
+    def close(self) -> None:
+        super().close()
+        self.source.close()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.source, name)

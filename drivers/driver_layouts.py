@@ -58,21 +58,21 @@ the same relative names and encodings, so which of the two a renamed bag is take
 
 
 def detect_layout(topics: dict[str, Topic]) -> tuple[Layout, dict[str, str | None]] | None:
-    """The first layout whose range image the bag holds (under the driver's namespace, else under exactly one
-    other), with the bag's topic of each role (None: not in the bag), or None."""
-    for layout in LAYOUTS:
-        relative = layout.relative_topics
-        default = f"{layout.namespace}/{layout.range_topic}"
-        candidates = [default] if default in topics else [t for t in topics if t.endswith("/" + layout.range_topic)]
-        if len(candidates) != 1 or topics[candidates[0]].msgtype not in IMAGE_TYPES:
-            continue
-        namespace = candidates[0][:-len("/" + layout.range_topic)]
-        names = {role: None if rel is None else f"{namespace}/{rel}" for role, rel in relative.items()}
-        names = {role: name if name in topics else None for role, name in names.items()}
-        info = names["camera_info"]
-        if info is not None and topics[info].msgtype != CAMERA_INFO_TYPE:
-            continue
-        return layout, names
+    """The first layout whose range image the bag holds under the driver's namespace, else the first under
+    exactly one other namespace, with the bag's topic of each role (None: not in the bag); or None."""
+    for exact in (True, False):
+        for layout in LAYOUTS:
+            default = f"{layout.namespace}/{layout.range_topic}"
+            candidates = [default] if default in topics else [] if exact else [
+                t for t in topics if t.endswith("/" + layout.range_topic)]
+            if len(candidates) != 1 or topics[candidates[0]].msgtype not in IMAGE_TYPES:
+                continue
+            namespace = candidates[0][:-len("/" + layout.range_topic)]
+            names = {role: f"{namespace}/{rel}" if rel is not None and f"{namespace}/{rel}" in topics else None
+                     for role, rel in layout.relative_topics.items()}
+            info = names["camera_info"]
+            if info is None or topics[info].msgtype == CAMERA_INFO_TYPE:
+                return layout, names
     return None
 
 

@@ -32,7 +32,8 @@ class InputFormat:
     description: str
     read_as: Literal["recording", "bag", "source"]
     matches: Callable[[Path, bytes], bool]
-    open: Callable[[Path], FrameSource] | None = None  # read_as == "source": the FrameSource of a path
+    open: Callable[[Path], FrameSource] | None = None  # the FrameSource reading a path directly: every "source"
+    # format; ROS bags too (their drivers' topics, no options), for `tofd batch`
 
 
 def _mcap_profile(path: Path) -> str | None:
@@ -75,6 +76,12 @@ def _bag_of(kind: str) -> Callable[[Path, bytes], bool]:
     return matches
 
 
+def _open_bag(path: Path) -> FrameSource:
+    from drivers.bags import open_bag
+
+    return open_bag(path)
+
+
 def _open_k4a(path: Path) -> FrameSource:
     from drivers.k4a_mkv import K4aRecordingSource
 
@@ -84,9 +91,9 @@ def _open_k4a(path: Path) -> FrameSource:
 FORMATS: tuple[InputFormat, ...] = (
     InputFormat("tofd", "tofd recording (MCAP, profile tofd)", "recording", _is_tofd_recording),
     InputFormat("realsense", "RealSense SDK recording (librealsense >= 2.57 ROS 2 .db3, <= 2.56 ROS 1 .bag)", "bag",
-                _bag_of("realsense")),
-    InputFormat("orbbec", "Orbbec SDK v2 recording (ROS 1 .bag)", "bag", _bag_of("orbbec")),
-    InputFormat("rosbag", "ROS bag (ROS 1 .bag; ROS 2 directory, .db3 or .mcap)", "bag", _is_bag),
+                _bag_of("realsense"), _open_bag),
+    InputFormat("orbbec", "Orbbec SDK v2 recording (ROS 1 .bag)", "bag", _bag_of("orbbec"), _open_bag),
+    InputFormat("rosbag", "ROS bag (ROS 1 .bag; ROS 2 directory, .db3 or .mcap)", "bag", _is_bag, _open_bag),
     InputFormat("k4a", "Azure Kinect / Orbbec Femto recording (Matroska .mkv)", "source",
                 lambda path, head: head.startswith(MATROSKA_MAGIC), _open_k4a),
 )

@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import re
 import struct
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from pathlib import Path
 
 import numpy as np
 
 from drivers import ros1_wire
-from drivers.bag_scan import BagError, RawMessage, Topic
+from drivers.bag_scan import BagError, DamagedMessage, RawMessage, Topic
 from drivers.bag_source import BagSource, depth_metres
 from drivers.frame import DeviceInfo, Frame
 from drivers.intrinsics import Intrinsics
@@ -60,13 +60,13 @@ class OrbbecSource(BagSource):
         super().__init__(path)
         try:
             self.depth_topic, self.ir_topic = self._topics()
-            self._lens = self._calibration()
+            self.intrinsics = self._calibration()  # the depth stream's profile, known before the first frame
             self.device, units_mm, properties = self._device_and_units()
         except BagError:
             self.bag.close()
             raise
         self._units_mm = units_mm
-        self.range_messages = max(0, self.bag.topics[self.depth_topic].count)
+        self.range_messages = self.message_count(self.depth_topic)
         self.settings |= {"format": "Orbbec SDK v2 .bag", "depth_topic": self.depth_topic,
                          "infrared_topic": self.ir_topic, "depth_unit_property_mm": units_mm,
                          "amplitude": "infrared", "properties": properties}
@@ -124,33 +124,43 @@ class OrbbecSource(BagSource):
         try:
             return ros1_wire.extended_image(message.raw)
         except ros1_wire.WireError as exc:
-            raise BagError(f"{self.path}: {message.topic}: unreadable image ({exc})") from None
+            raise DamagedMessage(f"{self.path}: {message.topic}: unreadable image ({exc})") from None
 
     def frames(self) -> Iterator[Frame]:
         """Frames in the order their second image arrives."""
         roles = {self.depth_topic: "depth", self.ir_topic: "infrared"}
         pending: dict[int, dict[str, tuple[ros1_wire.ExtendedImage, RawMessage]]] = {}
         for message in self.messages(set(roles)):
-            image = self._image(message)
+            try:
+                image = self._image(message)
+            except DamagedMessage as exc:
+                self.damaged(None, exc)
+                continue
             number = image.number if image.number is not None else image.header.seq
             parts = pending.setdefault(number, {})
             parts[roles[message.topic]] = (image, message)
             if len(parts) == 2:
                 del pending[number]
-                yield self._frame(number, parts["depth"], parts["infrared"])
+                try:
+                    frame = self._frame(number, parts["depth"], parts["infrared"])
+                except DamagedMessage as exc:
+                    self.damaged(number, exc)
+                    continue
+                yield frame
             while len(pending) > MAX_PENDING:
                 self._unpaired(pending.pop(next(iter(pending))))
         for parts in pending.values():
             self._unpaired(parts)
 
-    def _unpaired(self, parts: dict[str, object]) -> None:
+    def _unpaired(self, parts: Collection[str]) -> None:
         for role in parts:
             self.counters["unpaired_range" if role == "depth" else "unpaired_amplitude"] += 1
 
     def _frame(self, number: int, depth: tuple[ros1_wire.ExtendedImage, RawMessage],
                infrared: tuple[ros1_wire.ExtendedImage, RawMessage]) -> Frame:
         (image, message), (ir_image, _) = depth, infrared
-        intrinsics = self.check_calibration(self._lens, f"{self.path}: {self.depth_topic}", "")
+        intrinsics = self.intrinsics
+        assert intrinsics is not None
         raw = image_plane(image, RANGE_ENCODINGS, self.depth_topic)
         amplitude = image_plane(ir_image, AMPLITUDE_ENCODINGS, self.ir_topic).astype(np.float32)
         self.check_sizes(f"{self.path}: frame {number}", depth_image=raw.shape, infrared_image=amplitude.shape,

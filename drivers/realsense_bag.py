@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from drivers import ros1_wire
-from drivers.bag_scan import BagError, RawMessage, Topic
+from drivers.bag_scan import BagError, DamagedMessage, RawMessage, Topic
 from drivers.bag_source import BagSource, depth_metres
 from drivers.frame import DeviceInfo, Frame
 from drivers.intrinsics import Intrinsics
@@ -74,13 +74,13 @@ class RealSenseSource(BagSource):
         super().__init__(path)
         try:
             self.depth, self.infrared = self._streams()
-            self._lens = self._calibration()
+            self.intrinsics = self._calibration()  # one per stream, known before the first frame
             self._option_units = self._depth_units_option()
             self.device = self._device()
         except BagError:
             self.bag.close()
             raise
-        self.range_messages = max(0, self.bag.topics[self.depth.image_topic].count)
+        self.range_messages = self.message_count(self.depth.image_topic)
         self.settings = {"format": "RealSense SDK " + ("ROS 1 .bag (librealsense <= 2.56)" if self.bag.ros1 else
                                                          "ROS 2 .db3 (librealsense >= 2.57)"),
                          "depth_topic": self.depth.image_topic, "infrared_topic": self.infrared.image_topic,
@@ -173,7 +173,10 @@ class RealSenseSource(BagSource):
         roles = {self.depth.image_topic: "depth", self.infrared.image_topic: "infrared"}
         if self.bag.ros1:
             for message in self.messages(set(roles)):
-                yield roles[message.topic], self._legacy_image(message)
+                try:
+                    yield roles[message.topic], self._legacy_image(message)
+                except DamagedMessage as exc:
+                    self.damaged(exc.frame_number if roles[message.topic] == "depth" else None, exc)
             return
         metadata = {f"{stream.base}/image/metadata": role for role, stream in
                     (("depth", self.depth), ("infrared", self.infrared))}
@@ -185,30 +188,42 @@ class RealSenseSource(BagSource):
             entry[part] = message
             if len(entry) == 2:
                 del waiting[(role, message.log_ns)]
-                yield role, self._ros2_image(entry["image"], entry["metadata"])
+                try:
+                    image = self._ros2_image(entry["image"], entry["metadata"])
+                except DamagedMessage as exc:
+                    self.damaged(exc.frame_number if role == "depth" else None, exc)
+                    continue
+                yield role, image
             while len(waiting) > MAX_PENDING:
-                waiting.pop(next(iter(waiting)))
+                self.counters[f"unpaired_{next(iter(waiting.pop(next(iter(waiting)))))}"] += 1
+        for entry in waiting.values():  # an image without its metadata, or metadata without its image
+            self.counters[f"unpaired_{next(iter(entry))}"] += 1
 
     def _legacy_image(self, message: RawMessage) -> _Image:
         try:
             msg = ros1_wire.extended_image(message.raw)
         except ros1_wire.WireError as exc:
-            raise BagError(f"{self.path}: {message.topic}: unreadable image ({exc})") from None
+            raise DamagedMessage(f"{self.path}: {message.topic}: unreadable image ({exc})") from None
         encodings = RANGE_ENCODINGS if message.topic == self.depth.image_topic else AMPLITUDE_ENCODINGS
-        array = plane(msg, "sensor_msgs/msg/Image", encodings, message.topic)
+        try:
+            array = plane(msg, "sensor_msgs/msg/Image", encodings, message.topic)
+        except DamagedMessage as exc:
+            raise DamagedMessage(str(exc), msg.header.seq) from None
         return _Image(msg.header.seq, msg.header.stamp_ns // 1000, array, msg.depth_units, message.log_ns)
 
     def _ros2_image(self, message: RawMessage, metadata: RawMessage) -> _Image:
-        msgtype = self.bag.topics[message.topic].msgtype
-        msg = self.decode(message, msgtype)
         fields = _key_values(self.decode(metadata, "std_msgs/msg/String").data, ";")
         try:
             number, timestamp_ms = int(fields["Frame number"]), float(fields["timestamp"])
         except (KeyError, ValueError):
-            raise BagError(f"{self.path}: {metadata.topic}: no frame number and timestamp in "
-                           f"{fields!r}") from None
+            raise DamagedMessage(f"{self.path}: {metadata.topic}: no frame number and timestamp in "
+                                 f"{fields!r}") from None
+        msgtype = self.bag.topics[message.topic].msgtype
         encodings = RANGE_ENCODINGS if message.topic == self.depth.image_topic else AMPLITUDE_ENCODINGS
-        array = plane(msg, msgtype, encodings, message.topic)
+        try:
+            array = plane(self.decode(message, msgtype), msgtype, encodings, message.topic)
+        except DamagedMessage as exc:
+            raise DamagedMessage(str(exc), number) from None
         return _Image(number, round(timestamp_ms * 1000), array, float(fields.get("depth_units", 0) or 0),
                       message.log_ns)
 
@@ -238,7 +253,8 @@ class RealSenseSource(BagSource):
             self.counters["unpaired_range" if role == "depth" else "unpaired_amplitude"] += 1
 
     def _frame(self, depth: _Image, infrared: _Image) -> Frame:
-        intrinsics = self.check_calibration(self._lens, f"{self.path}: {self.depth.base}", "")
+        intrinsics = self.intrinsics
+        assert intrinsics is not None
         amplitude = infrared.array.astype(np.float32)
         self.check_sizes(f"{self.path}: frame {depth.number}", depth_image=depth.array.shape,
                          infrared_image=amplitude.shape, calibration=intrinsics.shape)

@@ -12,12 +12,12 @@ compute with non-zero coefficients is refused rather than approximated.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from drivers.bag_scan import BagError
-from drivers.intrinsics import COEFFICIENT_COUNTS, Intrinsics
+from drivers.intrinsics import COEFFICIENT_COUNTS, DistortionModel, Intrinsics
 
 ROS_LENS_MODELS = {name: n for name, n in COEFFICIENT_COUNTS.items() if n}
 """ROS distortion_model -> number of coefficients (drivers.intrinsics' models but the pinhole)."""
@@ -66,7 +66,8 @@ def lens_intrinsics(width: int, height: int, k: tuple[float, float, float, float
         raise BagError(f"{where}: {ros_name} takes {n} coefficients, got {d.tolist()}")
     padded = np.zeros(n)
     padded[:min(n, d.size)] = d[:n]
-    return dataclasses.replace(base, distortion_model=ros_name, distortion=tuple(float(v) for v in padded))
+    return dataclasses.replace(base, distortion_model=cast(DistortionModel, ros_name),
+                               distortion=tuple(float(v) for v in padded))
 
 
 def orbbec_lens_intrinsics(width: int, height: int, k: tuple[float, ...], model: int,

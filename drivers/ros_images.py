@@ -14,7 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from drivers.bag_scan import BagError
+from drivers.bag_scan import BagError, DamagedMessage
 
 RANGE_ENCODINGS: dict[str, str] = {"32FC1": "f4", "16UC1": "u2", "mono16": "u2"}
 """Range image encoding -> numpy dtype (byte order from the message's is_bigendian)."""
@@ -39,8 +39,8 @@ def image_plane(msg: Any, encodings: dict[str, str], topic: str) -> np.ndarray:
     row_bytes = w * dtype.itemsize
     data = np.asarray(msg.data, dtype=np.uint8)
     if step < row_bytes or data.size < h * step:
-        raise BagError(f"{topic}: a {w}x{h} {msg.encoding} image has {data.size} bytes in rows of {step}, expected "
-                       f"{h} rows of at least {row_bytes} bytes")
+        raise DamagedMessage(f"{topic}: a {w}x{h} {msg.encoding} image has {data.size} bytes in rows of {step}, "
+                             f"expected {h} rows of at least {row_bytes} bytes")
     rows = np.ascontiguousarray(data[:h * step].reshape(h, step)[:, :row_bytes])
     return rows.view(dtype).reshape(h, w).astype(dtype.newbyteorder("="))
 
@@ -60,8 +60,8 @@ def compressed_plane(msg: Any, encodings: dict[str, str], topic: str) -> np.ndar
     payload = data[COMPRESSED_DEPTH_HEADER:] if depth else data
     image = cv2.imdecode(payload, cv2.IMREAD_UNCHANGED) if payload.size else None
     if image is None or image.ndim != 2:
-        raise BagError(f"{topic}: compressed image format {fmt!r}: {data.size} bytes that do not decode to a "
-                       "single-channel image")
+        raise DamagedMessage(f"{topic}: compressed image format {fmt!r}: {data.size} bytes that do not decode to "
+                             "a single-channel image")
     if depth and encoding == "32FC1":
         quant_a, quant_b = np.frombuffer(data[4:12].tobytes(), "<f4")
         inverse = image.astype(np.float32)

@@ -27,7 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from drivers.bag_scan import BagError, RawMessage
+from drivers.bag_scan import BagError, DamagedMessage, RawMessage
 from drivers.bag_source import BagSource, depth_metres
 from drivers.driver_layouts import CAMERA_INFO_TYPE, Layout, describe_topics, detect_layout, no_layout_error
 from drivers.frame import DeviceInfo, Frame, Registers
@@ -115,7 +115,7 @@ class RosbagSource(BagSource):
         except BagError:
             self.bag.close()
             raise
-        self.range_messages = max(0, self.bag.topics[self.options.topics["range"]].count)
+        self.range_messages = self.message_count(self.options.topics["range"])
         index = protocol.mod_freq_index(round(options.mod_freq_mhz * 1000))
         self._registers = Registers() if index is None else Registers(mod_freq_index=index)
         self.settings = {"driver": self.options.driver, "topics": self.options.topics,
@@ -152,11 +152,21 @@ class RosbagSource(BagSource):
                                "" if named or layout is None else layout.driver,
                                layout.amplitude if layout and not named else "amplitude")
 
+    def _check_calibration(self, intrinsics: Intrinsics, where: str, when: str) -> Intrinsics:
+        """`intrinsics` if it is the first calibration or the same as before; BagError (naming the topic or stream
+        `where` and e.g. `when` = "at stamp 1.000000000") when it changes."""
+        if self.intrinsics is None:
+            self.intrinsics = intrinsics
+        elif intrinsics != self.intrinsics:
+            raise BagError(f"{where}: the calibration changes {when} ({self.intrinsics} -> {intrinsics}); a tofd "
+                           "recording holds one camera calibration")
+        return intrinsics
+
     def _frame(self, counter: int, parts: dict[str, tuple[Any, RawMessage]]) -> Frame:
         """The Frame of one stamp's range image, amplitude image and CameraInfo."""
         topics = self.options.topics
         (rng, raw_range), (amp, _), (info, _) = parts["range"], parts["amplitude"], parts["camera_info"]
-        intrinsics = self.check_calibration(camera_info_intrinsics(info, topics["camera_info"]),
+        intrinsics = self._check_calibration(camera_info_intrinsics(info, topics["camera_info"]),
                                             topics["camera_info"], f"at stamp {_seconds(info)}")
         range_image = plane(rng, self.bag.topics[topics["range"]].msgtype, RANGE_ENCODINGS, topics["range"])
         amplitude = plane(amp, self.bag.topics[topics["amplitude"]].msgtype, AMPLITUDE_ENCODINGS,
@@ -177,14 +187,25 @@ class RosbagSource(BagSource):
         pending: dict[int, dict[str, tuple[Any, RawMessage]]] = {}
         counter = 0
         for message in self.messages(set(roles)):
-            msg, role = self.decode(message, types[message.topic]), roles[message.topic]
+            role = roles[message.topic]
+            try:
+                msg = self.decode(message, types[message.topic])
+            except DamagedMessage as exc:  # a garbled range image is a frame lost; another message leaves its
+                self.damaged(counter if role == "range" else None, exc)  # frame's other messages unpaired
+                counter += role == "range"
+                continue
             parts = pending.setdefault(_stamp(msg), {})
             if role in parts:  # a second message of this role and stamp: the first one stays unpaired
                 self.counters[f"unpaired_{role}"] += 1
             parts[role] = (msg, message)
             if len(parts) == len(roles):
                 del pending[_stamp(msg)]
-                yield self._frame(counter, parts)
+                try:
+                    frame = self._frame(counter, parts)
+                except DamagedMessage as exc:
+                    self.damaged(counter, exc)
+                else:
+                    yield frame
                 counter += 1
             while len(pending) > MAX_PENDING_STAMPS:
                 self._unpaired(pending.pop(next(iter(pending))))

@@ -3,10 +3,12 @@ tests: the messages a SwissRanger-like driver publishes for each frame."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, Literal
 
+import cv2
 import numpy as np
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
@@ -15,6 +17,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from drivers.driver_layouts import LAYOUTS
 from drivers.frame import Frame
+from drivers.intrinsics import Intrinsics
 from drivers.rosbag import CAMERA_INFO_TYPE, IMAGE_TYPE
 from drivers.usb import protocol
 
@@ -32,35 +35,56 @@ def bag_path(directory: Path, kind: BagKind, name: str = "clip") -> Path:
     return directory / (f"{name}.bag" if kind == "ros1" else name)
 
 
-def _header(ts: Any, stamp_ns: int, seq: int) -> Any:
+def _header(ts: Any, stamp_ns: int, seq: int, frame_id: str = "SwissRanger") -> Any:
     Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
     stamp = Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
-    fields = {"stamp": stamp, "frame_id": "SwissRanger"}
+    fields = {"stamp": stamp, "frame_id": frame_id}
     return Header(seq=seq, **fields) if "seq" in Header.__dataclass_fields__ else Header(**fields)
 
 
 def image(ts: Any, plane: np.ndarray, encoding: str, stamp_ns: int, seq: int = 0, big_endian: bool = False,
-          row_padding: int = 0) -> Any:
+          row_padding: int = 0, frame_id: str = "SwissRanger") -> Any:
     """A sensor_msgs/Image of an (H, W) array: its dtype's bytes in the given byte order, each row followed by
     `row_padding` bytes."""
     h, w = plane.shape
     rows = plane.astype(plane.dtype.newbyteorder(">" if big_endian else "<")).view(np.uint8).reshape(h, -1)
     data = np.concatenate([rows, np.full((h, row_padding), 0xAB, np.uint8)], axis=1)
-    return ts.types[IMAGE_TYPE](header=_header(ts, stamp_ns, seq), height=h, width=w, encoding=encoding,
+    return ts.types[IMAGE_TYPE](header=_header(ts, stamp_ns, seq, frame_id), height=h, width=w, encoding=encoding,
                                 is_bigendian=int(big_endian), step=data.shape[1], data=data.ravel())
 
 
-def camera_info(ts: Any, frame: Frame, stamp_ns: int, seq: int = 0, distortion: float = 0.0) -> Any:
-    """A sensor_msgs/CameraInfo of the frame's intrinsics (ROS 1 names its matrices K, D, R, P; ROS 2 k, d, r, p)."""
-    i = frame.intrinsics
+def compressed_depth(ts: Any, depth_mm: np.ndarray, stamp_ns: int, frame_id: str = "camera") -> Any:
+    """A sensor_msgs/CompressedImage as image_transport's compressedDepth plugin writes 16UC1 depth: format
+    "16UC1; compressedDepth png", data = its 12-byte configuration header (format 0, no quantisation) + a PNG."""
+    ok, png = cv2.imencode(".png", depth_mm)
+    assert ok
+    data = np.concatenate([np.zeros(12, np.uint8), png.ravel()])
+    return ts.types["sensor_msgs/msg/CompressedImage"](header=_header(ts, stamp_ns, 0, frame_id),
+                                                       format="16UC1; compressedDepth png", data=data)
+
+
+def lens_camera_info(ts: Any, i: Intrinsics, stamp_ns: int, seq: int = 0, frame_id: str = "SwissRanger") -> Any:
+    """A sensor_msgs/CameraInfo of intrinsics with their lens (a pinhole as plumb_bob with zero D; ROS 1 names
+    its matrices K, D, R, P; ROS 2 k, d, r, p)."""
     k = np.array([i.fx, 0, i.cx, 0, i.fy, i.cy, 0, 0, 1], np.float64)
     p = np.array([i.fx, 0, i.cx, 0, 0, i.fy, i.cy, 0, 0, 0, 1, 0], np.float64)
     cls = ts.types[CAMERA_INFO_TYPE]
     upper = "K" in cls.__dataclass_fields__
-    mats = {"d": np.array([distortion, 0, 0, 0, 0], np.float64), "k": k, "r": np.eye(3).ravel(), "p": p}
+    pinhole = i.distortion_model == "none"
+    d = np.zeros(5) if pinhole else np.array(i.distortion, np.float64)
+    mats = {"d": d, "k": k, "r": np.eye(3).ravel(), "p": p}
     roi = ts.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-    return cls(header=_header(ts, stamp_ns, seq), height=i.height, width=i.width, distortion_model="plumb_bob",
-               binning_x=0, binning_y=0, roi=roi, **{(n.upper() if upper else n): m for n, m in mats.items()})
+    return cls(header=_header(ts, stamp_ns, seq, frame_id), height=i.height, width=i.width,
+               distortion_model="plumb_bob" if pinhole else i.distortion_model, binning_x=0, binning_y=0, roi=roi,
+               **{(n.upper() if upper else n): m for n, m in mats.items()})
+
+
+def camera_info(ts: Any, frame: Frame, stamp_ns: int, seq: int = 0, distortion: float = 0.0) -> Any:
+    """A plumb_bob sensor_msgs/CameraInfo of the frame's intrinsics, with k1 = `distortion`."""
+    i = frame.intrinsics
+    if distortion:
+        i = dataclasses.replace(i, distortion_model="plumb_bob", distortion=(distortion, 0, 0, 0, 0))
+    return lens_camera_info(ts, i, stamp_ns, seq)
 
 
 def range_image(frame: Frame, encoding: str, unit: str = "device", depth: str = "radial") -> np.ndarray:
@@ -87,11 +111,14 @@ def frame_messages(ts: Any, frame: Frame, encoding: str = "16UC1", unit: str = "
             (TOPICS["camera_info"], camera_info(ts, frame, stamp))]
 
 
-def write_bag(path: Path, kind: BagKind, messages: Iterable[tuple[str, Any]]) -> Path:
-    """A bag of `kind` with these (topic, message) in order, each received 1 ms after the one before."""
+def write_bag(path: Path, kind: BagKind, messages: Iterable[tuple[str, Any]], chunk_bytes: int | None = None) -> Path:
+    """A bag of `kind` with these (topic, message) in order, each received 1 ms after the one before (ROS 1:
+    chunks of about `chunk_bytes`, default rosbags')."""
     ts = typestore(kind)
     writer = Writer1(path) if kind == "ros1" else Writer2(
         path, version=9, storage_plugin=StoragePlugin.SQLITE3 if kind == "sqlite3" else StoragePlugin.MCAP)
+    if chunk_bytes is not None and isinstance(writer, Writer1):
+        writer.chunk_threshold = chunk_bytes
     serialize = ts.serialize_ros1 if kind == "ros1" else ts.serialize_cdr
     connections: dict[str, Any] = {}
     with writer:

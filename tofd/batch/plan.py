@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import asdict, dataclass, field
-from pathlib import PurePosixPath
+from pathlib import Path, PurePosixPath
 
 import fsspec
 from mcap.writer import MCAP0_MAGIC
@@ -23,7 +23,7 @@ from tofd.batch import rows
 from tofd.lab.dataset import DATASET_SUFFIX, DatasetError, DatasetFile
 
 RECORDING_SUFFIX = ".mcap"
-SOURCE_SUFFIXES = (".mkv",)
+SOURCE_SUFFIXES = (".mkv", ".bag", ".db3")
 """Other files a directory is searched for (recognised by content when planned: drivers.opener)."""
 INPUT_SUFFIXES = (RECORDING_SUFFIX, DATASET_SUFFIX, *SOURCE_SUFFIXES)
 
@@ -203,7 +203,7 @@ def _plan_by_content(inp: InputPlan, out: str, run_digest: str, partition_frames
     if fmt.read_as == "recording":
         _plan_recording(inp, out, run_digest, partition_frames, taken)
         return
-    if fmt.read_as != "source":
+    if fmt.open is None or Path(inp.url).is_dir():
         inp.error = f"a {fmt.description}: convert it with `tofd import` first"
         return
     with open(inp.url, "rb") as f:

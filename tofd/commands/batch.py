@@ -1,9 +1,10 @@
 """Re-process recordings and datasets on Dask: per-frame results as Parquet, partitioned by input, and a summary.
 
 INPUTS are recordings (.mcap), dataset files (.npz, as `tofd dataset generate` writes them), Azure Kinect / Orbbec
-Femto recordings (.mkv; a local file named otherwise is recognised by its content), directories (searched for all
-three) or glob patterns, local or fsspec URLs. Each input is cut into partitions of --partition-frames frames,
-read by the tasks (a recording through its index, a dataset by frame range, an .mkv whole). Output in --out:
+Femto recordings (.mkv), RealSense / Orbbec SDK recordings and camera drivers' ROS bags (.bag, .db3; a local file
+named otherwise is recognised by its content), directories (searched for these) or glob patterns, local or fsspec
+URLs. Each input is cut into partitions of --partition-frames frames, read by the tasks (a recording through its
+index, a dataset by frame range, an .mkv or a bag whole). Output in --out:
 recording=<name>/part-<first>-<stop>-<key>.parquet (key: digests of input, partition, config, model, tofd version),
 a Hive-partitioned Parquet dataset that pyarrow, DuckDB and Spark open as it is, and _summary.json (frames
 in/out/dropped with reasons, stage times, throughput, digests, and where the inputs carry ground truth the nose

@@ -1,13 +1,15 @@
 """Import a ROS bag (ROS 1 .bag; ROS 2 directory, .db3 or .mcap) or an Azure Kinect / Orbbec Femto .mkv as a tofd
 recording that `tofd replay` takes (inputs are recognised by content: drivers.opener).
 
-Each header stamp with a range image, an amplitude image and a CameraInfo becomes one frame; the intrinsics come
-from the CameraInfo, so any image size works. Defaults are the topics of the SwissRanger ROS driver
-(swissranger_camera, node SwissRanger): /SwissRanger/distance/image_raw16 (mono16 device units),
-/SwissRanger/intensity/image_raw16 and /SwissRanger/camera_info. Range images: 32FC1 in metres, or 16UC1/mono16
-in device units (--range-unit device: raw / 65535 x c / (2 f_mod), 0xFFFF = no return) or millimetres
-(--range-unit mm, REP 118: 0 = no return); radial range or z-depth along the optical axis (--depth z, converted
-to radial range with the CameraInfo's rays). The recording is written to a temporary file and renamed to OUT
+A RealSense SDK recording (librealsense's ROS 2 .db3 or legacy ROS 1 .bag) or an Orbbec SDK v2 .bag is read
+as its SDK wrote it (depth + infrared by frame number, units, lens and device from the file). In a camera
+driver's bag each header stamp with a range image, an amplitude image and a CameraInfo becomes one frame, on the
+topics of the driver the bag's topics show (swissranger_camera, orbbec_camera, azure_kinect_ros_driver,
+realsense2_camera, royale; drivers.driver_layouts) or those named by the options. Range images: 32FC1 in metres,
+or 16UC1/mono16 in device units (--range-unit device: raw / 65535 x c / (2 f_mod), 0xFFFF = no return) or
+millimetres (--range-unit mm, REP 118: 0 = no return); radial range or z-depth along the optical axis (--depth z,
+converted to radial range with the CameraInfo's undistorted rays). A damaged bag gives the frames before the
+damage. The recording is written to a temporary file and renamed to OUT
 only when every frame is in; a bad bag is one line and exit status 2. `tofd replay BAG` imports on the fly.
 """
 
@@ -23,7 +25,7 @@ from tofd import arguments
 
 if TYPE_CHECKING:
     from drivers.rosbag import RangeOptions
-    from drivers.source import FrameSource
+    from drivers.source import FrameSource, Rejected
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,9 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     arguments.add_bag_arguments(parser)
 
 
-def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import") -> str:
+def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import",
+            rejected: list[Rejected] | None = None) -> str:
     """Write the frames of `bag` to the recording `out` (renamed into place when complete) with a progress bar;
-    returns what was written, e.g. "12 frames of 176x144". UsageError names a bad bag."""
+    returns what was written, e.g. "12 frames of 176x144". The frames the source rejected (a damaged tail) are
+    added to `rejected`. UsageError names a bad bag."""
     from drivers.bags import open_bag
     from drivers.opener import identify, open_source
     from drivers.recording.writer import RecordingWriter
@@ -77,7 +81,10 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
             raise UsageError(f"{bag}: no header stamp has a range image, an amplitude image and a camera_info "
                              f"({unpaired or 'its topics are empty'}{why}); nothing written" if fmt.read_as == "bag"
                              else f"{bag}: no frame could be read; nothing written")
-    lost = len(source.take_rejected())
+    lost_frames = source.take_rejected()
+    lost = len(lost_frames)
+    if rejected is not None:
+        rejected.extend(lost_frames)
     skipped = "; ".join(filter(None, [unpaired, f"{lost} frames lost or damaged (see the log)" if lost else ""]))
     size = f"{intrinsics.width}x{intrinsics.height}"
     damaged = f"; damaged, the rest unread: {damage}" if damage else ""
@@ -97,7 +104,10 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _unpaired(counters: dict[str, int]) -> str:
-    """The messages left without the others of their stamp, e.g. "3 range, 1 camera_info messages unpaired"."""
+    """The messages left without the others of their stamp and those that did not decode, e.g. "3 range,
+    1 camera_info messages unpaired; 1 garbled message skipped"."""
     parts = [f"{n} {key.removeprefix('unpaired_')}" for key, n in sorted(counters.items())
              if key.startswith("unpaired_") and n]
-    return f"{', '.join(parts)} messages unpaired" if parts else ""
+    garbled = counters.get("damaged_message", 0)
+    return "; ".join(filter(None, [f"{', '.join(parts)} messages unpaired" if parts else "",
+                                   f"{garbled} garbled message{'s' * (garbled != 1)} skipped" if garbled else ""]))

@@ -31,7 +31,7 @@ from tofd.service.foxglove.spec import FOXGLOVE_SPEC_HELP, parse_foxglove_spec
 
 if TYPE_CHECKING:
     from drivers.intrinsics import Intrinsics
-    from drivers.source import FrameSource
+    from drivers.source import FrameSource, Rejected
     from tofd.algorithm.detector import NoseModel
 
 log = logging.getLogger(__name__)
@@ -100,13 +100,16 @@ def main(args: argparse.Namespace) -> int:
 
     with tempfile.TemporaryDirectory(prefix="tofd-replay-") as tmp:
         recording = Path(tmp) / f"{stem}.mcap"
-        done = convert(args.file, recording, arguments.bag_options(args), "replay: import")
+        rejected: list[Rejected] = []
+        done = convert(args.file, recording, arguments.bag_options(args), "replay: import", rejected)
         print(f"tofd replay: imported {done} from {args.file}", file=sys.stderr)
-        return _replay(args, recording, stem)
+        return _replay(args, recording, stem, rejected)
 
 
-def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
-    """Replay the tofd recording `recording` (args.file, or the recording a bag was imported to)."""
+def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list[Rejected] | None = None) -> int:
+    """Replay the tofd recording `recording` (args.file, or the recording a bag was imported to, with the frames
+    its import rejected ledgered after its own)."""
+    from drivers.bag_source import RejectsAfter
     from drivers.recording.replay import ReplaySource
     from drivers.source import DriverError
     from tofd.config import load_config
@@ -115,17 +118,18 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str) -> int:
     cfg = _replay_config(args, load_config(args.config), stem)
     realtime = args.realtime or (args.foxglove is not None and cfg.foxglove.enabled)  # someone watches it live
     try:
-        source = ReplaySource(recording, mode="realtime" if realtime else "lossless", speed=args.speed or 1.0,
+        replay = ReplaySource(recording, mode="realtime" if realtime else "lossless", speed=args.speed or 1.0,
                               loop=args.loop, seek=args.seek)
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(f"{args.file}: {exc}") from None
-    info = source.info
+    info = replay.info
     if info is None:
-        raise UsageError(source.header_problem)
+        raise UsageError(replay.header_problem)
     if args.seek is not None:
-        reached, last = source.counters_reach(args.seek)
+        reached, last = replay.counters_reach(args.seek)
         if not reached:
             raise UsageError(f"{args.file}: --seek {args.seek}: past the end (last frame counter {last})")
+    source: FrameSource = RejectsAfter(replay, rejected) if rejected else replay
     return _serve(args, cfg, source, info.intrinsics, args.frames or (None if args.loop else info.frame_count), stem)
 
 
