@@ -15,6 +15,7 @@ import numpy as np
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import Eccentricities, FFTFeatures, NFFTFeatures, SamplingError
+from tofd.algorithm.features.eccentricity import MapsOut
 from tofd.algorithm.names import FAMILIES
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
 from tofd.algorithm.segmentation import segment_face
@@ -44,40 +45,52 @@ class FeatureExtractor:
         self._fft = FFTFeatures(intrinsics, features)
         self._nfft = NFFTFeatures(intrinsics, features) if {"range_nfft", "amp_nfft"} & set(families) else None
 
-    def __call__(self, range_m: np.ndarray, amplitude: np.ndarray) -> FrameFeatures:
+    def __call__(self, range_m: np.ndarray, amplitude: np.ndarray,
+                 out: dict[str, np.ndarray] | None = None) -> FrameFeatures:
+        """The frame's features; `out`: (H, W) float32 arrays by map name (e.g. a worker's shared-memory slot) that
+        the maps of the computed families are written into and returned as, instead of new arrays."""
         t0 = time.perf_counter()
         fg = segment_face(range_m, amplitude, self.segmentation, self.intrinsics)
         mask = fg.mask
         t1 = time.perf_counter()
         timings = {"segmentation": (t1 - t0) * 1e3}
-        out = FrameFeatures(mask, {}, timings_ms=timings, rotation=fg.rotation)
+        result = FrameFeatures(mask, {}, timings_ms=timings, rotation=fg.rotation)
         fft_families = [f for f in ("range_fft", "amp_fft") if f in self.families]
         for family in fft_families:
             if family == "range_fft":
-                fm = self._fft.range_features(range_m, mask, fg.rotation)
+                fm = self._fft.range_features(range_m, mask, fg.rotation, out=maps_out(out, family))
             else:
-                fm = self._fft.amplitude_features(amplitude, mask)
-            out.maps[f"{family}_eps0"], out.maps[f"{family}_eps2"] = fm.eps0, fm.eps2
+                fm = self._fft.amplitude_features(amplitude, mask, out=maps_out(out, family))
+            result.maps[f"{family}_eps0"], result.maps[f"{family}_eps2"] = fm.eps0, fm.eps2
         t2 = time.perf_counter()
         if fft_families:
             timings["fft"] = (t2 - t1) * 1e3
         if self._nfft is not None:  # range and amplitude share the points and the Toeplitz kernel
-            rng, amp = self._nfft_features(self._nfft, range_m, mask, fg.rotation, amplitude)
+            rng, amp = self._nfft_features(self._nfft, range_m, mask, fg.rotation, amplitude, out)
             for nfft_family, nfm in (("range_nfft", rng), ("amp_nfft", amp)):
                 if nfft_family in self.families and nfm is not None:
-                    out.maps[f"{nfft_family}_eps0"], out.maps[f"{nfft_family}_eps2"] = nfm.eps0, nfm.eps2
-            out.nfft_iterations, out.nfft_residual = rng.iterations, rng.residual
+                    result.maps[f"{nfft_family}_eps0"], result.maps[f"{nfft_family}_eps2"] = nfm.eps0, nfm.eps2
+            result.nfft_iterations, result.nfft_residual = rng.iterations, rng.residual
             timings["nfft"] = (time.perf_counter() - t2) * 1e3
-        return out
+        return result
 
     def _nfft_features(self, nfft: NFFTFeatures, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray,
-                       amplitude: np.ndarray) -> tuple[Eccentricities, Eccentricities | None]:
+                       amplitude: np.ndarray,
+                       out: dict[str, np.ndarray] | None) -> tuple[Eccentricities, Eccentricities | None]:
         """The NFFT maps; NaN (no NFFT detection) with a warning where the camera cannot carry the band at the
         foreground's range: wrong numbers would give wrong noses."""
         amplitude_or_none = amplitude if "amp_nfft" in self.families else None
+        range_out = maps_out(out, "range_nfft") if "range_nfft" in self.families else None
+        amplitude_out = maps_out(out, "amp_nfft")
         try:
-            return nfft.features(range_m, mask, rotation, amplitude_or_none)
+            return nfft.features(range_m, mask, rotation, amplitude_or_none, range_out, amplitude_out)
         except SamplingError as exc:
             warnings.warn(f"NFFT features left out: {exc}", RuntimeWarning, stacklevel=2)
-            empty = Eccentricities.empty(self.intrinsics.shape)
-            return empty, (None if amplitude_or_none is None else Eccentricities.empty(self.intrinsics.shape))
+            empty = Eccentricities.empty(self.intrinsics.shape, out=range_out)
+            return empty, (None if amplitude_or_none is None else Eccentricities.empty(self.intrinsics.shape,
+                                                                                        out=amplitude_out))
+
+
+def maps_out(out: dict[str, np.ndarray] | None, family: str) -> MapsOut | None:
+    """The arrays of `out` for a family's eps0 and eps2 maps (None: new arrays)."""
+    return None if out is None else (out[f"{family}_eps0"], out[f"{family}_eps2"])

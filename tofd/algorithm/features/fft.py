@@ -23,7 +23,7 @@ from scipy import ndimage
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.band import band_edge_per_m
-from tofd.algorithm.features.eccentricity import Eccentricities
+from tofd.algorithm.features.eccentricity import Eccentricities, MapsOut
 from tofd.algorithm.features.operators import Transfer, eccentricity_transfer, evaluate
 from tofd.algorithm.features.transfer import pixel_frequencies_per_m
 from tofd.algorithm.params import FeatureConfig
@@ -174,11 +174,12 @@ class FFTFeatures:
         depth = fill_holes(range_box, valid, mask_box) * (rays[..., 2] if rotation is None else rays @ rotation[2])
         return box, self._fields(depth, mask_box, valid, float(np.max(depth[valid])), 1.0)
 
-    def range_features(self, range_m: np.ndarray, mask: np.ndarray,
-                       rotation: np.ndarray | None = None) -> Eccentricities:
+    def range_features(self, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray | None = None,
+                       out: MapsOut | None = None) -> Eccentricities:
         """eps0, eps2 (metres^2) of a radial range map; background = the maximum foreground depth.
 
         rotation: camera -> face frame (tofd.algorithm.segmentation.Foreground); depth is then measured along its row 2.
+        out: two (H, W) float32 arrays the maps are written into (and returned as), e.g. a worker's shared memory.
 
         The filtered image is the depth z = range * (z component of the pixel's unit ray), the quantity
         the NFFT path filters: radial range adds a spurious curvature 1/d (a fronto-parallel wall has
@@ -186,43 +187,45 @@ class FFTFeatures:
         whose range is NaN, inf or <= 0 are holes: filled from their nearest valid neighbour for the transform,
         NaN in the result.
         """
-        return self._eccentricities(self._range_fields(range_m, mask, rotation))
+        return self._eccentricities(self._range_fields(range_m, mask, rotation), out)
 
-    def amplitude_features(self, amplitude: np.ndarray, mask: np.ndarray) -> Eccentricities:
+    def amplitude_features(self, amplitude: np.ndarray, mask: np.ndarray, out: MapsOut | None = None) -> Eccentricities:
         """eps0, eps2 (dimensionless) of the amplitude image divided by its median foreground value.
 
         The normalisation removes the overall gain (integration time, 1/r^2 falloff with distance,
         albedo) so a detector trained at one distance sees comparable values at others. Background =
         the minimum foreground amplitude: the border of a face is its darkest part (grazing incidence,
         farthest), so this is the amplitude analogue of the range's maximum and avoids a step at the
-        border. Non-finite amplitudes are holes, as in range_features.
+        border. Non-finite amplitudes are holes, as in range_features; out: as in range_features.
         """
         check_frame(amplitude, mask, self.intrinsics, "amplitude")
         if not mask.any():
-            return self._eccentricities(None)
+            return self._eccentricities(None, out)
         box = self.box(mask)
         mask_box, amplitude_box = mask[box], amplitude[box]
         valid = usable(amplitude_box, mask_box, positive=False)
         values = amplitude_box[valid]
         scale = float(np.median(values)) if values.size else 0.0
         if not scale > 0:
-            return self._eccentricities(None)
+            return self._eccentricities(None, out)
         image = fill_holes(amplitude_box, valid, mask_box)
-        return self._eccentricities((box, self._fields(image, mask_box, valid, float(np.min(values)), 1.0 / scale)))
+        return self._eccentricities((box, self._fields(image, mask_box, valid, float(np.min(values)), 1.0 / scale)),
+                                    out)
 
-    def _eccentricities(self, fields: tuple[tuple[slice, slice], np.ndarray] | None) -> Eccentricities:
-        """Full-frame eps0, eps2 maps from a box's fields [c0, c2, s2] (None: all NaN)."""
+    def _eccentricities(self, fields: tuple[tuple[slice, slice], np.ndarray] | None,
+                        out: MapsOut | None) -> Eccentricities:
+        """Full-frame eps0, eps2 maps (in `out` if given) from a box's fields [c0, c2, s2] (None: all NaN)."""
         if not self._eccentricity:
             raise ValueError("eccentricities need the default operators; this instance applies a user transfer "
                              "(use filtered)")
-        out = Eccentricities.empty(self.intrinsics.shape)
+        maps = Eccentricities.empty(self.intrinsics.shape, out=out)
         if fields is not None:
             box, (c0, c2, s2) = fields
-            out.eps0[box] = c0 * c0
+            maps.eps0[box] = c0 * c0
             np.multiply(c2, c2, out=c2)
             c2 += s2 * s2
-            out.eps2[box] = c2
-        return out
+            maps.eps2[box] = c2
+        return maps
 
     def _fields(self, image: np.ndarray, mask: np.ndarray, valid: np.ndarray, background: float,
                 gain: float) -> np.ndarray:
