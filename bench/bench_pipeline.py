@@ -21,7 +21,10 @@ writes bench/results/bench_pipeline.json.
 --cameras sr3000,640x576 (bench/cameras.py): instead, lossless replay without Rerun of a short rendered clip of
 the emulator's face motion (--camera-frames frames, looped to --replay-frames) in each camera geometry, --replay-pairs
 runs each, cameras interleaved; per camera the median run's throughput, per-stage p50 times and worker CPU per frame,
-and their ratios to the first camera's (the SR3000's) in the same run. Writes bench/results/bench_pipeline_cameras.json.
+and their ratios to the first camera's (the SR3000's) in the same run; and each stage's CPU time per frame (median
+over the clip's frames through the workers' FeatureStage in this process, the stages' clocks read as this thread's
+CPU time, so other processes' load does not inflate them as it does the wall times). Writes
+bench/results/bench_pipeline_cameras.json.
 
     python bench/bench_pipeline.py --cameras sr3000,640x576 --replay-frames 240 --replay-pairs 3
 """
@@ -295,6 +298,32 @@ def print_tables(results: dict) -> None:
 WORKER_STAGES = ("segmentation", "fft", "nfft", "detection")  # timed in the workers: the per-frame stage time
 
 
+def stage_cpu_ms(cfg, clip: Path, intrinsics: Intrinsics) -> dict[str, float]:
+    """Median CPU ms per frame of each worker stage over the clip's frames, through FeatureStage in this thread with
+    the stages' clocks (time.perf_counter in extract.py and stages.py) read as thread CPU time."""
+    from types import SimpleNamespace
+
+    from tofd.algorithm import extract
+    from tofd.service.pipeline import stages
+    from tofd.service.pipeline.slots import local_slot
+
+    stage = stages.FeatureStage(cfg, intrinsics, load_service_model(cfg))
+    slot, times = local_slot(intrinsics.shape), {}
+    clocks = extract.time, stages.time
+    extract.time = stages.time = SimpleNamespace(perf_counter=time.thread_time)
+    try:
+        with ReplaySource(clip) as source:
+            for i, frame in enumerate(source):
+                slot["range_m"][...], slot["amplitude"][...] = frame.range_m, frame.amplitude
+                timings = stage.run(slot)["timings_ms"]
+                for k, v in timings.items():
+                    if i >= 2:  # the first frames load plans and caches
+                        times.setdefault(k, []).append(v)
+    finally:
+        extract.time, stages.time = clocks
+    return {k: round(float(np.median(v)), 2) for k, v in times.items()}
+
+
 def compare_cameras(cfg, cameras: list[str], frames: int, replay_frames: int, runs: int, tmp: Path) -> dict:
     """Lossless replay without Rerun of a rendered clip per camera, `runs` runs each (cameras interleaved); per camera
     the run of median steady throughput, and ratios to the first camera's."""
@@ -313,13 +342,17 @@ def compare_cameras(cfg, cameras: list[str], frames: int, replay_frames: int, ru
         fps = [r["steady_fps"] for r in each[name]]
         r = each[name][sorted(range(len(fps)), key=fps.__getitem__)[len(fps) // 2]]
         stages = {k: r["stage_p50_ms"].get(k) for k in WORKER_STAGES if k in r["stage_p50_ms"]}
+        cpu = stage_cpu_ms(cfg, clips[name], CAMERAS[name])
         row = {"camera": name, "pixels": CAMERAS[name].width * CAMERAS[name].height, "fps": r["fps"],
                "steady_fps": r["steady_fps"], "steady_fps_each": fps, "frames_dropped": r["frames_dropped"],
                "worker_cpu_ms_per_frame": r["worker_cpu_ms_per_frame"], "compute_bound_fps": r["compute_bound_fps"],
-               **{f"{k}_p50_ms": v for k, v in stages.items()}, "stage_sum_p50_ms": round(sum(stages.values()), 2)}
+               **{f"{k}_p50_ms": v for k, v in stages.items()}, "stage_sum_p50_ms": round(sum(stages.values()), 2),
+               **{f"{k}_cpu_ms": cpu[k] for k in WORKER_STAGES if k in cpu},
+               "stage_sum_cpu_ms": round(sum(cpu[k] for k in WORKER_STAGES if k in cpu), 2)}
         base = base or row
         row["pixels_over_first"] = round(row["pixels"] / base["pixels"], 2)
         row["stage_sum_over_first"] = round(row["stage_sum_p50_ms"] / base["stage_sum_p50_ms"], 2)
+        row["stage_cpu_over_first"] = round(row["stage_sum_cpu_ms"] / base["stage_sum_cpu_ms"], 2)
         row["worker_cpu_over_first"] = round(row["worker_cpu_ms_per_frame"] / base["worker_cpu_ms_per_frame"], 2)
         row["fps_over_first"] = round(row["steady_fps"] / base["steady_fps"], 3)
         rows.append(row)
