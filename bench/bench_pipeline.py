@@ -22,8 +22,9 @@ writes bench/results/bench_pipeline.json.
 the emulator's face motion (--camera-frames frames, looped to --replay-frames) in each camera geometry, --replay-pairs
 runs each, cameras interleaved; per camera the median run's throughput, per-stage p50 times and worker CPU per frame,
 and their ratios to the first camera's (the SR3000's) in the same run; and each stage's CPU time per frame (median
-over the clip's frames through the workers' FeatureStage in this process, the stages' clocks read as this thread's
-CPU time, so other processes' load does not inflate them as it does the wall times). Writes
+over the clip's frames through the workers' FeatureStage in a child process set up like a worker, one thread per
+library, the stages' clocks read as CPU time, so other processes' load does not inflate them as it does the wall
+times). Writes
 bench/results/bench_pipeline_cameras.json.
 
     python bench/bench_pipeline.py --cameras sr3000,640x576 --replay-frames 240 --replay-pairs 3
@@ -299,14 +300,26 @@ WORKER_STAGES = ("segmentation", "fft", "nfft", "detection")  # timed in the wor
 
 
 def stage_cpu_ms(cfg, clip: Path, intrinsics: Intrinsics) -> dict[str, float]:
-    """Median CPU ms per frame of each worker stage over the clip's frames, through FeatureStage in this thread with
-    the stages' clocks (time.perf_counter in extract.py and stages.py) read as thread CPU time."""
+    """Median CPU ms per frame of each worker stage over the clip's frames (stage_cpu_ms_here in a child process set
+    up like a pipeline worker: one thread per library, arrays kept on the heap)."""
+    from tofd.algorithm.threads import THREAD_ENV
+
+    os.environ.update(THREAD_ENV)  # as WorkerHandle.start: the child's libraries load single-threaded
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as child:
+        return child.submit(stage_cpu_ms_here, cfg, str(clip), intrinsics).result()
+
+
+def stage_cpu_ms_here(cfg, clip: str, intrinsics: Intrinsics) -> dict[str, float]:
+    """stage_cpu_ms in this process, through FeatureStage with the stages' clocks (time.perf_counter in extract.py
+    and stages.py) read as this thread's CPU time."""
     from types import SimpleNamespace
 
     from tofd.algorithm import extract
+    from tofd.algorithm.threads import prepare_compute_process
     from tofd.service.pipeline import stages
     from tofd.service.pipeline.slots import local_slot
 
+    prepare_compute_process()
     stage = stages.FeatureStage(cfg, intrinsics, load_service_model(cfg))
     slot, times = local_slot(intrinsics.shape), {}
     clocks = extract.time, stages.time
