@@ -10,9 +10,9 @@ converged solution (CG to a 1e-9 band residual, NUFFTs to 1e-9, in double precis
 converged eps0 is at least a tenth of its peak (the pixels a detector box can accept). Goal: NFFT / FFT <= 4 on CPU
 time. CG cpu: the part of the NFFT CPU time spent in the conjugate-gradient solve (the rest: points, type-1 and type-2
 NUFFTs), and per CG iteration (one Toeplitz product, a real FFT pair of size 2N, plus the CG updates).
---cameras: the camera geometries to run (CAMERAS: the SR3000 and three current ones), each with its own FFT baseline
-measured in the same run, so the ratios compare per geometry; and the cross-camera check: the NFFT eps0 at a 0.1 m
-sphere's apex for every camera at 0.35, 0.5 and 0.8 m, and its spread (goal <= 2 %).
+--cameras: the camera geometries to run (bench/cameras.py: the SR3000 and three current ones), each with its own FFT
+baseline measured in the same run, so the ratios compare per geometry; and the cross-camera check: the NFFT eps0 at a
+0.1 m sphere's apex for every camera at 0.35, 0.5 and 0.8 m, and its spread (goal <= 2 %).
 Prints a table and writes JSON (bench/results/bench_features.json or --out).
 
     .venv/bin/python bench/bench_features.py [--repeats 50] [--processes 3] [--cameras sr3000,640x576] [--out PATH]
@@ -23,13 +23,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import math
 import multiprocessing as mp
 import platform
 import time
 from pathlib import Path
 
 import numpy as np
+from cameras import CAMERAS
 from report import write_json
 
 from drivers.emulator.render import Pose, load_face, render_face
@@ -46,16 +46,6 @@ DISTANCES_M = (0.35, 0.5, 0.7)
 SPHERE_CHECK_M = (0.35, 0.5, 0.8)  # the cross-camera check's apex distances, metres
 
 
-def _pinhole(width: int, height: int, f: float) -> Intrinsics:
-    return Intrinsics(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
-
-
-CAMERAS = {
-    "sr3000": Intrinsics(),  # 176x144, 47.5 degrees across
-    "320x240": _pinhole(320, 240, 160 / math.tan(math.radians(35.0))),  # 70 degrees across
-    "640x576": _pinhole(640, 576, 504.0),  # Azure Kinect / Femto NFOV unbinned
-    "1024x1024": _pinhole(1024, 1024, 500.0),  # Azure Kinect WFOV-like
-}
 GOAL_RATIO = 4.0  # NFFT / FFT range-feature CPU time per frame (issue 19)
 CONVERGED = {"cg_tolerance": 1e-9, "cg_max_iterations": 3000, "cg_precision": "double", "nufft_eps": 1e-9}
 FACE_DEPTH_M = 0.08  # metres: segmentation depth margin for the face scenes, the whole face (a worst case: 1,700-5,600

@@ -17,6 +17,17 @@ reports replay without Rerun against it and replay with Rerun against replay wit
 throughput (frames per second over those same frames after the first tenth), each the median over
 --replay-pairs pairs of runs back to back (one run varies by 10 % on a shared machine). Prints tables and
 writes bench/results/bench_pipeline.json.
+
+--cameras sr3000,640x576 (bench/cameras.py): instead, lossless replay without Rerun of a short rendered clip of
+the emulator's face motion (--camera-frames frames, looped to --replay-frames) in each camera geometry, --replay-pairs
+runs each, cameras interleaved; per camera the median run's throughput, per-stage p50 times and worker CPU per frame,
+and their ratios to the first camera's (the SR3000's) in the same run; and each stage's CPU time per frame (median
+over the clip's frames through the workers' FeatureStage in a child process set up like a worker, one thread per
+library, the stages' clocks read as CPU time, so other processes' load does not inflate them as it does the wall
+times; one pass after each run, the median of the passes). Writes
+bench/results/bench_pipeline_cameras.json.
+
+    python bench/bench_pipeline.py --cameras sr3000,640x576 --replay-frames 240 --replay-pairs 3
 """
 
 from __future__ import annotations
@@ -35,10 +46,12 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from cameras import CAMERAS, write_face_clip
 from proc_stats import cpu_s, own_thread_cpu_s, rss_mb
 from report import write_json
 
 from drivers.emulator.backend import open_emulated_camera
+from drivers.intrinsics import Intrinsics
 from drivers.recording.replay import ReplaySource
 from tofd.config import load_config
 from tofd.process_setup import prepare_service_process
@@ -165,7 +178,7 @@ def with_detector(cfg, tmp: Path):
 
 
 def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | None, max_frames: int | None,
-        tmp: Path) -> dict:
+        tmp: Path, intrinsics: Intrinsics | None = None) -> dict:
     viewer: ViewerProcess | None = None
     rrd = tmp / f"{policy}-{time.monotonic_ns()}.rrd"
     if rerun:  # the daemon's viewer process, sending as it would to a connected viewer (live: frame by frame)
@@ -175,8 +188,8 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     pipeline: Pipeline
     warmup = max(1, (max_frames or 300) // 10)
     lat = Latencies(warmup, lambda: processes(pipeline, viewer))
-    pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(lat,), model=load_service_model(cfg), live_source=live,
-                        result_maps=maps_read(rerun))  # as the daemon's
+    pipeline = Pipeline(cfg, policy, intrinsics, viewer=viewer, writers=(lat,), model=load_service_model(cfg),
+                        live_source=live, result_maps=maps_read(rerun))  # as the daemon's
     rss, rss_parent, stop_sampling = [], [], threading.Event()
     rss_each: dict[str, list[float]] = {}
 
@@ -284,16 +297,120 @@ def print_tables(results: dict) -> None:
           f"{results['replay_over_cpu_bound']}; load average at start {results['machine']['load_avg_at_start']}")
 
 
+WORKER_STAGES = ("segmentation", "fft", "nfft", "detection")  # timed in the workers: the per-frame stage time
+
+
+def stage_cpu_ms(cfg, clip: Path, intrinsics: Intrinsics) -> dict[str, float]:
+    """Median CPU ms per frame of each worker stage over the clip's frames (stage_cpu_ms_here in a child process set
+    up like a pipeline worker: one thread per library, arrays kept on the heap)."""
+    from tofd.process_setup import THREAD_ENV
+
+    os.environ.update(THREAD_ENV)  # as WorkerHandle.start: the child's libraries load single-threaded
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as child:
+        return child.submit(stage_cpu_ms_here, cfg, str(clip), intrinsics).result()
+
+
+def stage_cpu_ms_here(cfg, clip: str, intrinsics: Intrinsics) -> dict[str, float]:
+    """stage_cpu_ms in this process, through FeatureStage with the stages' clocks (time.perf_counter in extract.py
+    and stages.py) read as this thread's CPU time."""
+    from types import SimpleNamespace
+
+    from tofd.algorithm import extract
+    from tofd.process_setup import prepare_compute_process
+    from tofd.service.pipeline import stages
+    from tofd.service.pipeline.slots import local_slot
+
+    prepare_compute_process()
+    stage = stages.FeatureStage(cfg, intrinsics, load_service_model(cfg))
+    slot, times = local_slot(intrinsics.shape), {}
+    clocks = extract.time, stages.time
+    extract.time = stages.time = SimpleNamespace(perf_counter=time.thread_time)
+    try:
+        with ReplaySource(clip) as source:
+            for i, frame in enumerate(source):
+                slot["range_m"][...], slot["amplitude"][...] = frame.range_m, frame.amplitude
+                timings = stage.run(slot)["timings_ms"]
+                for k, v in timings.items():
+                    if i >= 2:  # the first frames load plans and caches
+                        times.setdefault(k, []).append(v)
+    finally:
+        extract.time, stages.time = clocks
+    return {k: round(float(np.median(v)), 2) for k, v in times.items()}
+
+
+def compare_cameras(cfg, cameras: list[str], frames: int, replay_frames: int, runs: int, tmp: Path) -> dict:
+    """Lossless replay without Rerun of a rendered clip per camera, `runs` runs each (cameras interleaved); per camera
+    the run of median steady throughput, and ratios to the first camera's."""
+    clips = {}
+    for name in cameras:
+        print(f"rendering {frames} frames at {name} ...", file=sys.stderr)
+        clips[name] = write_face_clip(tmp / f"{name}.mcap", CAMERAS[name], frames)
+    each: dict[str, list[dict]] = {name: [] for name in cameras}
+    passes: dict[str, list[dict[str, float]]] = {name: [] for name in cameras}
+    for _ in range(runs):
+        for name in cameras:
+            with ReplaySource(clips[name], loop=True) as source:
+                each[name].append(run(cfg, source, "lossless", live=False, rerun=False, duration_s=None,
+                                      max_frames=replay_frames, tmp=tmp, intrinsics=CAMERAS[name]))
+            passes[name].append(stage_cpu_ms(cfg, clips[name], CAMERAS[name]))
+    rows, base = [], None
+    for name in cameras:
+        fps = [r["steady_fps"] for r in each[name]]
+        r = each[name][sorted(range(len(fps)), key=fps.__getitem__)[len(fps) // 2]]
+        stages = {k: r["stage_p50_ms"].get(k) for k in WORKER_STAGES if k in r["stage_p50_ms"]}
+        cpu = {k: round(float(np.median([p[k] for p in passes[name]])), 2) for k in passes[name][0]}
+        row = {"camera": name, "pixels": CAMERAS[name].width * CAMERAS[name].height, "fps": r["fps"],
+               "steady_fps": r["steady_fps"], "steady_fps_each": fps, "frames_dropped": r["frames_dropped"],
+               "worker_cpu_ms_per_frame": r["worker_cpu_ms_per_frame"], "compute_bound_fps": r["compute_bound_fps"],
+               **{f"{k}_p50_ms": v for k, v in stages.items()}, "stage_sum_p50_ms": round(sum(stages.values()), 2),
+               **{f"{k}_cpu_ms": cpu[k] for k in WORKER_STAGES if k in cpu},
+               "stage_sum_cpu_ms": round(sum(cpu[k] for k in WORKER_STAGES if k in cpu), 2)}
+        base = base or row
+        row["pixels_over_first"] = round(row["pixels"] / base["pixels"], 2)
+        row["stage_sum_over_first"] = round(row["stage_sum_p50_ms"] / base["stage_sum_p50_ms"], 2)
+        row["stage_cpu_over_first"] = round(row["stage_sum_cpu_ms"] / base["stage_sum_cpu_ms"], 2)
+        row["worker_cpu_over_first"] = round(row["worker_cpu_ms_per_frame"] / base["worker_cpu_ms_per_frame"], 2)
+        row["fps_over_first"] = round(row["steady_fps"] / base["steady_fps"], 3)
+        rows.append(row)
+    return {"about": f"lossless replay, --rerun none, {cfg.pipeline.workers} workers, {replay_frames} frames of a "
+                     f"{frames}-frame rendered clip (0.35-0.70 m) per run, median of {runs} runs per camera; "
+                     f"ratios against {cameras[0]} in the same run", "cameras": {c: CAMERAS[c].to_dict()
+                                                                                  for c in cameras},
+            "rows": rows, "goal_fps_640x576": 30, "goal_stage_sum_over_sr3000": 4}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--minutes", type=float, default=None, help="live run length (default: 20 s)")
     ap.add_argument("--replay-frames", type=int, default=600, help="frames of lossless replay (looped clip)")
     ap.add_argument("--replay-pairs", type=int, default=3,
                     help="replay runs with and without Rerun, back to back; the ratios are their medians")
-    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "bench_pipeline.json")
+    ap.add_argument("--cameras", type=lambda text: text.split(","), default=None,
+                    help=f"compare lossless replay across camera geometries (of: {', '.join(CAMERAS)}), the first "
+                         "the baseline")
+    ap.add_argument("--camera-frames", type=int, default=60, help="frames of each camera's rendered clip (--cameras)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="default bench/results/bench_pipeline.json (bench_pipeline_cameras.json with --cameras)")
     args = ap.parse_args()
     prepare_service_process()  # as `tofd run` / `tofd replay` set up their process
+    unknown = [c for c in args.cameras or () if c not in CAMERAS]
+    if unknown:
+        ap.error(f"--cameras: unknown {', '.join(unknown)} (known: {', '.join(CAMERAS)})")
+    if args.camera_frames < 2:
+        ap.error("--camera-frames: expected >= 2")
+    results_dir = ROOT / "bench" / "results"
     cfg = load_config()
+    if args.cameras:
+        with tempfile.TemporaryDirectory() as tmp:
+            cfg = with_detector(cfg, Path(tmp))
+            results = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                                   "load_avg_at_start": os.getloadavg()},
+                       **compare_cameras(cfg, args.cameras, args.camera_frames, args.replay_frames,
+                                         args.replay_pairs, Path(tmp))}
+        for r in results["rows"]:
+            print(r)
+        write_json(args.out or results_dir / "bench_pipeline_cameras.json", results)
+        return
     live_s = args.minutes * 60 if args.minutes else 20.0
     results = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                            "load_avg_at_start": os.getloadavg()}, "workers": cfg.pipeline.workers}
@@ -313,7 +430,7 @@ def main() -> None:
                                               max_frames=None, tmp=tmp)
     summarise(results, pairs)
     print_tables(results)
-    write_json(args.out, results)
+    write_json(args.out or results_dir / "bench_pipeline.json", results)
 
 
 if __name__ == "__main__":

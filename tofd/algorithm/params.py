@@ -63,7 +63,8 @@ class FeatureConfig:
     equivalence_range_m: float = 0.5  # e: FFT path: the pixel grid is read at this range (cycles/pixel * f / e)
     tuning_frequency_per_m: float = 30.0  # rho0: peak of the radial tuning A(rho), cycles/m
     lowpass_sigma_per_m: float = 50.0  # Gaussian low-pass width, cycles/m (anti-aliasing for the NFFT grid)
-    fft_padding_px: int = 16  # FFT path: background margin per side against wrap-around, pixels
+    fft_padding_px: int = 16  # FFT path: least background margin per side against wrap-around, pixels (more where
+    # the filters reach farther in pixels: tofd.algorithm.features.fft)
     grid_size: int = 64  # NFFT path: N, frequency grid N x N (even); must reach the band edge over the patch
     patch_width_m: float = SR3000_PATCH_M[0]  # NFFT path: patch width (x), metres; mode k is k / width cycles/m
     patch_height_m: float = SR3000_PATCH_M[1]  # NFFT path: patch height (y), metres

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+MapsOut = tuple[np.ndarray, np.ndarray]  # (H, W) float32 arrays to write eps0, eps2 into (e.g. shared memory)
+
 
 @dataclass(slots=True)
 class Eccentricities:
@@ -22,6 +24,14 @@ class Eccentricities:
     residual: float = float("nan")
 
     @classmethod
-    def empty(cls, shape: tuple[int, int], iterations: int = 0, residual: float = float("nan")) -> Eccentricities:
-        """All-NaN maps (no foreground)."""
-        return cls(np.full(shape, np.nan, np.float32), np.full(shape, np.nan, np.float32), iterations, residual)
+    def empty(cls, shape: tuple[int, int], iterations: int = 0, residual: float = float("nan"),
+              out: MapsOut | None = None) -> Eccentricities:
+        """All-NaN maps (no foreground): new arrays, or the arrays of `out` filled with NaN."""
+        if out is None:
+            return cls(np.full(shape, np.nan, np.float32), np.full(shape, np.nan, np.float32), iterations, residual)
+        for a in out:
+            if a.shape != shape or a.dtype != np.float32 or not a.flags.c_contiguous:
+                raise ValueError(f"out: maps must be C-contiguous float32 arrays of shape {shape}, got {a.dtype} "
+                                 f"{a.shape}")
+            a.fill(np.nan)
+        return cls(out[0], out[1], iterations, residual)

@@ -48,7 +48,7 @@ import scipy.fft as sfft
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.band import radial_tuning
-from tofd.algorithm.features.eccentricity import Eccentricities
+from tofd.algorithm.features.eccentricity import Eccentricities, MapsOut
 from tofd.algorithm.features.fft import check_frame, usable
 from tofd.algorithm.features.normal_equations import DampedNormalEquations, load_kernels, norm_weights, solve
 from tofd.algorithm.features.operators import Transfer, eccentricity_transfer, evaluate
@@ -222,8 +222,12 @@ class NFFTFeatures:
         return out
 
     def features(self, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray | None = None,
-                 amplitude: np.ndarray | None = None) -> tuple[Eccentricities, Eccentricities | None]:
+                 amplitude: np.ndarray | None = None, out: MapsOut | None = None,
+                 amplitude_out: MapsOut | None = None) -> tuple[Eccentricities, Eccentricities | None]:
         """Range features (range_features) and, given the amplitude image, its features at the same points.
+
+        out, amplitude_out: two (H, W) float32 arrays each that the range and amplitude maps are written into (and
+        returned as), e.g. a worker's shared memory; new arrays where not given.
 
         Amplitude: divided by its median over the points and offset so its minimum is 0 (the FFT path's
         normalisation and background, tofd.algorithm.features.fft.FFTFeatures.amplitude_features), then filtered like
@@ -243,14 +247,16 @@ class NFFTFeatures:
             mask = usable(amplitude, mask, positive=False)
         pts = self._checked_points(range_m, mask, rotation)
         if pts.index.size == 0:
-            empty = Eccentricities.empty(self.intrinsics.shape)
-            return empty, (None if amplitude is None else Eccentricities.empty(self.intrinsics.shape))
+            empty = Eccentricities.empty(self.intrinsics.shape, out=out)
+            return empty, (None if amplitude is None else Eccentricities.empty(self.intrinsics.shape,
+                                                                                out=amplitude_out))
         values = [pts.z]
         if amplitude is not None:
             a = amplitude.reshape(-1)[pts.index].astype(np.float64)
             scale = float(np.median(a))
             values.append((a - a.min()) / scale if scale > 0 else np.zeros_like(a))
-        maps = [self._maps(pts.index, f) for f in self.fields(pts.x, pts.y, np.stack(values), pts.damping)]
+        maps = [self._maps(pts.index, f, o) for f, o in zip(self.fields(pts.x, pts.y, np.stack(values), pts.damping),
+                                                             (out, amplitude_out), strict=False)]
         return maps[0], (maps[1] if amplitude is not None else None)
 
     def _checked_points(self, range_m: np.ndarray, mask: np.ndarray,
@@ -261,15 +267,14 @@ class NFFTFeatures:
             check_sampling(pts.rms_range_m, self.intrinsics, self.cfg)
         return pts
 
-    def _maps(self, index: np.ndarray, fields: SurfaceFields) -> Eccentricities:
-        """(H, W) eps0, eps2 maps from the fields [c0, c2, s2] at the points `index` (flat pixel indices); NaN
-        elsewhere."""
+    def _maps(self, index: np.ndarray, fields: SurfaceFields, out: MapsOut | None) -> Eccentricities:
+        """(H, W) eps0, eps2 maps (in `out` if given) from the fields [c0, c2, s2] at the points `index` (flat pixel
+        indices); NaN elsewhere."""
         c0, c2, s2 = fields.values
-        eps0 = np.full(self.intrinsics.shape, np.nan, np.float32)
-        eps2 = np.full(self.intrinsics.shape, np.nan, np.float32)
-        eps0.reshape(-1)[index] = c0 * c0
-        eps2.reshape(-1)[index] = c2 * c2 + s2 * s2
-        return Eccentricities(eps0, eps2, fields.iterations, fields.residual)
+        maps = Eccentricities.empty(self.intrinsics.shape, fields.iterations, fields.residual, out)
+        maps.eps0.reshape(-1)[index] = c0 * c0
+        maps.eps2.reshape(-1)[index] = c2 * c2 + s2 * s2
+        return maps
 
     def fields(self, x: np.ndarray, y: np.ndarray, values: np.ndarray, lam: float) -> list[SurfaceFields]:
         """Steps 3-4 for each row of `values` (V, M) sampled at the points x, y in [-1/2, 1/2)^2, damping lam:

@@ -38,10 +38,8 @@ class FeatureStage:
 
     def run(self, slot: dict[str, np.ndarray]) -> FeatureReply:
         """Read range_m/amplitude from `slot`, write mask and feature maps into it; timings in ms."""
-        ff = self._extractor(slot["range_m"], slot["amplitude"])
+        ff = self._extractor(slot["range_m"], slot["amplitude"], out=slot)  # the maps are written into the slot
         slot["mask"][...] = ff.mask
-        for name in self.maps:
-            slot[name][...] = ff.maps[name]
         timings = ff.timings_ms
         reply = FeatureReply(timings_ms=timings, nfft_iterations=int(ff.nfft_iterations),
                              nfft_residual=float(ff.nfft_residual))

@@ -1,0 +1,45 @@
+"""The camera geometries the benchmarks compare (the SR3000 and current cameras), and short rendered recordings of
+the emulator's face motion in any of them."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from drivers.emulator.render import load_face, render_face
+from drivers.emulator.scene import Motion
+from drivers.frame import DeviceInfo, Frame, GroundTruth
+from drivers.intrinsics import Intrinsics
+from drivers.recording.writer import RecordingWriter
+
+
+def pinhole(width: int, height: int, f: float) -> Intrinsics:
+    """Square pixels of focal length f (pixels), principal point at the image centre."""
+    return Intrinsics(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
+
+
+CAMERAS = {
+    "sr3000": Intrinsics(),  # 176x144, 47.5 degrees across
+    "320x240": pinhole(320, 240, 160 / math.tan(math.radians(35.0))),  # 70 degrees across
+    "640x576": pinhole(640, 576, 504.0),  # Azure Kinect / Femto NFOV unbinned
+    "1024x1024": pinhole(1024, 1024, 500.0),  # Azure Kinect WFOV-like
+}
+FRAME_PERIOD_US = 33_333  # 30 fps
+
+
+def write_face_clip(path: Path, intrinsics: Intrinsics, frames: int, seed: int = 1) -> Path:
+    """A recording (tofd's MCAP, drivers.recording.writer) of `frames` rendered noisy frames of the emulator's face
+    going from 0.35 m to 0.70 m (half a cycle of drivers.emulator.scene.Motion, its sideways drift scaled from the
+    SR3000's pixels to these), with ground truth; noise seeded per frame."""
+    motion = Motion(n_poses=2 * (frames - 1), drift_px=Motion().drift_px * intrinsics.fx / Intrinsics().fx)
+    face = load_face("lee_perry_smith")
+    device = DeviceInfo(serial="00000000", backend="emulated", model=f"rendered {intrinsics.width}x{intrinsics.height}")
+    with RecordingWriter(path, config={"rendered": {"face": face.name, "frames": frames, "seed": seed}}) as writer:
+        for i in range(frames):
+            r = render_face(face, motion.pose(i, intrinsics), intrinsics, np.random.default_rng((seed, i)))
+            writer.write(Frame(r.range_m, r.amplitude, i, i * FRAME_PERIOD_US, 0.0, 0.0, intrinsics, device,
+                               ground_truth=GroundTruth(nose_px=r.nose_px, visible=r.nose_visible,
+                                                        nose_xyz_m=r.nose_xyz_m)))
+    return path
