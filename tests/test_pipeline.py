@@ -125,14 +125,15 @@ def test_lossless_delivers_every_frame_in_order_with_the_in_process_features():
 
 
 class FailingWriter:
-    """A results writer whose write of one frame counter fails (a full disk, say)."""
+    """A results writer whose write of one frame counter fails with an error that is not an I/O error (an OSError
+    fails the whole output instead: tests/test_full_disk.py)."""
 
     def __init__(self, bad_counter: int):
         self.bad_counter, self.written = bad_counter, []
 
     def __call__(self, result) -> None:
         if result.frame.frame_counter == self.bad_counter:
-            raise OSError(28, "No space left on device")
+            raise ValueError("cannot encode this frame")
         self.written.append(result.frame.frame_counter)
 
 
@@ -143,7 +144,7 @@ def test_a_failing_writer_is_ledgered_as_the_sink_stage_naming_the_writer():
     assert summary["consistent"] and summary["frames_out"] == 4 and summary["dropped_by_stage"] == {"sink": 1}
     (drop,) = summary["drops"]
     assert drop["frame_counter"] == 2 and drop["stage"] == "sink"
-    assert str(drop["reason"]).startswith("writer_error: OSError")
+    assert str(drop["reason"]).startswith("writer_error: ValueError")
     assert summary["viewer_dropped"] == 0  # the viewer is not what failed
 
 
