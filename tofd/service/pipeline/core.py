@@ -119,6 +119,7 @@ class Pipeline:
         self.error: str | None = None
         self.outputs_failed: dict[str, str] = {}  # output file -> why it failed (it is written no more)
         self._failed_writers: set[Sink] = set()
+        self._sink_errors: set[str] = set()  # failures of the sink already logged
         self._items: dict[int, _Queued] = {}  # seq -> frame, from admission until it leaves the workers
         self._items_lock = threading.Lock()
         self._capture_done = threading.Event()
@@ -384,8 +385,13 @@ class Pipeline:
                 result.timings_ms["latency"] = (time.monotonic() - result.arrival_s) * 1e3
                 self._write(result)
             except Exception as exc:
-                log.exception("sink failed on frame %d", result.frame.frame_counter)
-                self.ledger.drop(result.seq, "viewer", f"error: {type(exc).__name__}: {exc}")
+                reason = f"error: {type(exc).__name__}: {exc}"
+                first = reason not in self._sink_errors  # one line per kind of failure, not one per frame
+                self._sink_errors.add(reason)
+                log.log(logging.ERROR if first else logging.DEBUG, "sink failed on frame %d: %s%s",
+                        result.frame.frame_counter, reason, " (the same for later frames is logged at debug)"
+                        if first else "", exc_info=log.isEnabledFor(logging.DEBUG))
+                self.ledger.drop(result.seq, "viewer", reason)
                 continue
             self.ledger.deliver(result.seq)
             self.stats.record(result.timings_ms)
