@@ -56,13 +56,10 @@ class PipelineError(RuntimeError):
 
 
 class OfferingViewer(Protocol):
-    """A best-effort viewer: `offer` returns at once (or within `block_s`), False if it refused the frame."""
+    """A best-effort viewer: `offer` returns at once (or within `block_s`), False if it refused the frame. One
+    whose output can fail also has `failure()`: (output file, why) once, when it failed (a full disk), else None."""
 
     def offer(self, result: FrameResult, block_s: float) -> bool: ...
-
-    def failure(self) -> tuple[str, str] | None:
-        """(output file, why) once the viewer's output failed (e.g. a full disk), else None."""
-        ...
 
 
 @dataclasses.dataclass(slots=True)
@@ -367,6 +364,7 @@ class Pipeline:
     # ---------------------------------------------------------------- sink
     def _sink_loop(self) -> None:
         offer = getattr(self.viewer, "offer", None)
+        failure = getattr(self.viewer, "failure", None)  # an offering viewer whose output can fail
         flush = None if offer is not None else getattr(self.viewer, "flush", None)  # an inline viewer's batch
         block_s = self.cfg.pipeline.shutdown_timeout_s if self.policy == "lossless" else 0.0
         while True:
@@ -397,8 +395,8 @@ class Pipeline:
             self.stats.record(result.timings_ms)
             if offer is not None and not offer(result, block_s):
                 self.ledger.skip_viewer(result.seq, result.frame.frame_counter, "blocked")
-            if offer is not None and (failure := self.viewer.failure()) is not None:
-                self._output_failed(*failure)
+            if failure is not None and (failed := failure()) is not None:
+                self._output_failed(*failed)
 
     def _write(self, result: FrameResult) -> None:
         """Hand the result to every writer whose output has not failed; an OSError (a full disk, a permission)
