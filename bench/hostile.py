@@ -3,7 +3,8 @@
     python bench/hostile.py                 # every case
     python bench/hostile.py --only zstd_bomb,npz_bomb,idle_connections
 
-Cases: recordings whose chunks, records or header claim what no camera sends (tests/hostile_inputs.py, through
+Cases: an intact recording (the baseline: what a replay of it costs), recordings whose chunks, records or
+header claim what no camera sends (tests/hostile_inputs.py, through
 `tofd replay`), dataset .npz bombs (through `tofd evaluate`), configs out of every bound (`tofd replay --config`),
 and a live `tofd run --emulate` under 300 idle connections, 100 clients that leave before their answer, a save
 sink on a full 2 MB tmpfs, and SIGUSR1 / SIGHUP / SIGQUIT. Per row: case | limit that must hold | peak RSS of
@@ -25,6 +26,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.error
 import urllib.request
 from collections.abc import Callable
 from pathlib import Path
@@ -37,8 +39,9 @@ from proc_stats import cpu_s  # noqa: E402
 from report import write_json  # noqa: E402
 
 from tofd_testing.chaos_helpers import metric, metrics, tofd  # noqa: E402
-from tofd_testing.hostile_inputs import CONFIG_CASES, DATASET_CASES, RECORDING_CASES  # noqa: E402
+from tofd_testing.hostile_inputs import BASE_FRAMES, CONFIG_CASES, DATASET_CASES, RECORDING_CASES  # noqa: E402
 from tofd_testing.pipeline_sources import write_config  # noqa: E402
+from tofd_testing.recording_helpers import write_recording  # noqa: E402
 
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
 SMALL_CLIP = ROOT / "tests" / "data" / "v1_first3.mcap"
@@ -77,6 +80,13 @@ def recording_case(name: str) -> Callable[[Path], dict]:
     return run
 
 
+def intact_baseline(work: Path) -> dict:
+    """The recording the chunk cases are spliced into, intact: what the same replay costs without a hostile part."""
+    path = work / "intact.mcap"
+    write_recording(path, range(BASE_FRAMES))
+    return _run(["replay", path, "--out", work / "out", "--rerun", "none"], "ledgered")
+
+
 def dataset_case(name: str) -> Callable[[Path], dict]:
     def run(work: Path) -> dict:
         path = DATASET_CASES[name][0](work)
@@ -107,11 +117,17 @@ class Daemon:
             if not self.lines[-1]:
                 raise RuntimeError("tofd run ended before serving: " + "".join(self.lines))
         self.port = int(next(x for x in self.lines if "INFO health:" in x).split(":")[-1].split("/")[0])
+        deadline = time.monotonic() + 120
+        while self.healthz() != 200 and time.monotonic() < deadline:  # workers up, frames delivered
+            time.sleep(0.5)
 
     def healthz(self, timeout_s: float = 30) -> int | None:
+        """The /healthz status code; None if it did not answer."""
         try:
             with urllib.request.urlopen(f"http://127.0.0.1:{self.port}/healthz", timeout=timeout_s) as resp:
                 return resp.status
+        except urllib.error.HTTPError as exc:
+            return exc.code
         except OSError:
             return None
 
@@ -231,6 +247,7 @@ def signal_case(sig: int) -> Callable[[Path], dict]:
 
 
 CASES: dict[str, tuple[str, Callable[[Path], dict]]] = {
+    "intact_baseline": ("(the same replay, nothing hostile)", intact_baseline),
     **{name: (limit, recording_case(name)) for name, (_, limit) in RECORDING_CASES.items()},
     **{name: (limit, dataset_case(name)) for name, (_, limit) in DATASET_CASES.items()},
     **{f"config_{name}": (f"config error naming {key}", config_case(name))

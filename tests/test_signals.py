@@ -100,3 +100,22 @@ def test_ctrl_c_at_any_moment_of_start_up_exits_as_documented_without_a_tracebac
         assert proc.returncode == 0, err
         last = err.strip().splitlines()[-1]
         assert "before the camera was ready; stopped" in last or last.startswith("tofd run: frames in"), err
+
+
+@pytest.mark.slow
+def test_a_daemon_started_with_sighup_ignored_as_under_nohup_keeps_ignoring_it(tmp_path):
+    proc = tofd("run", "--emulate", "--config", write_config(tmp_path), "--health-port", "0", "--rerun", "none",
+                preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+    try:
+        lines = []
+        while not any("INFO health:" in line for line in lines):
+            lines.append(proc.stderr.readline())
+            assert lines[-1], "".join(lines)
+        proc.send_signal(signal.SIGHUP)
+        time.sleep(2)
+        assert proc.poll() is None, "".join(lines)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0 and "Traceback" not in err, err

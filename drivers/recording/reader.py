@@ -105,8 +105,8 @@ def chunk_records(chunk: Chunk, limit: int) -> Iterator[Channel | Message | Sche
     if chunk.uncompressed_size > limit:
         raise fmt.FormatError(f"chunk declares {chunk.uncompressed_size} bytes decompressed, more than a frame of "
                               f"this recording can need ({limit})")
-    with zstandard.ZstdDecompressor().stream_reader(chunk.data) as stream:
-        data = stream.read(chunk.uncompressed_size + 1)
+    with zstandard.ZstdDecompressor().stream_reader(chunk.data) as decompressed:
+        data = decompressed.read(chunk.uncompressed_size + 1)
     if len(data) != chunk.uncompressed_size or zlib.crc32(data) != chunk.uncompressed_crc:
         raise fmt.FormatError(f"chunk decompresses to {len(data)} bytes (declared {chunk.uncompressed_size}) or "
                               "fails its CRC")
@@ -177,11 +177,12 @@ class RecordingReader:
         try:
             with open(self.path, "rb") as f:
                 magic = f.read(len(MCAP0_MAGIC))
-                self._data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if magic == MCAP0_MAGIC else None
+                data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if magic == MCAP0_MAGIC else None
         except OSError as exc:
             raise DriverError(f"cannot open recording {self.path}: {exc.strerror}") from None
-        if self._data is None:
+        if data is None:
             raise DriverError(f"{self.path} is not a tofd recording (no MCAP magic at its start)")
+        self._data: mmap.mmap = data
         self.file_size = len(self._data)
         self._pending: deque[Frame | Damage] = deque()  # read by read_header, not yet taken by frames()
         self.rewind()
@@ -380,7 +381,9 @@ class RecordingReader:
         if opcode != Opcode.FOOTER or length != _FOOTER_BYTES - 9 or not 0 < start < end - 9 or \
                 end - start > bounds.MAX_SUMMARY_BYTES:
             return None
-        channels, counts, offset = {}, None, start
+        channels: dict[int, Channel] = {}
+        counts: dict[int, int] | None = None
+        offset = start
         try:
             while offset < end:
                 opcode, length = struct.unpack_from("<BQ", self._data, offset)

@@ -5,6 +5,7 @@
   pipeline.shutdown_timeout_s; a second one changes nothing. Before the service is up (tofd still loading) the
   command ends with one line, `tofd COMMAND: interrupted (SIGxxx)`, and exit status 130 (`tofd run` while it
   opens the camera: one line, exit 0).
+- A stop signal the process was started with ignored (SIGHUP under `nohup`) stays ignored.
 - SIGUSR1: log one status line (frames, fps, drops by reason) and go on; ignored while tofd loads.
 - Worker and viewer processes ignore all of these (the parent decides when they stop) from the moment they are
   started (`children_start` holds the signals back meanwhile), and so does multiprocessing's resource tracker
@@ -35,11 +36,16 @@ def _interrupt(signum: int, _frame: object) -> None:
     raise Interrupted(signal.Signals(signum).name)
 
 
+_IGNORED_AT_START = frozenset(sig for sig in STOP_SIGNALS if signal.getsignal(sig) == signal.SIG_IGN)
+"""Stop signals this process was started with ignored (e.g. SIGHUP under nohup): they stay ignored."""
+
+
 def interrupt_while_loading() -> None:
     """From process start until a service installs StopSignals: every stop signal raises Interrupted (SIGINT
     too, named), SIGUSR1 is ignored. Call first thing in the main thread."""
     for sig in STOP_SIGNALS:
-        signal.signal(sig, _interrupt)
+        if sig not in _IGNORED_AT_START:
+            signal.signal(sig, _interrupt)
     signal.signal(STATUS_SIGNAL, signal.SIG_IGN)
 
 
@@ -81,7 +87,7 @@ class StopSignals:
     `on_signal` runs in the handler and may interrupt any code, so it keeps to printing, starting a thread or
     raising (e.g. to end a blocking call that polls no stop request)."""
 
-    SIGNALS = STOP_SIGNALS
+    SIGNALS = tuple(sig for sig in STOP_SIGNALS if sig not in _IGNORED_AT_START)
 
     def __init__(self, on_signal: Callable[[int, bool], None] | None = None) -> None:
         self.received: list[int] = []  # the handler only appends: it may interrupt any code, holding any lock

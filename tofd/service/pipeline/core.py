@@ -60,15 +60,12 @@ class PipelineError(RuntimeError):
 
 class OfferingViewer(Protocol):
     """A best-effort viewer: `offer` returns at once (or within `block_s`), False if it refused the frame, which
-    is ledgered as a viewer drop for `drop_reason`."""
+    is ledgered as a viewer drop for `drop_reason`. One whose output can fail also has `failure()`: (output file,
+    why) once, when it failed (a full disk), else None."""
 
     drop_reason: str
 
     def offer(self, result: FrameResult, block_s: float) -> bool: ...
-
-    def failure(self) -> tuple[str, str] | None:
-        """(output file, why) once the viewer's output failed (e.g. a full disk), else None."""
-        ...
 
 
 class InlineViewer(Protocol):
@@ -137,6 +134,7 @@ class Pipeline:
         self.error: str | None = None
         self.outputs_failed: dict[str, str] = {}  # output file -> why it failed (it is written no more)
         self._failed_writers: set[Sink] = set()
+        self._sink_errors: set[str] = set()  # failures of the sink already logged
         self._items: dict[int, _Queued] = {}  # seq -> frame, from admission until it leaves the workers
         self._items_lock = threading.Lock()
         self._capture_done = threading.Event()
@@ -383,6 +381,7 @@ class Pipeline:
 
     # ---------------------------------------------------------------- sink
     def _sink_loop(self) -> None:
+        failure = getattr(self.viewer, "failure", None)  # an offering viewer whose output can fail
         block_s = self.cfg.pipeline.shutdown_timeout_s if self.policy == "lossless" else 0.0
         while True:
             result = self.outq.get(POLL_S)
@@ -398,8 +397,8 @@ class Pipeline:
             self.stats.record(result.timings_ms)
             if self.viewer is not None and not self.viewer.offer(result, block_s):
                 self.ledger.skip_viewer(result.seq, result.frame.frame_counter, "blocked")
-            if self.viewer is not None and (failure := self.viewer.failure()) is not None:
-                self._output_failed(*failure)
+            if failure is not None and (failed := failure()) is not None:
+                self._output_failed(*failed)
             for live in self.live_viewers:
                 if not live.offer(result, 0.0):
                     self.ledger.skip_viewer(result.seq, result.frame.frame_counter, live.drop_reason)
@@ -435,8 +434,13 @@ class Pipeline:
             self._write_outputs(result)
             return True
         except Exception as exc:
-            log.exception("sink: the %s failed on frame %d", part, result.frame.frame_counter)
-            self.ledger.drop(result.seq, "sink", f"{part}_error: {type(exc).__name__}: {exc}")
+            reason = f"{part}_error: {type(exc).__name__}: {exc}"
+            first = reason not in self._sink_errors  # one line per kind of failure, not one per frame
+            self._sink_errors.add(reason)
+            log.log(logging.ERROR if first else logging.DEBUG, "sink: the %s failed on frame %d: %s%s", part,
+                    result.frame.frame_counter, reason, " (the same for later frames is logged at debug)"
+                    if first else "", exc_info=log.isEnabledFor(logging.DEBUG))
+            self.ledger.drop(result.seq, "sink", reason)
             return False
 
     @staticmethod
