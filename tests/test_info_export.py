@@ -64,6 +64,8 @@ def test_info_reads_a_ros2_bag(tmp_path):
     doc = json.loads(tofd("info", bag, "--json").stdout)
     assert doc["format"] == "ROS 2 bag" and doc["details"] == {"storage": "mcap"}
     assert doc["frames"] == 4 and doc["intrinsics"]["width"] == 176
+    run = tofd("info", bag, "--range-topic", "/no/such/topic")  # the bag options, as replay and import take them
+    assert run.returncode == 2 and "/no/such/topic" in run.stderr and run.stderr.count("\n") == 1
 
 
 def test_export_png_gives_16_bit_millimetres_and_amplitude(tmp_path):

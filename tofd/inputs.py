@@ -13,10 +13,14 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from drivers.frame import DeviceInfo, Frame
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
+
+if TYPE_CHECKING:
+    from drivers.rosbag import RangeOptions
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,9 +85,9 @@ class InputSummary:
                 "damage": {"rejected": dict(self.rejected), "stopped": self.stopped or None}}
 
 
-def open_input(path: Path) -> tuple[FrameSource, InputFormat]:
-    """A lossless FrameSource on `path` and its format, recognised by drivers.opener; DriverError (or OSError)
-    when it cannot be read."""
+def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[FrameSource, InputFormat]:
+    """A lossless FrameSource on `path` and its format, recognised by drivers.opener (`bag_options`: a ROS bag's
+    topics and range encoding); DriverError (or OSError) when it cannot be read."""
     from drivers.opener import identify
     from drivers.source import DriverError
 
@@ -94,11 +98,12 @@ def open_input(path: Path) -> tuple[FrameSource, InputFormat]:
     if fmt.read_as == "bag":
         from drivers.bags import open_bag
 
+        source = open_bag(path, bag_options)
         if fmt.name != "rosbag":  # a vendor SDK's recording
-            return open_bag(path), InputFormat(fmt.description, "")
+            return source, InputFormat(fmt.description, "")
         kind = "ROS 1 bag" if path.suffix == ".bag" else "ROS 2 bag"
         storage = "mcap" if path.suffix == ".mcap" or any(path.glob("*.mcap")) else "sqlite3"
-        return open_bag(path), InputFormat(kind, "", () if kind == "ROS 1 bag" else (("storage", storage),))
+        return source, InputFormat(kind, "", () if kind == "ROS 1 bag" else (("storage", storage),))
     if fmt.read_as == "source" and fmt.open is not None:
         return fmt.open(path), InputFormat(fmt.description, "")
     from drivers.recording.reader import read_recording_info
@@ -124,9 +129,9 @@ def frames_with_rejects(source: FrameSource, summary: InputSummary) -> Iterator[
         summary.stopped = f"{reason}: {getattr(source, 'stop_detail', '')}"
 
 
-def summarize(path: Path) -> InputSummary:
+def summarize(path: Path, bag_options: RangeOptions | None = None) -> InputSummary:
     """Read the input at `path` to its end (InputSummary); DriverError/OSError when it cannot be opened."""
-    source, fmt = open_input(path)
+    source, fmt = open_input(path, bag_options)
     summary = InputSummary(path, fmt)
     with source:
         for frame in frames_with_rejects(source, summary):

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tofd import arguments
+
 FORMATS = ("png", "ply", "npz")
 
 
@@ -35,6 +37,7 @@ def frame_range(text: str) -> slice:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", type=Path, help="a tofd recording (.mcap) or a ROS 1 or ROS 2 bag")
+    arguments.add_bag_arguments(parser)
     parser.add_argument("--to", choices=FORMATS, required=True, help="what to write (see above)")
     parser.add_argument("--frames", type=frame_range, default=slice(None), metavar="A:B",
                         help="frames at positions A..B-1 in the file (default: all)")
@@ -80,7 +83,7 @@ def main(args: argparse.Namespace) -> int:
     from tofd.outputs import prepare_output_dir
 
     try:
-        source, fmt = open_input(args.file)
+        source, fmt = open_input(args.file, arguments.bag_options(args))
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(f"{args.file}: {exc}") from None
     out = prepare_output_dir(args.out)

@@ -12,9 +12,12 @@ import json
 import math
 from pathlib import Path
 
+from tofd import arguments
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", type=Path, help="a tofd recording (.mcap) or a ROS 1 or ROS 2 bag")
+    arguments.add_bag_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the description as JSON")
 
 
@@ -50,7 +53,7 @@ def main(args: argparse.Namespace) -> int:
     from tofd.inputs import summarize
 
     try:
-        summary = summarize(args.file)
+        summary = summarize(args.file, arguments.bag_options(args))
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(f"{args.file}: {exc}") from None
     print(json.dumps(summary.to_dict(), indent=2) if args.json else "\n".join(describe(summary)))
