@@ -140,3 +140,31 @@ def test_ci_runs_exactly_the_readmes_test_command_and_the_readme_installs_every_
     assert "pip install '.[test]'" in tests
     ci = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line.startswith("python3 -m venv")]
     assert ci == [tests]
+
+
+@pytest.mark.slow
+def test_a_fresh_core_install_brings_none_of_the_heavy_packages_and_runs_the_algorithm(wheel, tmp_path):
+    """`pip install tofd` (the wheel, no extras) into a new venv without the system's site-packages, through
+    pip's configured package sources: none of the heavy packages arrive, the algorithm runs, and a service
+    command names its extra."""
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    python = venv / "bin" / "python"
+    proc = subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-compile", str(wheel)],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    listed = subprocess.run([str(python), "-m", "pip", "list", "--format=json"], capture_output=True, text=True,
+                            check=True, timeout=300).stdout
+    installed = {p["name"].lower() for p in json.loads(listed)}
+    assert CORE | {"tofd"} <= installed and not installed & HEAVY, sorted(installed)
+    work = tmp_path / "elsewhere"  # not the checkout: the installed tofd is imported
+    work.mkdir()
+    ran = subprocess.run([str(python), "-c", ALGORITHM, ""], cwd=work, capture_output=True, text=True, timeout=300)
+    assert ran.returncode == 0, ran.stderr[-3000:]
+    found = json.loads(ran.stdout.splitlines()[-1])
+    assert found["foreground"] > 1000 and found["finite"]
+    clip = ROOT / "replay_data" / "emulated_face_035_070.mcap"
+    replay = subprocess.run([str(venv / "bin" / "tofd"), "replay", str(clip), "--out", str(tmp_path / "out")],
+                            cwd=work, capture_output=True, text=True, timeout=300)
+    assert replay.returncode == 2
+    assert replay.stderr == "tofd replay: needs the 'service' extra: pip install 'tofd[service]'\n"
