@@ -81,6 +81,8 @@ class BagReader:
             self._connections = {c.id: c for c in connections}
             self.topics = _topics((c.topic, c.msgtype, c.msgcount) for c in connections)
             definitions = [(c.msgtype, c.msgdef.data) for c in connections if c.msgdef.data]
+        except ImportError:  # rosbags itself is missing: the 'rosbag' extra (tofd.extras) names what to install
+            raise
         except Exception as exc:  # noqa: BLE001 (whatever rosbags cannot open is read record by record)
             self._fallback = _fallback(self.path, self.ros1, exc)
             self.topics = self._fallback.topics

@@ -79,10 +79,11 @@ def test_tofd_and_the_algorithm_run_without_any_optional_module():
 @pytest.mark.parametrize(("command", "blocked", "extra"), [
     (["replay", "replay_data/emulated_face_035_070.mcap", "--out", "{tmp}"], ("rerun",), "service"),
     (["batch", "replay_data/emulated_face_035_070.mcap", "--out", "{tmp}"], ("dask", "distributed"), "batch"),
-    (["import", "missing.bag", "{tmp}/out.mcap"], ("rosbags",), "rosbag"),
+    (["import", "{tmp}/header.bag", "{tmp}/out.mcap"], ("rosbags",), "rosbag"),  # a ROS 1 bag by its content
     (["evaluate", "--help"], ("matplotlib", "tqdm", "fsspec"), "lab"),
 ])
 def test_a_command_whose_extra_is_missing_names_the_extra(tmp_path, command, blocked, extra):
+    (tmp_path / "header.bag").write_bytes(b"#ROSBAG V2.0\n")  # read as a bag (drivers.opener) before rosbags is needed
     proc = run_blocked(COMMAND, blocked, *(a.format(tmp=tmp_path) for a in command))
     assert proc.returncode == 2, proc.stderr[-3000:]
     assert proc.stderr == f"tofd {command[0]}: needs the '{extra}' extra: pip install 'tofd[{extra}]'\n"
