@@ -68,7 +68,7 @@ CHANNELS = (
 )
 """Channels in id order, which is also the order of a frame's messages in its chunk."""
 ROLE_BY_ID = {c.id: c.role for c in CHANNELS}
-_ENCODINGS = {"16UC1": np.dtype("<u2"), "32FC1": np.dtype("<f4")}
+_ENCODINGS: dict[str, np.dtype] = {"16UC1": np.dtype("<u2"), "32FC1": np.dtype("<f4")}
 
 
 class FormatError(ValueError):
@@ -258,7 +258,7 @@ def check_metadata(name: str, data: dict[str, str]) -> dict[str, str]:
     return body
 
 
-def to_metadata(obj: object) -> dict[str, str]:
+def to_metadata(obj: typing.Any) -> dict[str, str]:
     """A dataclass as a sealed MCAP metadata map (every value a string; floats in repr, exact; tuples as JSON)."""
     return seal_metadata({f.name: repr(v) if isinstance(v, float) else json.dumps(v) if isinstance(v, tuple)
                           else str(v) for f in dataclasses.fields(obj) for v in [getattr(obj, f.name)]})

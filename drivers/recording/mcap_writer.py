@@ -9,7 +9,7 @@ from __future__ import annotations
 import struct
 import zlib
 from collections import defaultdict
-from typing import IO
+from typing import IO, Any
 
 import zstandard
 from mcap.data_stream import RecordBuilder
@@ -128,15 +128,15 @@ class McapChunkWriter:
         self._write(DataEnd(data_section_crc=0))
         summary_start = self._stream.tell()
         builder = RecordBuilder()
-        groups = [(Opcode.SCHEMA, self._schemas), (Opcode.CHANNEL, self._channels),
-                  (Opcode.STATISTICS, [self._stats]), (Opcode.CHUNK_INDEX, self._chunk_indexes),
-                  (Opcode.ATTACHMENT_INDEX, self._attachment_indexes),
-                  (Opcode.METADATA_INDEX, self._metadata_indexes)]
+        groups: list[tuple[int, list[Any]]] = [
+            (Opcode.SCHEMA, self._schemas), (Opcode.CHANNEL, self._channels), (Opcode.STATISTICS, [self._stats]),
+            (Opcode.CHUNK_INDEX, self._chunk_indexes), (Opcode.ATTACHMENT_INDEX, self._attachment_indexes),
+            (Opcode.METADATA_INDEX, self._metadata_indexes)]
         offsets = []
         for opcode, records in groups:
             group_start = builder.count
             for record in records:
-                record.write(builder)  # type: ignore[attr-defined]
+                record.write(builder)
             offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + group_start,
                                          group_length=builder.count - group_start))
         offset_start = summary_start + builder.count

@@ -60,6 +60,11 @@ V1_ROLE = "frame.v1"
 V1_TOPIC = "/camera/frame"
 
 
+def _whole(text: str | None) -> object:
+    """A metadata value as an integer when it is one, else as it is (for the bound's message)."""
+    return int(text) if text is not None and text.lstrip("-").isdigit() else text
+
+
 def channel_role(channel: Channel) -> str | None:
     """What the messages of `channel` are in a frame (V1_ROLE or format.channel_role's roles), or None."""
     if channel.topic == V1_TOPIC and channel.message_encoding == format_v1.FRAME_ENCODING:
@@ -267,7 +272,10 @@ class RecordingReader:
             meta = Metadata.read(stream)
             self.metadata[meta.name] = fmt.check_metadata(meta.name, meta.metadata)
             if meta.name == fmt.META_INTRINSICS:
-                intrinsics = fmt.from_metadata(Intrinsics, self.metadata[meta.name])
+                raw = self.metadata[meta.name]  # the size bound first: Intrinsics' own check has no file context
+                if (problem := bounds.image_size_problem(_whole(raw.get("width")), _whole(raw.get("height")))):
+                    raise fmt.FormatError(f"metadata {meta.name!r}: {problem}")
+                intrinsics = fmt.from_metadata(Intrinsics, raw)
                 if (problem := bounds.intrinsics_problem(intrinsics)) is not None:  # type: ignore[arg-type]
                     raise fmt.FormatError(f"metadata {meta.name!r}: {problem}")
                 self.chunk_limit = bounds.frame_chunk_limit(intrinsics)  # type: ignore[arg-type]

@@ -135,7 +135,7 @@ class ReplaySource(FrameSource):
                     self.last_good_counter = counter
             else:
                 problem = f"invalid_frame: {problem}"
-            if seeking and (problem is not None or counter < seek):
+            if seeking and (problem is not None or (seek is not None and counter < seek)):
                 continue
             seeking = False
             if not self._in_range(counter):
