@@ -96,7 +96,7 @@ def test_batch_takes_a_kinect_recording_by_its_content(tmp_path, k4a_recording):
     out = tmp_path / "out"
     proc = tofd("batch", "--out", out, "--workers", "1", renamed)
     assert proc.returncode == 0, proc.stderr
-    summary = json.loads((out / "summary.json").read_text())
+    summary = json.loads((out / "_summary.json").read_text())
     (entry,) = summary["inputs"]
     assert entry["input"] == str(renamed) and entry["frames_in"] == 6 and entry["status"] == "ok", entry
     assert entry["frames_out"] == 6
