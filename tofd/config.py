@@ -254,7 +254,9 @@ def _build(cls: type, table: dict, prefix: str) -> object:
     except TypeError as exc:
         raise ConfigError(f"{prefix or 'config'}: {exc}") from None
     except ValueError as exc:  # a section that validates when constructed names the key first
-        raise ConfigError(f"{prefix}.{exc}" if prefix else f"config: {exc}") from None
+        why = str(exc)
+        raise ConfigError(why if prefix and why.startswith(f"{prefix}.") else f"{prefix}.{why}" if prefix
+                          else f"config: {why}") from None
     validate = getattr(obj, "validate", None)
     if validate is not None:
         try:
