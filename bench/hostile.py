@@ -4,7 +4,7 @@
     python bench/hostile.py --only zstd_bomb,npz_bomb,idle_connections
 
 Cases: an intact recording (the baseline: what a replay of it costs), recordings whose chunks, records or
-header claim what no camera sends (tests/hostile_inputs.py, through
+header claim what no camera sends (tofd_testing/hostile_inputs.py, through
 `tofd replay`), dataset .npz bombs (through `tofd evaluate`), configs out of every bound (`tofd replay --config`),
 and a live `tofd run --emulate` under 300 idle connections, 100 clients that leave before their answer, a save
 sink on a full 2 MB tmpfs, and SIGUSR1 / SIGHUP / SIGQUIT. Per row: case | limit that must hold | peak RSS of

@@ -1,5 +1,6 @@
-"""Hostile inputs (tests/hostile_inputs.py) cost little and are refused or ledgered with one line: recordings whose
-chunks, records or header claim what no camera sends, dataset .npz bombs, configs out of every bound."""
+"""Hostile inputs (tofd_testing/hostile_inputs.py) cost little and are refused or ledgered with one line:
+recordings whose chunks, records or header claim what no camera sends, dataset .npz bombs, configs out of every
+bound."""
 
 from __future__ import annotations
 
