@@ -82,6 +82,8 @@ class SensorInfo:
             raise ValueError(f"amplitude: {self.amplitude!r} is not one of {AMPLITUDE_KINDS}")
         if not (math.isfinite(self.depth_unit_m) and self.depth_unit_m > 0):
             raise ValueError(f"depth_unit_m: {self.depth_unit_m!r} is not a positive number of metres")
+        if not isinstance(self.settings, Mapping):
+            raise TypeError(f"settings: expected a mapping of names to values, got {type(self.settings).__name__}")
         object.__setattr__(self, "settings", MappingProxyType({str(k): str(v) for k, v in self.settings.items()}))
 
     def to_dict(self) -> dict[str, object]:

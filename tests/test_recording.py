@@ -109,6 +109,17 @@ def test_a_camera_without_sr3000_registers_keeps_its_sensor_info_and_writes_no_r
     assert first.sensor is None and first.registers == Registers()
 
 
+def test_sensor_info_names_a_bad_field_and_bad_metadata_is_a_format_error():
+    with pytest.raises(ValueError, match="amplitude: 'colour'"):
+        SensorInfo(1e-3, "colour")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="depth_unit_m"):
+        SensorInfo(0.0, "ir")
+    sealed = fmt.sensor_metadata(SensorInfo(1e-3, "active_brightness", settings={"mode": "5"}))
+    assert fmt.sensor_from_metadata(fmt.check_metadata("s", sealed)).settings == {"mode": "5"}
+    with pytest.raises(fmt.FormatError, match="SensorInfo.*settings"):
+        fmt.sensor_from_metadata({"depth_unit_m": "0.001", "amplitude": '"ir"', "settings": "[1]"})
+
+
 def test_file_is_standard_mcap_readable_by_the_mcap_library(tmp_path):
     path = tmp_path / "r.mcap"
     frames = write_recording(path, range(5))
