@@ -1,8 +1,9 @@
 """What every bag-backed frame source shares: the open bag, the range conversions, the calibration check, the
-account of a damaged tail, and what the file says about the device and its settings."""
+account of a damaged tail, and what the file says about the device, its signal and its settings."""
 
 from __future__ import annotations
 
+import json
 import logging
 from abc import abstractmethod
 from collections.abc import Iterator
@@ -12,11 +13,14 @@ from typing import Any
 import numpy as np
 
 from drivers.bag_scan import BagError, BagReader, DamagedMessage, RawMessage
-from drivers.frame import Frame
+from drivers.frame import AmplitudeKind, Frame, SensorInfo
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource, Rejected
 
 log = logging.getLogger(__name__)
+
+PERIOD_FRAMES = 8
+"""Frames whose device timestamps give the frame period before the first frame is delivered."""
 
 
 def depth_metres(raw: np.ndarray, metres_per_unit: float) -> np.ndarray:
@@ -33,8 +37,15 @@ class BagSource(FrameSource):
 
     After iteration, `intrinsics` is the calibration of the frames (None when none was delivered), `damage` says
     why reading stopped early (None: the whole bag was read) and `settings` holds what the file says about the
-    device and how it was set (units, rates, options), for the provenance of an imported recording.
+    device and how it was set (units, rates, options), for the provenance of an imported recording. Frames
+    without SR3000 registers carry it as `sensor` (drivers.frame.SensorInfo), with `amplitude_kind`, the raw
+    planes' units (note_signal) and the frame period from the first PERIOD_FRAMES device timestamps.
     """
+
+    amplitude_kind: AmplitudeKind = "ir"
+    """What the source's amplitude image is."""
+    unambiguous_range_m: float | None = None
+    """The range at which the phase wraps, when the file says (None: unknown)."""
 
     def __init__(self, path: str | Path) -> None:
         super().__init__()
@@ -44,6 +55,9 @@ class BagSource(FrameSource):
         self.settings: dict[str, Any] = {}
         self.range_messages: int | None = None
         """Range images in the bag (an upper bound on the frames; None when unknown)."""
+        self.sensor: SensorInfo | None = None
+        """The frames' signal and settings (known once iteration started)."""
+        self._signal: tuple[float, int | None, float | None] | None = None
 
     def message_count(self, topic: str) -> int | None:
         """Messages of `topic` in the bag, None when unknown (a damaged sqlite3 bag read row by row)."""
@@ -90,6 +104,48 @@ class BagSource(FrameSource):
             raise BagError(f"{where}: sizes differ: " + ", ".join(
                 f"{name.replace('_', ' ')} {w}x{h}" for name, (h, w) in planes.items()))
 
+    def note_signal(self, depth: np.ndarray, amplitude: np.ndarray, metres_per_unit: float, invalid: int = 0) -> None:
+        """Remember what the first frame's raw images say: metres per depth value and the `invalid` value (float
+        depth: metres, none) and the amplitude's full scale (None for float amplitude)."""
+        if self._signal is None:
+            floating = depth.dtype.kind == "f"
+            self._signal = (1.0 if floating else metres_per_unit, None if floating else invalid,
+                            None if amplitude.dtype.kind == "f" else float(np.iinfo(amplitude.dtype).max))
+
+    def _sensor_info(self, frames: list[Frame]) -> SensorInfo:
+        """The SensorInfo of the frames, from their device timestamps, note_signal and `settings`."""
+        unit, invalid, full_scale = self._signal or (1.0, None, None)
+        steps = np.diff([f.timestamp_us for f in frames])
+        period = float(np.median(steps)) / 1e6 if len(steps) and np.median(steps) > 0 else None
+        return SensorInfo(depth_unit_m=unit, amplitude=self.amplitude_kind, invalid_value=invalid,
+                          amplitude_full_scale=full_scale, unambiguous_range_m=self.unambiguous_range_m,
+                          frame_period_s=period,
+                          settings={k: v if isinstance(v, str) else json.dumps(v, sort_keys=True, default=str)
+                                    for k, v in self.settings.items()})
+
+    def _release(self, head: list[Frame]) -> Iterator[Frame]:
+        """The buffered first frames, with the sensor info they determine (frames with SR3000 registers keep
+        none)."""
+        if head and self.sensor is None:
+            self.sensor = self._sensor_info(head)
+        for frame in head:
+            frame.sensor = self.sensor if frame.registers is None else None
+            yield frame
+        head.clear()
+
+    def _with_sensor(self, frames: Iterator[Frame]) -> Iterator[Frame]:
+        """`frames`, held back until the first PERIOD_FRAMES give the frame period, each with its sensor info."""
+        head: list[Frame] = []
+        try:
+            for frame in frames:
+                head.append(frame)
+                if self.sensor is not None or len(head) == PERIOD_FRAMES:
+                    yield from self._release(head)
+        except Exception:
+            yield from self._release(head)  # the frames read before an error are delivered first
+            raise
+        yield from self._release(head)
+
     @abstractmethod
     def frames(self) -> Iterator[Frame]:
         """The bag's frames in order (BagError at the first one tofd cannot use)."""
@@ -100,7 +156,7 @@ class BagSource(FrameSource):
         damage (its bytes may be the zeros standing in for a missing page), not an error."""
         counter = 0
         try:
-            for frame in self.frames():
+            for frame in self._with_sensor(self.frames()):
                 counter = frame.frame_counter + 1
                 yield frame
         except BagError as exc:

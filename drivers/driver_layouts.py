@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from drivers.bag_scan import BagError, Topic
+from drivers.frame import AmplitudeKind
 from drivers.ros_images import IMAGE_TYPES
 
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
@@ -55,6 +56,12 @@ LAYOUTS: tuple[Layout, ...] = (
 )
 """Known drivers; the first whose topics a bag holds is taken (orbbec_camera and azure_kinect_ros_driver publish
 the same relative names and encodings, so which of the two a renamed bag is taken for changes nothing)."""
+
+
+AMPLITUDE_KINDS: dict[str, AmplitudeKind] = {"amplitude": "amplitude", "infrared": "ir",
+                                             "gray value (active brightness)": "active_brightness",
+                                             "intensity": "active_brightness"}
+"""What each layout's amplitude image is, as drivers.frame.SensorInfo names it (named topics: "amplitude")."""
 
 
 def detect_layout(topics: dict[str, Topic]) -> tuple[Layout, dict[str, str | None]] | None:

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from types import MappingProxyType
+from typing import Literal
 
 import numpy as np
 
@@ -52,6 +55,47 @@ class DeviceInfo:
     model: str = "SR3000"
 
 
+AmplitudeKind = Literal["amplitude", "ir", "active_brightness"]
+AMPLITUDE_KINDS: tuple[AmplitudeKind, ...] = ("amplitude", "ir", "active_brightness")
+"""What a frame's amplitude plane is: the modulation amplitude of the returned light (SR3000, pmd), a plain
+infrared image (Azure Kinect, RealSense, Orbbec) or a ToF active-brightness / gray-value image."""
+
+
+@dataclass(frozen=True, slots=True)
+class SensorInfo:
+    """What a source other than the SR3000 knows about its signal and settings, read from its file.
+
+    The SR3000 describes itself with Registers; other cameras have no such register map, so their frames carry
+    this instead (and `Frame.registers` is None).
+    """
+
+    depth_unit_m: float  # metres per raw depth value in the file (1.0: the file holds float metres)
+    amplitude: AmplitudeKind  # what the amplitude plane is
+    invalid_value: int | None = 0  # raw depth value that means no return (None: the file has none)
+    amplitude_full_scale: float | None = None  # largest raw amplitude (255 mono8, 65535 mono16; None: float)
+    unambiguous_range_m: float | None = None  # None: unknown or not stated by the file
+    frame_period_s: float | None = None  # median spacing of the device timestamps, seconds (None: < 2 frames)
+    settings: Mapping[str, str] = field(default_factory=dict)  # the vendor's settings as the file names them
+
+    def __post_init__(self) -> None:
+        if self.amplitude not in AMPLITUDE_KINDS:
+            raise ValueError(f"amplitude: {self.amplitude!r} is not one of {AMPLITUDE_KINDS}")
+        if not (math.isfinite(self.depth_unit_m) and self.depth_unit_m > 0):
+            raise ValueError(f"depth_unit_m: {self.depth_unit_m!r} is not a positive number of metres")
+        if not isinstance(self.settings, Mapping):
+            raise TypeError(f"settings: expected a mapping of names to values, got {type(self.settings).__name__}")
+        object.__setattr__(self, "settings", MappingProxyType({str(k): str(v) for k, v in self.settings.items()}))
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready fields (settings as a plain dict)."""
+        return {f.name: dict(self.settings) if f.name == "settings" else getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, object]) -> SensorInfo:
+        """The SensorInfo of a to_dict() mapping (unknown keys are refused: TypeError)."""
+        return cls(**data)  # type: ignore[arg-type]
+
+
 @dataclass(frozen=True, slots=True)
 class GroundTruth:
     """Labelled nose tip of a frame, when the source knows it (emulator, labelled recordings)."""
@@ -73,8 +117,9 @@ class Frame:
     host_wall_s: float  # time.time() when the host received the frame
     intrinsics: Intrinsics = field(default_factory=Intrinsics)
     device: DeviceInfo = field(default_factory=lambda: DeviceInfo(serial="00000000"))
-    registers: Registers = field(default_factory=Registers)
+    registers: Registers | None = None  # the SR3000's register settings; None: the source has no such registers
     ground_truth: GroundTruth | None = None
+    sensor: SensorInfo | None = None  # signal and settings of a non-SR3000 source, from its file
 
 
 def frame_problem(frame: Frame, shape: tuple[int, int]) -> str | None:

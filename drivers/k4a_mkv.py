@@ -13,7 +13,9 @@ Each capture (a DEPTH and an IR block of one timestamp) becomes a Frame:
   of the first timestamps: dropped captures leave gaps, which are rejected ("damaged: ...") in their place;
 - host times: the recording's creation time (Matroska DateUTC) plus the time since the first frame;
 - device: the serial number tag (else the calibration's SerialId), the depth firmware tag, model "Azure Kinect"
-  or "Orbbec Femto" (from the calibration's DeviceName).
+  or "Orbbec Femto" (from the calibration's DeviceName);
+- sensor (no SR3000 registers): depth in millimetres with 0 invalid, amplitude "ir" (16-bit), the frame period from
+  the timestamps, and the file's K4A_* tags (depth mode, fps, firmware versions, ...) as settings.
 
 A damaged file replays the captures the demuxer still reads and rejects the ones lost, counted from the timestamps
 (and, for a file cut short, from the segment duration the recorder wrote); `stopped_reason` ("end", "truncated" or
@@ -32,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame
+from drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame, SensorInfo
 from drivers.intrinsics import Intrinsics
 from drivers.lens_k4a import depth_lens
 from drivers.source import DriverError, FrameSource
@@ -143,6 +145,10 @@ class K4aRecordingSource(FrameSource):
             calibration.get("CalibrationInformation", {}).get("Metadata", {}).get("SerialId", ""))
         self.device = DeviceInfo(serial=serial, firmware=tags.get("K4A_DEPTH_FIRMWARE_VERSION", ""),
                                  backend="k4a-mkv", model=_device_model(calibration))
+        self.settings = {k: str(v) for k, v in (tags | depth_tags).items() if k.startswith("K4A_")}
+        """The recording's K4A_* tags (container and DEPTH track): the device's settings as recorded."""
+        self.sensor: SensorInfo | None = None
+        """Signal and settings of the frames (known once iteration started: the period needs timestamps)."""
         created = tags.get("CREATION_TIME", "")
         try:
             self._wall0_s = datetime.fromisoformat(created.replace("Z", "+00:00")).timestamp() if created else 0.0
@@ -208,7 +214,7 @@ class K4aRecordingSource(FrameSource):
         return Frame(range_m=range_m, amplitude=np.frombuffer(capture.ir, ">u2").reshape(h, w).astype(np.float32),
                      frame_counter=counter, timestamp_us=capture.timestamp_us,
                      host_monotonic_s=capture.timestamp_us / 1e6, host_wall_s=self._wall0_s + since_s,
-                     intrinsics=self.intrinsics, device=self.device)
+                     intrinsics=self.intrinsics, device=self.device, sensor=self.sensor)
 
     def __iter__(self) -> Iterator[Frame]:
         captures = self._captures()
@@ -217,6 +223,9 @@ class K4aRecordingSource(FrameSource):
             return
         steps = np.diff([c.timestamp_us for c in head])
         self.frame_period_us = float(np.median(steps)) if len(steps) and np.median(steps) > 0 else None
+        self.sensor = SensorInfo(depth_unit_m=1e-3, amplitude="ir", invalid_value=0, amplitude_full_scale=65535.0,
+                                 frame_period_s=None if self.frame_period_us is None else self.frame_period_us / 1e6,
+                                 settings=self.settings)
         t0, last = head[0].timestamp_us, None
         for capture in (*head, *captures):
             counter = 0 if self.frame_period_us is None else round((capture.timestamp_us - t0) / self.frame_period_us)

@@ -12,7 +12,8 @@ A ROS 1 bag (chunks uncompressed or LZ4) written by the SDK's own rosbag writer:
   (OB_PROP_DEPTH_UNIT_FLEXIBLE_ADJUSTMENT_FLOAT, mm) or 75 (OB_PROP_DEPTH_PRECISION_LEVEL_INT).
 Depth is z-depth (0 = no return) in depth units (Image.depth_units when written, else the property, else 1 mm as
 the Femto ToF cameras deliver); it becomes radial range through the undistorted rays. Frames pair depth and
-infrared by device frame number; counters and timestamps are the device's.
+infrared by device frame number; counters and timestamps are the device's. Frames carry no SR3000 registers but
+a SensorInfo: depth unit, infrared amplitude, the stream profile's fps and the recorded properties as settings.
 """
 
 from __future__ import annotations
@@ -162,11 +163,13 @@ class OrbbecSource(BagSource):
         intrinsics = self.intrinsics
         assert intrinsics is not None
         raw = image_plane(image, RANGE_ENCODINGS, self.depth_topic)
-        amplitude = image_plane(ir_image, AMPLITUDE_ENCODINGS, self.ir_topic).astype(np.float32)
+        ir_raw = image_plane(ir_image, AMPLITUDE_ENCODINGS, self.ir_topic)
+        amplitude = ir_raw.astype(np.float32)
         self.check_sizes(f"{self.path}: frame {number}", depth_image=raw.shape, infrared_image=amplitude.shape,
                          stream_profile=intrinsics.shape)
         units_mm = image.depth_units or self._units_mm or 1.0
         self.settings.setdefault("depth_units_mm", units_mm)
+        self.note_signal(raw, ir_raw, units_mm * 1e-3)
         z = depth_metres(raw, units_mm * 1e-3)
         timestamp_us = image.timestamp_usec if image.timestamp_usec is not None else image.header.stamp_ns // 1000
         return Frame(range_m=intrinsics.radial_from_z(z).astype(np.float32), amplitude=amplitude,

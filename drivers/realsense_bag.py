@@ -11,7 +11,8 @@ Two layouts, both under /device_<d>/sensor_<s>/<Stream>_<index>/ with a /file_ve
   timestamp; info/camera_info is a sensor_msgs/CameraInfo (once) whose distortion_model is librealsense's name;
   the sensor's Depth_Units option is on option/Depth_Units/value.
 Depth is z-depth in depth units (0 = no return); it becomes radial range through the undistorted rays. The
-amplitude is the infrared image of the same sensor (the first Infrared stream), paired by frame number.
+amplitude is the infrared image of the same sensor (the first Infrared stream), paired by frame number. Frames
+carry no SR3000 registers but a SensorInfo: depth unit, infrared amplitude, stream infos and options as settings.
 """
 
 from __future__ import annotations
@@ -260,6 +261,7 @@ class RealSenseSource(BagSource):
                          infrared_image=amplitude.shape, calibration=intrinsics.shape)
         units = self._units(depth)
         self.settings.setdefault("depth_units_m", units)
+        self.note_signal(depth.array, infrared.array, units)
         z = depth_metres(depth.array, units)
         return Frame(range_m=intrinsics.radial_from_z(z).astype(np.float32), amplitude=amplitude,
                      frame_counter=depth.number % (1 << 32), timestamp_us=max(0, depth.timestamp_us),

@@ -14,7 +14,9 @@ Range: 32FC1 in metres as it is; 16-bit in device units (SwissRanger) or millime
 (default: the driver's). Radial range (along each pixel's ray, as tofd and the SwissRanger measure) or z-depth,
 converted with the CameraInfo's undistorted unit rays: radial = z / ray_z. Amplitude: as float32 in the
 image's own units. Intrinsics: CameraInfo's K, size and lens (drivers.ros_camera_info: plumb_bob,
-rational_polynomial, equidistant). Any image size works: the intrinsics decide.
+rational_polynomial, equidistant). Any image size works: the intrinsics decide. SwissRanger device units at an
+SR3000 modulation frequency make an SR3000 frame (Registers with that MOD_FREQ); every other bag's frames carry
+no registers but a SensorInfo (depth unit, what the amplitude is, the driver, topics and options as settings).
 """
 
 from __future__ import annotations
@@ -29,7 +31,14 @@ import numpy as np
 
 from drivers.bag_scan import BagError, DamagedMessage, RawMessage
 from drivers.bag_source import BagSource, depth_metres
-from drivers.driver_layouts import CAMERA_INFO_TYPE, Layout, describe_topics, detect_layout, no_layout_error
+from drivers.driver_layouts import (
+    AMPLITUDE_KINDS,
+    CAMERA_INFO_TYPE,
+    Layout,
+    describe_topics,
+    detect_layout,
+    no_layout_error,
+)
 from drivers.frame import DeviceInfo, Frame, Registers
 from drivers.intrinsics import Intrinsics
 from drivers.ros_camera_info import camera_info_intrinsics
@@ -116,11 +125,20 @@ class RosbagSource(BagSource):
             self.bag.close()
             raise
         self.range_messages = self.message_count(self.options.topics["range"])
-        index = protocol.mod_freq_index(round(options.mod_freq_mhz * 1000))
-        self._registers = Registers() if index is None else Registers(mod_freq_index=index)
+        khz = round(options.mod_freq_mhz * 1000)
+        index = protocol.mod_freq_index(khz)
+        device_units = self.options.range_unit == "device"
+        self._registers = Registers(mod_freq_index=index) if device_units and index is not None else None
+        """An SR3000 (SwissRanger device units at one of its frequencies): its MOD_FREQ register, else None."""
+        self.amplitude_kind = AMPLITUDE_KINDS.get(self.options.amplitude, "amplitude")
+        self.unambiguous_range_m = protocol.non_ambiguity_range_m(khz) if device_units else None
+        self._metres_per_unit, self._invalid = ((self.unambiguous_range_m / 65535, protocol.RAW_INVALID)
+                                                if self.unambiguous_range_m else (1e-3, 0))
         self.settings = {"driver": self.options.driver, "topics": self.options.topics,
                          "range_unit": self.options.range_unit, "depth": self.options.depth,
                          "amplitude": self.options.amplitude}
+        if device_units:
+            self.settings["mod_freq_mhz"] = options.mod_freq_mhz
 
     def _resolve(self, options: RangeOptions) -> ResolvedOptions:
         """The bag's topics and encoding: the options over the detected driver's, each topic checked to be in the
@@ -169,10 +187,12 @@ class RosbagSource(BagSource):
         intrinsics = self._check_calibration(camera_info_intrinsics(info, topics["camera_info"]),
                                             topics["camera_info"], f"at stamp {_seconds(info)}")
         range_image = plane(rng, self.bag.topics[topics["range"]].msgtype, RANGE_ENCODINGS, topics["range"])
-        amplitude = plane(amp, self.bag.topics[topics["amplitude"]].msgtype, AMPLITUDE_ENCODINGS,
-                          topics["amplitude"]).astype(np.float32)
+        amplitude_raw = plane(amp, self.bag.topics[topics["amplitude"]].msgtype, AMPLITUDE_ENCODINGS,
+                              topics["amplitude"])
+        amplitude = amplitude_raw.astype(np.float32)
         self.check_sizes(f"stamp {_seconds(rng)}", range_image=range_image.shape, amplitude_image=amplitude.shape,
                          camera_info=intrinsics.shape)
+        self.note_signal(range_image, amplitude_raw, self._metres_per_unit, self._invalid)
         log_ns = raw_range.log_ns
         return Frame(range_m=range_plane(range_image, self.options, intrinsics), amplitude=amplitude,
                      frame_counter=counter, timestamp_us=_stamp(rng) // 1000, host_monotonic_s=log_ns / 1e9,

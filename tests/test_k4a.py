@@ -15,6 +15,8 @@ import pytest
 from drivers.intrinsics import Intrinsics
 from drivers.k4a_mkv import K4aRecordingError, K4aRecordingSource
 from drivers.lens_k4a import DEPTH_MODES, depth_lens
+from drivers.recording.reader import read_recording_info
+from drivers.recording.replay import iter_frames
 from tests.k4a_helpers import CALIBRATION_JSON, K4A, k4a_libraries
 from tests.rrd_helpers import read_entities
 
@@ -110,6 +112,38 @@ def test_recording_gives_radial_range_ir_amplitude_and_the_devices_clock(k4a, tm
         np.testing.assert_allclose(f.range_m[valid], expected[valid], rtol=2e-6, atol=2e-6)
     assert frames[0].device.serial == SERIAL and frames[0].device.model == "Azure Kinect"
     assert frames[1].host_wall_s - frames[0].host_wall_s == pytest.approx(PERIOD_US / 1e6, abs=1e-6)
+
+
+def test_frames_carry_the_recordings_settings_not_sr3000_registers_through_import_and_replay(k4a, tmp_path):
+    """No SR3000 register map: registers None and a SensorInfo from the file (millimetres, 0 invalid, 16-bit IR,
+    the period of the device timestamps, the K4A_* tags); `tofd import` keeps it in the recording's header and
+    in every frame, with the camera's identity."""
+    mode = "WFOV_2X2BINNED"
+    h, w = mode_size(mode)
+    rng = np.random.default_rng(1)
+    depth = [rng.integers(0, 2500, (h, w)).astype(np.uint16) for _ in range(4)]
+    ir = [rng.integers(0, 60000, (h, w)).astype(np.uint16) for _ in range(4)]
+    stamps = [1_000_000 + PERIOD_US * n for n in range(4)]
+    path = record(k4a, tmp_path / "k.mkv", mode, depth, ir, stamps)
+    frames = list(K4aRecordingSource(path))
+    sensor = frames[0].sensor
+    assert sensor is not None and all(f.registers is None and f.sensor == sensor for f in frames)
+    assert (sensor.depth_unit_m, sensor.invalid_value, sensor.amplitude, sensor.amplitude_full_scale) == \
+        (1e-3, 0, "ir", 65535.0)
+    assert sensor.frame_period_s == pytest.approx(PERIOD_US / 1e6) and sensor.unambiguous_range_m is None
+    assert sensor.settings["K4A_DEPTH_MODE"] == mode and sensor.settings["K4A_DEVICE_SERIAL_NUMBER"] == SERIAL
+    assert all(key.startswith("K4A_") for key in sensor.settings)
+    out = tmp_path / "k.mcap"
+    proc = tofd("import", path, out)
+    assert proc.returncode == 0, proc.stderr
+    info = read_recording_info(out)
+    assert (info.registers, info.sensor) == (None, sensor)
+    assert (info.device.model, info.device.serial, info.device.backend) == ("Azure Kinect", SERIAL, "k4a-mkv")
+    replayed = list(iter_frames(out))
+    assert [f.frame_counter for f in replayed] == [f.frame_counter for f in frames]
+    for got, want in zip(replayed, frames, strict=True):
+        assert got.registers is None and got.sensor == sensor and got.device == want.device
+        np.testing.assert_array_equal(got.amplitude, want.amplitude)
 
 
 def test_a_damaged_recording_gives_its_intact_captures_and_ledgers_the_rest(k4a, tmp_path):

@@ -25,6 +25,8 @@ from vendor_bag_helpers import (
 from drivers.bags import open_bag
 from drivers.opener import identify
 from drivers.realsense_bag import RealSenseSource
+from drivers.recording.reader import read_recording_info
+from drivers.recording.replay import iter_frames
 
 VERSIONS = {"db3": ("current", 1e-4), "bag": (LEGACY_VERSION, 5e-4)}
 """File kind -> (pyrealsense2 version, depth unit in metres): units other than 1 mm, so that they must be read."""
@@ -68,6 +70,30 @@ def test_frames_carry_the_device_numbers_times_units_lens_and_identity(recording
     assert np.array_equal(np.isnan(got), np.isnan(np.where(np.rint(np.nan_to_num(z) / units) > 0, z, np.nan)))
     assert np.nanmax(np.abs(got - radial)) <= units  # within the depth unit
     assert np.array_equal(frames[0].amplitude, np.clip(infrared * 1000, 0, 255).astype(np.uint8))
+
+
+def test_frames_carry_the_recordings_settings_not_sr3000_registers_through_import(recording, tmp_path):
+    """No SR3000 register map: registers None and a SensorInfo from the file (its depth unit, 0 invalid, 8-bit
+    infrared, the period of the device timestamps, the streams and options); `tofd import` keeps it in the
+    recording's header and in every frame, with the camera's identity."""
+    kind, path, units = recording
+    with open_bag(path) as source:
+        frames = list(source)
+    sensor = frames[0].sensor
+    assert sensor is not None and all(f.registers is None and f.sensor == sensor for f in frames)
+    assert sensor.depth_unit_m == pytest.approx(units, rel=1e-6)
+    assert (sensor.invalid_value, sensor.amplitude, sensor.amplitude_full_scale) == (0, "ir", 255.0)
+    assert sensor.frame_period_s == pytest.approx(1 / 30, abs=2e-6) and sensor.unambiguous_range_m is None
+    assert sensor.settings["format"].startswith("RealSense SDK") and "depth_stream" in sensor.settings
+    out = tmp_path / "rs.mcap"
+    proc = tofd("import", str(path), str(out))
+    assert proc.returncode == 0, proc.stderr
+    info = read_recording_info(out)
+    assert (info.registers, info.sensor, info.device) == (None, sensor, frames[0].device)
+    assert (info.device.model, info.device.serial) == ("Software RealSense", "0123456789")
+    replayed = list(iter_frames(out))
+    assert [f.frame_counter for f in replayed] == [f.frame_counter for f in frames]
+    assert all(f.registers is None and f.sensor == sensor for f in replayed)
 
 
 @pytest.mark.slow

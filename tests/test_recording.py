@@ -11,9 +11,11 @@ import time
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+from test_cli import CLIP
 
 import tofd
-from drivers.frame import Registers
+from drivers.frame import Registers, SensorInfo
 from drivers.intrinsics import Intrinsics
 from drivers.recording import format as fmt
 from drivers.recording.reader import read_recording_info
@@ -74,6 +76,48 @@ def test_header_describes_recording(tmp_path):
     assert info.intrinsics == Intrinsics()
     assert info.config == {"camera": {"serial": DEVICE.serial}}
     assert info.frame_count == 3
+
+
+def test_a_camera_without_sr3000_registers_keeps_its_sensor_info_and_writes_no_registers(tmp_path):
+    """Another camera's frames (registers None, a SensorInfo) come back the same, the header and the standard
+    protobuf decoder see the sensor info; an SR3000 recording and the bundled clip have registers and no sensor."""
+    sensor = SensorInfo(depth_unit_m=1e-3, amplitude="ir", amplitude_full_scale=65535.0, frame_period_s=1 / 30,
+                        settings={"K4A_DEPTH_MODE": "NFOV_UNBINNED", "K4A_FPS": "FPS_30"})
+    frames = [dataclasses.replace(make_frame(c, quantized=False), registers=None, sensor=sensor) for c in range(3)]
+    path = tmp_path / "k.mcap"
+    with RecordingWriter(path) as writer:
+        for frame in frames:
+            writer.write(frame)
+    for a, b in zip(frames, iter_frames(path), strict=True):
+        assert_frames_equal(a, b)
+        assert b.registers is None and b.sensor == sensor and b.sensor.settings["K4A_DEPTH_MODE"] == "NFOV_UNBINNED"
+    info = read_recording_info(path)
+    assert (info.registers, info.sensor, info.device) == (None, sensor, DEVICE)
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
+        assert fmt.META_REGISTERS not in {m.name for m in reader.iter_metadata()}
+        headers = [m for _, c, _, m in reader.iter_decoded_messages() if c.topic == "/camera/frame"]
+    assert len(headers) == 3 and not headers[0].HasField("registers")
+    assert {s.key: s.value for s in headers[0].sensor.settings} == dict(sensor.settings)
+    assert not headers[0].sensor.HasField("unambiguous_range_m")  # unknown stays unknown
+    sr3000 = tmp_path / "sr.mcap"
+    write_recording(sr3000, range(2))
+    assert read_recording_info(sr3000).sensor is None and next(iter_frames(sr3000)).sensor is None
+    clip = read_recording_info(CLIP)  # written before SensorInfo existed
+    assert clip.sensor is None and clip.registers == Registers()
+    first = next(iter_frames(CLIP))
+    assert first.sensor is None and first.registers == Registers()
+
+
+def test_sensor_info_names_a_bad_field_and_bad_metadata_is_a_format_error():
+    with pytest.raises(ValueError, match="amplitude: 'colour'"):
+        SensorInfo(1e-3, "colour")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="depth_unit_m"):
+        SensorInfo(0.0, "ir")
+    sealed = fmt.sensor_metadata(SensorInfo(1e-3, "active_brightness", settings={"mode": "5"}))
+    assert fmt.sensor_from_metadata(fmt.check_metadata("s", sealed)).settings == {"mode": "5"}
+    with pytest.raises(fmt.FormatError, match="SensorInfo.*settings"):
+        fmt.sensor_from_metadata({"depth_unit_m": "0.001", "amplitude": '"ir"', "settings": "[1]"})
 
 
 def test_file_is_standard_mcap_readable_by_the_mcap_library(tmp_path):

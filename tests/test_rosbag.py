@@ -29,9 +29,11 @@ from rosbag_helpers import (
 from rrd_helpers import check_rrd, image_at
 from test_cli import CLIP, HANG_GUARD_S, one_line_error, tofd
 
+from drivers.driver_layouts import LAYOUTS
 from drivers.emulator.render import Pose, load_face, render_face
 from drivers.frame import Frame
 from drivers.intrinsics import Intrinsics
+from drivers.recording.reader import read_recording_info
 from drivers.recording.replay import iter_frames
 from drivers.rosbag import BagError, RangeOptions, RosbagSource
 from tofd.service.viewer import blueprint as bp
@@ -58,7 +60,12 @@ def test_every_bag_kind_and_encoding_gives_the_frames_back(tmp_path, clip_frames
     assert len(got) == len(frames) and counters == {}
     for n, (g, f) in enumerate(zip(got, frames, strict=True)):
         assert g.frame_counter == n and g.timestamp_us == f.timestamp_us
-        assert g.intrinsics == f.intrinsics and g.registers.mod_freq_hz == 20e6
+        assert g.intrinsics == f.intrinsics
+        if unit == "device":  # the SwissRanger's device units at an SR3000 frequency: an SR3000 frame
+            assert g.registers is not None and g.registers.mod_freq_hz == 20e6 and g.sensor is None
+        else:  # millimetres: no SR3000 registers, the signal as the bag says
+            assert g.registers is None and g.sensor is not None and g.sensor.amplitude == "amplitude"
+            assert (g.sensor.depth_unit_m, g.sensor.invalid_value) == (1e-3, 0)
         assert np.array_equal(g.amplitude, f.amplitude) and g.amplitude.dtype == np.float32
         assert g.range_m.dtype == np.float32 and np.array_equal(np.isnan(g.range_m), np.isnan(f.range_m))
         if unit == "device":  # 32FC1 and the SwissRanger's own device units: bit for bit
@@ -127,6 +134,42 @@ def test_an_imported_bag_replays_and_finds_the_nose_like_the_emulated_recording(
     assert [r["nose_px"] for r in imported] == [r["nose_px"] for r in emulated] == [r["nose_px"] for r in direct]
     truth = [f.ground_truth.nose_px for f in clip_frames]  # type: ignore[union-attr]
     assert all(math.dist(r["nose_px"], t) <= 5 for r, t in zip(imported, truth, strict=True))
+
+
+def test_a_ros2_driver_bag_has_no_sr3000_registers_but_its_signal_settings_and_driver(tmp_path, clip_frames):
+    """An orbbec_camera bag (z-depth 16UC1 mm, mono16 infrared): frames with registers None and a SensorInfo from
+    the bag (unit, invalid value, infrared, its full scale, the period of the header stamps, the driver and
+    topics); imported to a tofd recording and replayed, they come back the same."""
+    layout = next(layout for layout in LAYOUTS if layout.driver == "orbbec_camera")
+    ts = typestore("sqlite3")
+    messages = []
+    for f in clip_frames:
+        stamp = f.timestamp_us * 1000
+        messages += [(layout.topics["range"], image(ts, range_image(f, "16UC1", "mm", "z"), "16UC1", stamp)),
+                     (layout.topics["amplitude"], image(ts, f.amplitude.astype(np.uint16), "mono16", stamp)),
+                     (layout.topics["camera_info"], camera_info(ts, f, stamp))]
+    bag = write_bag(bag_path(tmp_path, "sqlite3", "orbbec"), "sqlite3", messages)
+    frames, counters = read_bag(bag)
+    assert len(frames) == N_FRAMES and counters == {}
+    sensor = frames[0].sensor
+    assert sensor is not None and all(f.registers is None and f.sensor == sensor for f in frames)
+    period_us = np.median(np.diff([f.timestamp_us for f in clip_frames]))
+    assert (sensor.depth_unit_m, sensor.invalid_value, sensor.amplitude, sensor.amplitude_full_scale) == \
+        (1e-3, 0, "ir", 65535.0)
+    assert sensor.frame_period_s == pytest.approx(period_us / 1e6) and sensor.unambiguous_range_m is None
+    assert sensor.settings["driver"] == "orbbec_camera" and sensor.settings["range_unit"] == "mm"
+    assert json.loads(sensor.settings["topics"])["range"] == layout.topics["range"]
+    assert frames[0].device.model == "orbbec_camera"
+    out = tmp_path / "imported.mcap"
+    proc = tofd("import", str(bag), str(out))
+    assert proc.returncode == 0, proc.stderr
+    info = read_recording_info(out)
+    assert (info.registers, info.sensor, info.device) == (None, sensor, frames[0].device)
+    replayed = list(iter_frames(out))
+    assert len(replayed) == N_FRAMES
+    for got, want in zip(replayed, frames, strict=True):
+        assert got.registers is None and got.sensor == sensor and got.device == want.device
+        assert np.array_equal(got.range_m.view(np.uint32), want.range_m.view(np.uint32))
 
 
 def test_a_bag_of_another_frame_size_goes_through_the_whole_pipeline(tmp_path):

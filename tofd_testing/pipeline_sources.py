@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.emulator.render import Pose, load_face, render_face
-from drivers.frame import DeviceInfo, Frame, GroundTruth
+from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
 from tofd.config import Config, load_config
@@ -53,7 +53,8 @@ class RenderedSource(FrameSource):
             self.emitted.append(counter)
             yield Frame(range_m.copy(), amplitude.copy(), counter, timestamp_us=counter * 33_333,
                         host_monotonic_s=time.monotonic(), host_wall_s=time.time(), intrinsics=self.intrinsics,
-                        device=DeviceInfo("0000BEEF", backend="emulated"), ground_truth=GroundTruth(nose))
+                        device=DeviceInfo("0000BEEF", backend="emulated"), registers=Registers(),
+                        ground_truth=GroundTruth(nose))
 
 
 def write_test_model(path: Path, cfg: Config) -> Path:

@@ -71,7 +71,7 @@ def assert_frames_equal(a: Frame, b: Frame) -> None:
         assert pb.dtype == np.float32 and pb.shape == pa.shape, name
         assert np.array_equal(pa.view(np.uint32), pb.view(np.uint32)), name
     for name in ("frame_counter", "timestamp_us", "host_monotonic_s", "host_wall_s", "intrinsics", "device",
-                 "registers", "ground_truth"):
+                 "registers", "ground_truth", "sensor"):
         assert getattr(a, name) == getattr(b, name), name
 
 

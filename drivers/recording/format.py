@@ -8,10 +8,11 @@ A recording is an MCAP file (https://mcap.dev) with profile "tofd":
 
 - Metadata "tofd.recording" (format version, software version, creation time), an attachment "config.json"
   (the service configuration), then the SCHEMAS and CHANNELS records (fixed ids), then, before the first
-  frame, metadata "tofd.intrinsics", "tofd.device" and "tofd.registers" (every metadata map sealed with a CRC).
+  frame, metadata "tofd.intrinsics", "tofd.device" and "tofd.registers" (an SR3000 source) or "tofd.sensor" (any
+  other camera: its signal and settings, drivers.frame.SensorInfo) (every metadata map sealed with a CRC).
 - One zstd-compressed, CRC-32-checked chunk per frame holding its messages in channel order:
-  /camera/frame (tofd.FrameHeader: counter, device and host times, intrinsics, device, registers, ground truth,
-  plane codecs), /camera/range and /camera/amplitude (foxglove.RawImage, frame_id IMAGE_FRAME_ID) and
+  /camera/frame (tofd.FrameHeader: counter, device and host times, intrinsics, device, registers or sensor,
+  ground truth, plane codecs), /camera/range and /camera/amplitude (foxglove.RawImage, frame_id IMAGE_FRAME_ID) and
   /camera/calibration (foxglove.CameraCalibration). Every message: log_time = host wall clock (ns),
   publish_time = device timestamp (ns), sequence = frame counter (mod 2**32).
 - Planes are stored losslessly: "16UC1" with the header's scale and invalid raw value when the plane is exactly
@@ -30,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
+from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers, SensorInfo
 from drivers.intrinsics import Intrinsics
 from drivers.recording import schemas
 from drivers.usb import protocol as p
@@ -41,6 +42,7 @@ META_RECORDING = "tofd.recording"
 META_INTRINSICS = "tofd.intrinsics"
 META_DEVICE = "tofd.device"
 META_REGISTERS = "tofd.registers"
+META_SENSOR = "tofd.sensor"
 CONFIG_ATTACHMENT = "config.json"
 METADATA_CRC_KEY = "crc32"
 MESSAGE_ENCODING = "protobuf"
@@ -82,9 +84,12 @@ def channel_role(topic: str, message_encoding: str) -> str | None:
     return next((c.role for c in CHANNELS if c.topic == topic), None)
 
 
-def range_scales_m(registers: Registers) -> tuple[float, ...]:
+def range_scales_m(registers: Registers | None) -> tuple[float, ...]:
     """Candidate metres per raw distance unit at the frame's modulation frequency (raw/65535 * c/(2 f)):
-    rounded to float32 as the USB backend multiplies (drivers.usb.protocol.raw_to_range_m), and exact."""
+    rounded to float32 as the USB backend multiplies (drivers.usb.protocol.raw_to_range_m), and exact; none
+    without SR3000 registers (such a range plane is stored as float32)."""
+    if registers is None:
+        return ()
     scale = p.non_ambiguity_range_m(p.mod_freq_khz(registers.mod_freq_index)) / 65535.0
     return float(np.float32(scale)), scale
 
@@ -139,8 +144,10 @@ def _header(frame: Frame, codecs: dict[str, tuple[float, int | None]]) -> bytes:
         raise ValueError(f"frame counter {frame.frame_counter!r} or timestamp {frame.timestamp_us!r} us is not "
                          f"a 64-bit integer: {exc}") from None
     msg.host_monotonic_s, msg.host_wall_s = frame.host_monotonic_s, frame.host_wall_s
-    for name, fields in (("intrinsics", frame.intrinsics.to_dict()), ("device", dataclasses.asdict(frame.device)),
-                         ("registers", dataclasses.asdict(frame.registers))):
+    parts = [("intrinsics", frame.intrinsics.to_dict()), ("device", dataclasses.asdict(frame.device))]
+    if frame.registers is not None:
+        parts.append(("registers", dataclasses.asdict(frame.registers)))
+    for name, fields in parts:
         getattr(msg, name).SetInParent()
         for key, value in fields.items():
             if isinstance(value, list):
@@ -153,6 +160,14 @@ def _header(frame: Frame, codecs: dict[str, tuple[float, int | None]]) -> bytes:
         if gt.nose_xyz_m is not None:
             xyz = msg.ground_truth.nose_xyz_m
             xyz.x, xyz.y, xyz.z = gt.nose_xyz_m
+    if (sensor := frame.sensor) is not None:
+        msg.sensor.SetInParent()
+        for key, value in sensor.to_dict().items():
+            if key == "settings":
+                for k, v in sorted(sensor.settings.items()):
+                    msg.sensor.settings.add(key=k, value=v)
+            elif value is not None:
+                setattr(msg.sensor, key, value)
     for name, (scale, invalid) in codecs.items():
         codec = getattr(msg, "range" if name == "range_m" else name)
         codec.scale = scale
@@ -222,6 +237,7 @@ def decode_frame(header_data: bytes, range_data: bytes, amplitude_data: bytes) -
             gt = GroundTruth(nose_px=(g.nose_u, g.nose_v), visible=g.visible, nose_xyz_m=xyz)
         fields = {name: {f.name: getattr(getattr(h, name), f.name) for f in getattr(h, name).DESCRIPTOR.fields}
                   for name in ("device", "registers")}
+        registers = Registers(**fields["registers"]) if h.HasField("registers") else None
         # the fields present: headers written before lens models have none of the distortion fields (a pinhole)
         intrinsics = Intrinsics.from_dict({f.name: v if isinstance(v, (str, int, float)) else list(v)
                                            for f, v in h.intrinsics.ListFields()})
@@ -230,12 +246,19 @@ def decode_frame(header_data: bytes, range_data: bytes, amplitude_data: bytes) -
             amplitude=_plane(amplitude_data, h.amplitude, intrinsics.shape, "amplitude"),
             frame_counter=h.frame_counter, timestamp_us=h.timestamp_us,
             host_monotonic_s=h.host_monotonic_s, host_wall_s=h.host_wall_s,
-            intrinsics=intrinsics, device=DeviceInfo(**fields["device"]), registers=Registers(**fields["registers"]),
-            ground_truth=gt)
+            intrinsics=intrinsics, device=DeviceInfo(**fields["device"]), registers=registers,
+            ground_truth=gt, sensor=_sensor(h.sensor) if h.HasField("sensor") else None)
     except FormatError:
         raise
     except Exception as exc:  # noqa: BLE001 (protobuf's DecodeError, bad shapes: all mean a malformed frame)
         raise FormatError(f"frame messages do not decode: {type(exc).__name__}: {exc}") from None
+
+
+def _sensor(msg: typing.Any) -> SensorInfo:
+    """The SensorInfo of a tofd.Sensor message (absent optional fields: None)."""
+    return SensorInfo.from_dict({f.name: {s.key: s.value for s in msg.settings} if f.name == "settings" else
+                                 getattr(msg, f.name) if msg.HasField(f.name) else None
+                                 for f in msg.DESCRIPTOR.fields})
 
 
 def _metadata_crc(data: dict[str, str]) -> str:
@@ -262,6 +285,19 @@ def to_metadata(obj: typing.Any) -> dict[str, str]:
     """A dataclass as a sealed MCAP metadata map (every value a string; floats in repr, exact; tuples as JSON)."""
     return seal_metadata({f.name: repr(v) if isinstance(v, float) else json.dumps(v) if isinstance(v, tuple)
                           else str(v) for f in dataclasses.fields(obj) for v in [getattr(obj, f.name)]})
+
+
+def sensor_metadata(sensor: SensorInfo) -> dict[str, str]:
+    """A SensorInfo as a sealed MCAP metadata map: each field as JSON (settings a JSON object)."""
+    return seal_metadata({key: json.dumps(value) for key, value in sensor.to_dict().items()})
+
+
+def sensor_from_metadata(data: dict[str, str]) -> SensorInfo:
+    """The SensorInfo a sensor_metadata map stands for."""
+    try:
+        return SensorInfo.from_dict({key: json.loads(value) for key, value in data.items()})
+    except (TypeError, ValueError) as exc:
+        raise FormatError(f"metadata for SensorInfo does not decode: {exc}") from None
 
 
 def from_metadata(cls: type, data: dict[str, str]) -> object:

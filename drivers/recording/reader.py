@@ -30,7 +30,7 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Message, Metadata, Schema, Statistics
 from mcap.writer import MCAP0_MAGIC
 
-from drivers.frame import DeviceInfo, Frame, Registers
+from drivers.frame import DeviceInfo, Frame, Registers, SensorInfo
 from drivers.intrinsics import Intrinsics
 from drivers.recording import bounds, format_v1
 from drivers.recording import format as fmt
@@ -143,9 +143,10 @@ class RecordingInfo:
     created_wall_s: float
     intrinsics: Intrinsics | None  # None when the recording holds no frame
     device: DeviceInfo | None
-    registers: Registers | None
+    registers: Registers | None  # None: no frame, or a camera without SR3000 registers (see sensor)
     config: dict | None  # the service config it was made with (attachment config.json)
     frame_count: int | None  # from MCAP's statistics; None when the writer did not finish (crash)
+    sensor: SensorInfo | None = None  # a non-SR3000 camera's signal and settings (None: SR3000, or no frame)
 
 
 @dataclass(frozen=True, slots=True)
@@ -432,6 +433,7 @@ def _info_from(reader: RecordingReader) -> RecordingInfo:
         registers=meta(Registers, fmt.META_REGISTERS),  # type: ignore[arg-type]
         config=None if config_bytes is None else json.loads(config_bytes),
         frame_count=reader.frame_count(),
+        sensor=None if (sensor := reader.metadata.get(fmt.META_SENSOR)) is None else fmt.sensor_from_metadata(sensor),
     )
 
 
@@ -442,8 +444,8 @@ def read_recording_info(path: str | Path) -> RecordingInfo:
 
 
 def recording_info(reader: RecordingReader) -> RecordingInfo:
-    """The header of a recording: software version, intrinsics, device, registers, config, frame count; read
-    with `reader` (at the start of a pass), which then goes on from its first frame.
+    """The header of a recording: software version, intrinsics, device, registers or sensor info, config, frame
+    count; read with `reader` (at the start of a pass), which then goes on from its first frame.
 
     Raises DriverError if the file is not a tofd recording, its header records are damaged (a metadata CRC
     fails, a size is out of bounds, or a record before the first frame is unreadable) or its intrinsics metadata
@@ -451,8 +453,10 @@ def recording_info(reader: RecordingReader) -> RecordingInfo:
     header.
     """
     first = reader.read_header()
-    header = (fmt.META_RECORDING, fmt.META_INTRINSICS, fmt.META_DEVICE, fmt.META_REGISTERS)
-    if (reader.damage or reader.reason == "corrupt") and not all(name in reader.metadata for name in header):
+    header = (fmt.META_RECORDING, fmt.META_INTRINSICS, fmt.META_DEVICE)
+    camera = (fmt.META_REGISTERS, fmt.META_SENSOR)  # an SR3000's registers or another camera's sensor info
+    if (reader.damage or reader.reason == "corrupt") and not (
+            all(name in reader.metadata for name in header) and any(name in reader.metadata for name in camera)):
         detail = reader.damage[0].detail if reader.damage else reader.detail
         raise DriverError(f"{reader.path}: damaged recording header: {detail}")
     try:

@@ -10,12 +10,24 @@ tofd.FrameHeader (proto2, built here rather than from a .proto so that no protoc
       optional Intrinsics intrinsics = 5;    // width, height (pixels), fx, fy, cx, cy (pixels), distortion_model
                                              // (absent: "none"), repeated double distortion (CameraInfo's D)
       optional Device device = 6;            // serial, firmware, backend, model
-      optional Registers registers = 7;      // int_time_code, mod_freq_index, acq_mode, data_source, amp_threshold
+      optional Registers registers = 7;      // int_time_code, mod_freq_index, acq_mode, data_source,
+                                             // amp_threshold; absent: no SR3000 register map (see sensor)
       optional GroundTruth ground_truth = 8; // absent: no ground truth; nose_u, nose_v (pixels), visible,
                                              // nose_xyz_m (camera frame, metres; absent: unknown)
       optional PlaneCodec range = 9;         // how /camera/range's pixels give range_m
       optional PlaneCodec amplitude = 10;    // how /camera/amplitude's pixels give amplitude
+      optional Sensor sensor = 11;           // absent: an SR3000 frame (registers) or a file written before it
     }
+    message Sensor {  // drivers.frame.SensorInfo: a non-SR3000 source's signal and settings (registers absent)
+      optional double depth_unit_m = 1;     // metres per raw depth value in the source file
+      optional string amplitude = 2;        // "amplitude", "ir" or "active_brightness"
+      optional int64 invalid_value = 3;     // absent: none
+      optional double amplitude_full_scale = 4;  // absent: float amplitude
+      optional double unambiguous_range_m = 5;   // absent: unknown
+      optional double frame_period_s = 6;        // absent: unknown
+      repeated Setting settings = 7;        // the vendor's settings, key -> value, as the file names them
+    }
+    message Setting { optional string key = 1; optional string value = 2; }
     message PlaneCodec {  // 16UC1 image: value = float32(float64(raw) * scale), raw == invalid -> NaN;
       optional double scale = 1;            // 32FC1 image: the float32 values themselves
       optional uint32 invalid = 2;
@@ -44,10 +56,14 @@ _MESSAGES: dict[str, list[tuple[str, str]]] = {  # message -> fields (name, type
     "Point3": [("x", "double"), ("y", "double"), ("z", "double")],
     "GroundTruth": [("nose_u", "double"), ("nose_v", "double"), ("visible", "bool"), ("nose_xyz_m", "Point3")],
     "PlaneCodec": [("scale", "double"), ("invalid", "uint32")],
+    "Setting": [("key", "string"), ("value", "string")],
+    "Sensor": [("depth_unit_m", "double"), ("amplitude", "string"), ("invalid_value", "int64"),
+               ("amplitude_full_scale", "double"), ("unambiguous_range_m", "double"), ("frame_period_s", "double"),
+               ("settings", "Setting*")],
     "FrameHeader": [("frame_counter", "int64"), ("timestamp_us", "int64"), ("host_monotonic_s", "double"),
                     ("host_wall_s", "double"), ("intrinsics", "Intrinsics"), ("device", "Device"),
                     ("registers", "Registers"), ("ground_truth", "GroundTruth"), ("range", "PlaneCodec"),
-                    ("amplitude", "PlaneCodec")],
+                    ("amplitude", "PlaneCodec"), ("sensor", "Sensor")],
 }
 PACKAGE = "tofd"
 REPEATED = "*"

@@ -37,9 +37,10 @@ class RecordingWriter:
     """Append Frames to an MCAP recording at `path` (created or overwritten).
 
     `config` (a JSON-serialisable mapping, e.g. the service config as a dict) is stored as the attachment
-    "config.json". The camera's intrinsics, device identity and registers are stored as metadata from the
-    first frame. close() (or leaving the `with` block) writes MCAP's summary and footer; a recording that
-    was never closed still replays (the reader reports it as truncated after its last complete frame).
+    "config.json". The camera's intrinsics, device identity and registers (SR3000) or sensor info (other cameras)
+    are stored as metadata from the first frame. close() (or leaving the `with` block) writes MCAP's summary and
+    footer; a recording that was never closed still replays (the reader reports it as truncated after its last
+    complete frame).
     """
 
     def __init__(self, path: str | Path, *, config: Mapping | None = None,
@@ -83,7 +84,10 @@ class RecordingWriter:
         if self.frames_written == 0:
             self._writer.add_metadata(fmt.META_INTRINSICS, fmt.to_metadata(frame.intrinsics))
             self._writer.add_metadata(fmt.META_DEVICE, fmt.to_metadata(frame.device))
-            self._writer.add_metadata(fmt.META_REGISTERS, fmt.to_metadata(frame.registers))
+            if frame.registers is not None:
+                self._writer.add_metadata(fmt.META_REGISTERS, fmt.to_metadata(frame.registers))
+            if frame.sensor is not None:
+                self._writer.add_metadata(fmt.META_SENSOR, fmt.sensor_metadata(frame.sensor))
         self._writer.write_chunk([
             Message(channel_id=channel.id, log_time=log_time, publish_time=publish_time, sequence=sequence, data=data)
             for channel, data in zip(fmt.CHANNELS, messages, strict=True)])
