@@ -16,16 +16,20 @@ ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
 
 
+def _results_lines(out: Path) -> int:
+    """Lines of the results file being written in `out` (under its temp name until the run finishes)."""
+    return max((p.read_text().count("\n") for p in out.glob("*results.jsonl*")), default=0)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_an_interrupted_replay_says_so_and_exits_128_plus_the_signal(tmp_path, sig, code):
     proc = subprocess.Popen([sys.executable, "-m", "tofd", "replay", CLIP, "--loop", "--rerun", "none", "--out",
                              tmp_path, "--config", write_config(tmp_path)], cwd=ROOT, stderr=subprocess.PIPE,
                             text=True, env={**os.environ, "RUST_LOG": "error"})
-    results = tmp_path / "emulated_face_035_070.results.jsonl"
     try:
         deadline = time.monotonic() + 120
-        while (not results.exists() or results.read_text().count("\n") < 5) and time.monotonic() < deadline:
+        while _results_lines(tmp_path) < 5 and time.monotonic() < deadline:
             time.sleep(0.2)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
