@@ -181,7 +181,7 @@ def test_metrics_report_the_track_of_a_live_run(tmp_path):
     assert metric_values(text, "tofd_track_confidence")[""] > 0.9
     tips = metric_values(text, "tofd_nose_tip_frames_total")[""]
     assert 0.8 * detected <= tips <= detected  # the accepted pixel refined to a sub-pixel tip in most frames
-    assert 0.3 < metric_values(text, "tofd_nose_tip_m")['{axis="z"}'] < 0.8
+    assert 0.3 < metric_values(text, "tofd_nose_tip_meters")['{axis="z"}'] < 0.8
     assert "# TYPE tofd_track_lost_total counter" in text
 
 

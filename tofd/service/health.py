@@ -128,7 +128,7 @@ def _track_metrics(track: TrackSnapshot) -> Iterator[Metric]:
               track.detected_frames)
     yield one(CounterMetricFamily, "tofd_nose_tip_frames", "Frames whose accepted detection was refined to a "
               "sub-pixel nose tip.", track.tip_frames)
-    tip = GaugeMetricFamily("tofd_nose_tip_m", "The last refined nose tip, camera frame, metres.", labels=["axis"])
+    tip = GaugeMetricFamily("tofd_nose_tip_meters", "The last refined nose tip, camera frame, metres.", labels=["axis"])
     for axis, value in zip("xyz", track.tip_xyz_m or (), strict=False):
         tip.add_metric([axis], float(value))
     yield tip
