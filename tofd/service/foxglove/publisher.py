@@ -139,12 +139,13 @@ class FoxglovePublisher:
 
     @staticmethod
     def _nose(r: FrameResult, stamp: Timestamp) -> ImageAnnotations:
-        """The detected nose tip as a point (Foxglove's pixel origin: the top-left pixel's corner); none: empty.
+        """The detected nose as a point: its refined tip, else the accepted pixel, as the Rerun viewer shows it
+        (Foxglove's pixel origin: the top-left pixel's corner); none: empty.
         Metadata "frame_counter": the device's frame counter, as in the results file."""
         det, meta = r.detection, [KeyValuePair(key="frame_counter", value=str(r.frame.frame_counter))]
-        if det is None or det.nose_px is None:
+        if det is None or det.answer_px is None:
             return ImageAnnotations(timestamp=stamp, metadata=meta)
-        u, v = corner_origin(det.nose_px)
+        u, v = corner_origin(det.answer_px)
         return ImageAnnotations(timestamp=stamp, metadata=meta, points=[PointsAnnotation(
             timestamp=stamp, type=PointsAnnotationType.Points, points=[Point2(x=u, y=v)], outline_color=NOSE_COLOR,
             fill_color=NOSE_COLOR, thickness=NOSE_POINT_PX)])
