@@ -20,6 +20,7 @@ MODULE_EXTRAS: dict[str, str | None] = {
     "distributed": "batch",
     "pyarrow": "batch",
     "rosbags": "rosbag",
+    "lz4": "rosbag",
     "tqdm": None,  # in several extras: the command's
     "matplotlib": None,
     "fsspec": None,
