@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 
 @dataclass(frozen=True, slots=True)
-class InputFormat:
+class InputDescription:
     """What kind of file an input is: a one-line description and its format version ("" where it has none)."""
 
     kind: str  # e.g. "tofd recording (MCAP)", "ROS 2 bag"
@@ -37,7 +37,7 @@ class InputSummary:
     """An input read to its end: frame count, device-clock span, camera, intrinsics, damage."""
 
     path: Path
-    format: InputFormat
+    format: InputDescription
     frames: int = 0
     first_counter: int | None = None
     last_counter: int | None = None
@@ -85,7 +85,7 @@ class InputSummary:
                 "damage": {"rejected": dict(self.rejected), "stopped": self.stopped or None}}
 
 
-def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[FrameSource, InputFormat]:
+def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[FrameSource, InputDescription]:
     """A lossless FrameSource on `path` and its format, recognised by drivers.opener (`bag_options`: a ROS bag's
     topics and range encoding); DriverError (or OSError) when it cannot be read."""
     from drivers.opener import identify
@@ -100,19 +100,19 @@ def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[Fra
 
         source = open_bag(path, bag_options)
         if fmt.name != "rosbag":  # a vendor SDK's recording
-            return source, InputFormat(fmt.description, "")
+            return source, InputDescription(fmt.description, "")
         kind = "ROS 1 bag" if path.suffix == ".bag" else "ROS 2 bag"
         storage = "mcap" if path.suffix == ".mcap" or any(path.glob("*.mcap")) else "sqlite3"
-        return source, InputFormat(kind, "", () if kind == "ROS 1 bag" else (("storage", storage),))
+        return source, InputDescription(kind, "", () if kind == "ROS 1 bag" else (("storage", storage),))
     if fmt.read_as == "source" and fmt.open is not None:
-        return fmt.open(path), InputFormat(fmt.description, "")
+        return fmt.open(path), InputDescription(fmt.description, "")
     from drivers.recording.reader import read_recording_info
     from drivers.recording.replay import ReplaySource
 
     info = read_recording_info(path)
     created = datetime.fromtimestamp(info.created_wall_s, UTC).strftime("%Y-%m-%d %H:%M:%S UTC") \
         if math.isfinite(info.created_wall_s) else "unknown"
-    return ReplaySource(path), InputFormat("tofd recording (MCAP)", str(info.format_version),
+    return ReplaySource(path), InputDescription("tofd recording (MCAP)", str(info.format_version),
                                            (("written by", f"tofd {info.software_version}"), ("created", created)))
 
 
