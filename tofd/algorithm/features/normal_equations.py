@@ -32,9 +32,8 @@ import functools
 from dataclasses import dataclass
 from types import ModuleType
 
+import ducc0
 import numpy as np
-
-from tofd.algorithm.features import pocketfft
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,8 +81,8 @@ class DampedNormalEquations:
     """A^H A (product) and lambda (added in CG's step) for one frame's points, from K on the 2N x 2N grid (finufft
     type 1, modeord=1).
 
-    The FFTs call scipy's pocketfft engine directly (tofd.algorithm.features.pocketfft): it writes into given
-    arrays and skips scipy.fft's per-call dispatch.
+    The FFTs are ducc0's (one thread): it writes into given arrays, vectorises the transforms along a strided
+    axis, and has no per-call dispatch of scipy.fft.
     """
 
     def __init__(self, kernel: np.ndarray, lam: float, n: int, real: type[np.floating],
@@ -95,8 +94,8 @@ class DampedNormalEquations:
         half[n, :] = 0  # the unpaired -N row and column never enter (A^H A f)_k for |k| < N/2
         half[:, n] = 0
         # the inverse transform's 1 / (2N)^2 (inorm=2), which product's transforms leave out, is folded in here
-        self._circulant = pocketfft.c2r(half, axes=(0, 1), last_size=2 * n, out=np.empty((2 * n, 2 * n), real),
-                                        scale=2)
+        self._circulant = ducc0.fft.c2r(half, axes=(0, 1), lastsize=2 * n, forward=False, inorm=2,
+                                        out=np.empty((2 * n, 2 * n), real))
         self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
 
     def embed(self, half: np.ndarray) -> np.ndarray:
@@ -126,11 +125,11 @@ class DampedNormalEquations:
         """out = A^H A v for embedded halves v (V, 2N, N/2) (out's rows without data: left over, not zero)."""
         h, size = self._h, self._size
         spectra, fields, forward = self._buffers_for(len(v))
-        pocketfft.c2c(v, axes=(1,), forward=False, out=spectra[:, :, :h])  # along ky, only the columns with data
-        pocketfft.c2r(spectra, axes=(2,), last_size=size, out=fields)
+        ducc0.fft.c2c(v, axes=(1,), forward=False, out=spectra[:, :, :h])  # along ky, only the columns with data
+        ducc0.fft.c2r(spectra, axes=(2,), lastsize=size, forward=False, out=fields)
         fields *= self._circulant
-        pocketfft.r2c(fields, axes=(2,), out=forward)
-        return pocketfft.c2c(forward[:, :, :h], axes=(1,), forward=True, out=out)  # along ky, only the columns kept
+        ducc0.fft.r2c(fields, axes=(2,), forward=True, out=forward)
+        return ducc0.fft.c2c(forward[:, :, :h], axes=(1,), forward=True, out=out)  # along ky, only the columns kept
 
 
 def _as_reals(*arrays: np.ndarray) -> list[np.ndarray]:
