@@ -11,7 +11,8 @@ converged eps0 is at least a tenth of its peak (the pixels a detector box can ac
 time at 176x144 (issue 33; issue 19's was 4). The NFFT CPU time is split into its stages: points (back-projection
 into the patch) and map writing, type 1 (the finufft type-1 NUFFT onto the 2N grid giving the Toeplitz kernel and
 A^H z), CG (the conjugate-gradient solve; also per iteration: one Toeplitz product, a real FFT pair of size 2N, plus
-the CG updates) and type 2 (the forward NUFFT of the filtered fields, with the operator's set-up from the kernel).
+the CG updates) and type 2 (the forward NUFFT of the filtered fields, with the set-up around the solve: the points
+handed to finufft, the operator made from the kernel).
 "without CG": the NFFT/FFT ratio of the other stages alone, the least any CG speed-up can reach.
 --cameras: the camera geometries to run (bench/cameras.py: the SR3000 and three current ones), each with its own FFT
 baseline measured in the same run, so the ratios compare per geometry; and the cross-camera check: the NFFT eps0 at a
