@@ -52,6 +52,12 @@ SPHERE_CHECK_M = (0.35, 0.5, 0.8)  # the cross-camera check's apex distances, me
 
 GOAL_RATIO = 2.0  # NFFT / FFT range-feature CPU time per frame at 176x144 (issue 33)
 STAGE_COLUMNS = ("points", "type1", "cg", "type2")  # the NFFT CPU time's parts (points: with the map writing)
+ABOUT = ("FFT and NFFT range features per frame, CPU milliseconds (thread time), per camera geometry; ratios within "
+         "one run. NFFT stages: points (back-projection into the patch, and the map writing), type1 (finufft type 1 "
+         "onto the 2N grid: Toeplitz kernel and A^H z), cg (the solve), type2 (finufft type 2 of the filtered fields, "
+         "with the set-up around the solve). nfft_without_cg_over_fft_cpu: the ratio of the other stages alone, the "
+         "least a faster solve can reach. eps0_error_pct: largest deviation from the converged solution where it is "
+         "at least a tenth of its peak.")
 CONVERGED = {"cg_tolerance": 1e-9, "cg_max_iterations": 3000, "cg_precision": "double", "nufft_eps": 1e-9}
 FACE_DEPTH_M = 0.08  # metres: segmentation depth margin for the face scenes, the whole face (a worst case: 1,700-5,600
 # points; the detector's default 0.025 m keeps a third of that)
@@ -247,7 +253,8 @@ def main() -> int:
     print(f"cross-camera: NFFT eps0 at a 0.1 m sphere's apex, {len(CAMERAS)} cameras x "
           f"{', '.join(f'{d:g}' for d in SPHERE_CHECK_M)} m: spread {100 * spread:.2f} % (goal <= 2 %)")
     first = per_camera[args.cameras[0]]
-    write_json(args.out, {"machine": platform.platform(), "cpu_count": mp.cpu_count(), "repeats": args.repeats,
+    write_json(args.out, {"about": ABOUT, "machine": platform.platform(), "cpu_count": mp.cpu_count(),
+                          "repeats": args.repeats,
                           "feature_config": cfg, "face_depth_margin_m": FACE_DEPTH_M,
                           "cameras": {c: CAMERAS[c].to_dict() for c in args.cameras}, "rows": rows,
                           "per_camera": per_camera,
