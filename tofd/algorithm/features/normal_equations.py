@@ -85,7 +85,7 @@ class DampedNormalEquations:
     """A^H A (product) and lambda (added in CG's step) for one frame's points, from K on the 2N x 2N grid (finufft
     type 1, modeord=1).
 
-    The FFTs are ducc0's (one thread): it writes into given arrays, vectorises the transforms along a strided
+    The FFTs are ducc0's, on one thread: it writes into given arrays, vectorises the transforms along a strided
     axis, and has no per-call dispatch of scipy.fft.
     """
 
@@ -99,7 +99,7 @@ class DampedNormalEquations:
         half[:, n] = 0
         # the inverse transform's 1 / (2N)^2 (inorm=2), which product's transforms leave out, is folded in here
         self._circulant = ducc0.fft.c2r(half, axes=(0, 1), lastsize=2 * n, forward=False, inorm=2,
-                                        out=np.empty((2 * n, 2 * n), real))
+                                        out=np.empty((2 * n, 2 * n), real), nthreads=1)
         self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
 
     def embed(self, half: np.ndarray) -> np.ndarray:
@@ -129,14 +129,14 @@ class DampedNormalEquations:
     def product(self, v: np.ndarray, out: np.ndarray) -> np.ndarray:
         """out = A^H A v for embedded halves v (V, 2N, N/2) (out's rows without data: left over, not zero).
 
-        ducc0's arguments are positional (a, axes, [lastsize,] forward, inorm, out): parsing keywords is a measurable
-        part of transforms this small."""
+        ducc0's arguments are positional (a, axes, [lastsize,] forward, inorm, out, nthreads = 1: the compute
+        processes' one-thread rule): parsing keywords is a measurable part of transforms this small."""
         spectra, data_columns, fields, forward, kept_columns = self._buffers_for(len(v))
-        ducc0.fft.c2c(v, _KY, False, 0, data_columns)  # inverse along ky, only the columns with data
-        ducc0.fft.c2r(spectra, _KX, self._size, False, 0, fields)  # inverse along kx
+        ducc0.fft.c2c(v, _KY, False, 0, data_columns, 1)  # inverse along ky, only the columns with data
+        ducc0.fft.c2r(spectra, _KX, self._size, False, 0, fields, 1)  # inverse along kx
         np.multiply(fields, self._circulant, out=fields)
-        ducc0.fft.r2c(fields, _KX, True, 0, forward)  # forward along x
-        return ducc0.fft.c2c(kept_columns, _KY, True, 0, out)  # forward along y, only the columns kept
+        ducc0.fft.r2c(fields, _KX, True, 0, forward, 1)  # forward along x
+        return ducc0.fft.c2c(kept_columns, _KY, True, 0, out, 1)  # forward along y, only the columns kept
 
 
 def _as_reals(*arrays: np.ndarray) -> list[np.ndarray]:
