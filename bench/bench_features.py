@@ -7,9 +7,13 @@ worker processes computing frames at the same time (finufft/scipy with nthreads=
 own threading was catastrophic on this 2-core machine, see design/nfft_notes.md), reported as
 per-frame time = wall time / frames of both. eps0 error: largest relative deviation of the NFFT eps0 from the
 converged solution (CG to a 1e-9 band residual, NUFFTs to 1e-9, in double precision) over the pixels where the
-converged eps0 is at least a tenth of its peak (the pixels a detector box can accept). Goal: NFFT / FFT <= 4 on CPU
-time. CG cpu: the part of the NFFT CPU time spent in the conjugate-gradient solve (the rest: points, type-1 and type-2
-NUFFTs), and per CG iteration (one Toeplitz product, a real FFT pair of size 2N, plus the CG updates).
+converged eps0 is at least a tenth of its peak (the pixels a detector box can accept). Goal: NFFT / FFT <= 2 on CPU
+time at 176x144 (issue 33; issue 19's was 4). The NFFT CPU time is split into its stages: points (back-projection
+into the patch) and map writing, type 1 (the finufft type-1 NUFFT onto the 2N grid giving the Toeplitz kernel and
+A^H z), CG (the conjugate-gradient solve; also per iteration: one Toeplitz product, a real FFT pair of size 2N, plus
+the CG updates) and type 2 (the forward NUFFT of the filtered fields, with the set-up around the solve: the points
+handed to finufft, the operator made from the kernel).
+"without CG": the NFFT/FFT ratio of the other stages alone, the least any CG speed-up can reach.
 --cameras: the camera geometries to run (bench/cameras.py: the SR3000 and three current ones), each with its own FFT
 baseline measured in the same run, so the ratios compare per geometry; and the cross-camera check: the NFFT eps0 at a
 0.1 m sphere's apex for every camera at 0.35, 0.5 and 0.8 m, and its spread (goal <= 2 %).
@@ -46,7 +50,14 @@ DISTANCES_M = (0.35, 0.5, 0.7)
 SPHERE_CHECK_M = (0.35, 0.5, 0.8)  # the cross-camera check's apex distances, metres
 
 
-GOAL_RATIO = 4.0  # NFFT / FFT range-feature CPU time per frame (issue 19)
+GOAL_RATIO = 2.0  # NFFT / FFT range-feature CPU time per frame at 176x144 (issue 33)
+STAGE_COLUMNS = ("points", "type1", "cg", "type2")  # the NFFT CPU time's parts (points: with the map writing)
+ABOUT = ("FFT and NFFT range features per frame, CPU milliseconds (thread time), per camera geometry; ratios within "
+         "one run. NFFT stages: points (back-projection into the patch, and the map writing), type1 (finufft type 1 "
+         "onto the 2N grid: Toeplitz kernel and A^H z), cg (the solve), type2 (finufft type 2 of the filtered fields, "
+         "with the set-up around the solve). nfft_without_cg_over_fft_cpu: the ratio of the other stages alone, the "
+         "least a faster solve can reach. eps0_error_pct: largest deviation from the converged solution where it is "
+         "at least a tenth of its peak.")
 CONVERGED = {"cg_tolerance": 1e-9, "cg_max_iterations": 3000, "cg_precision": "double", "nufft_eps": 1e-9}
 FACE_DEPTH_M = 0.08  # metres: segmentation depth margin for the face scenes, the whole face (a worst case: 1,700-5,600
 # points; the detector's default 0.025 m keeps a third of that)
@@ -71,29 +82,34 @@ def eps0_error(eps0: np.ndarray, converged: np.ndarray) -> float:
     return float(np.max(np.abs(eps0[strong] / converged[strong] - 1.0)))
 
 
-def count_solve_cpu(totals: list[float]) -> None:
-    """Make the NFFT module's CG solve add its CPU time (s) to totals[0] (this process only; replaces an
-    earlier call's counter)."""
-    solve = getattr(nfft_module.solve, "__wrapped__", nfft_module.solve)
+STAGES = {"fields": (NFFTFeatures, "fields"), "type1": (nfft_module, "real_pair_spectra"), "cg": (nfft_module, "solve")}
 
-    @functools.wraps(solve)
-    def timed(*args, **kwargs):
-        start = time.thread_time()
-        try:
-            return solve(*args, **kwargs)
-        finally:
-            totals[0] += time.thread_time() - start
 
-    nfft_module.solve = timed
+def count_stage_cpu(totals: dict[str, float]) -> None:
+    """Make each of the NFFT path's STAGES add its CPU time (s) to totals[stage] (this process only; replaces an
+    earlier call's counters)."""
+    for stage, (owner, name) in STAGES.items():
+        function = getattr(owner, name)
+        function = getattr(function, "__wrapped__", function)
+
+        @functools.wraps(function)
+        def timed(*args, _function=function, _stage=stage, **kwargs):
+            start = time.thread_time()
+            try:
+                return _function(*args, **kwargs)
+            finally:
+                totals[_stage] += time.thread_time() - start
+
+        setattr(owner, name, timed)
 
 
 def time_frames(cfg_dict: dict, repeats: int, camera: str = "sr3000") -> list[dict]:
-    """Per scene: FFT and NFFT range-feature times (ms, wall and CPU) over `repeats` frames, the NFFT's CG CPU
-    time, CG iterations and the eps0 error against the converged solution; the heap set up as in the pipeline's
+    """Per scene: FFT and NFFT range-feature times (ms, wall and CPU) over `repeats` frames, the NFFT's CPU time per
+    stage, CG iterations and the eps0 error against the converged solution; the heap set up as in the pipeline's
     feature workers."""
     keep_arrays_on_the_heap()
-    cg_total = [0.0]
-    count_solve_cpu(cg_total)
+    totals = dict.fromkeys(STAGES, 0.0)
+    count_stage_cpu(totals)
     intrinsics = CAMERAS[camera]
     cfg = FeatureConfig(**cfg_dict)
     fft, nfft = FFTFeatures(intrinsics, cfg), NFFTFeatures(intrinsics, cfg)
@@ -102,21 +118,25 @@ def time_frames(cfg_dict: dict, repeats: int, camera: str = "sr3000") -> list[di
     for name, d, range_m, mask in scenes(intrinsics):
         fft.range_features(range_m, mask)
         error = eps0_error(nfft.range_features(range_m, mask).eps0, converged.range_features(range_m, mask).eps0)
-        t_fft, t_nfft, cpu_fft, cpu_nfft, cpu_cg, its = [], [], [], [], [], []
+        t_fft, t_nfft, cpu_fft, cpu_nfft, its = [], [], [], [], []
+        stages: dict[str, list[float]] = {f"{s}_cpu_ms": [] for s in STAGE_COLUMNS}
         for _ in range(repeats):
             t0, c0 = time.perf_counter(), time.thread_time()
             fft.range_features(range_m, mask)
-            t1, c1, cg0 = time.perf_counter(), time.thread_time(), cg_total[0]
+            t1, c1, before = time.perf_counter(), time.thread_time(), dict(totals)
             maps = nfft.range_features(range_m, mask)
             t2, c2 = time.perf_counter(), time.thread_time()
-            cpu_cg.append((cg_total[0] - cg0) * 1e3)
+            spent = {k: (totals[k] - before[k]) * 1e3 for k in totals}
+            for stage, ms in (("points", (c2 - c1) * 1e3 - spent["fields"]), ("type1", spent["type1"]),
+                              ("cg", spent["cg"]), ("type2", spent["fields"] - spent["type1"] - spent["cg"])):
+                stages[f"{stage}_cpu_ms"].append(ms)
             t_fft.append((t1 - t0) * 1e3)
             t_nfft.append((t2 - t1) * 1e3)
             cpu_fft.append((c1 - c0) * 1e3)
             cpu_nfft.append((c2 - c1) * 1e3)
             its.append(maps.iterations)
         rows.append({"camera": camera, "scene": name, "distance_m": d, "points": int(mask.sum()), "fft_ms": t_fft,
-                     "nfft_ms": t_nfft, "fft_cpu_ms": cpu_fft, "nfft_cpu_ms": cpu_nfft, "cg_cpu_ms": cpu_cg,
+                     "nfft_ms": t_nfft, "fft_cpu_ms": cpu_fft, "nfft_cpu_ms": cpu_nfft, **stages,
                      "iterations": int(np.median(its)),
                      "eps0_error": error})
     return rows
@@ -124,7 +144,7 @@ def time_frames(cfg_dict: dict, repeats: int, camera: str = "sr3000") -> list[di
 
 def pooled(runs: list[list[dict]]) -> list[dict]:
     """Per scene, the frames of several time_frames runs together (their per-frame lists concatenated)."""
-    timed = ("fft_ms", "nfft_ms", "fft_cpu_ms", "nfft_cpu_ms", "cg_cpu_ms")
+    timed = ("fft_ms", "nfft_ms", "fft_cpu_ms", "nfft_cpu_ms", *(f"{s}_cpu_ms" for s in STAGE_COLUMNS))
     return [dict(rows[0], **{k: [x for r in rows for x in r[k]] for k in timed}) for rows in zip(*runs, strict=True)]
 
 
@@ -138,11 +158,13 @@ def stats(rows: list[dict], threads: int, wall_s: float | None = None) -> list[d
                     "nfft_median_ms": float(np.median(nfft)), "nfft_p95_ms": float(np.percentile(nfft, 95)),
                     "fft_cpu_median_ms": float(np.median(r["fft_cpu_ms"])),
                     "nfft_cpu_median_ms": float(np.median(r["nfft_cpu_ms"])),
-                    "cg_cpu_median_ms": float(np.median(r["cg_cpu_ms"])),
+                    **{f"{s}_cpu_median_ms": float(np.median(r[f"{s}_cpu_ms"])) for s in STAGE_COLUMNS},
                     "cg_cpu_per_iteration_ms": float(np.median(r["cg_cpu_ms"]) / max(r["iterations"], 1)),
                     "cg_iterations": r["iterations"], "eps0_error_pct": 100 * r["eps0_error"],
                     "nfft_over_fft": float(np.median(nfft) / np.median(fft)),
-                    "nfft_over_fft_cpu": float(np.median(r["nfft_cpu_ms"]) / np.median(r["fft_cpu_ms"]))})
+                    "nfft_over_fft_cpu": float(np.median(r["nfft_cpu_ms"]) / np.median(r["fft_cpu_ms"])),
+                    "nfft_without_cg_over_fft_cpu": float(np.median(np.subtract(r["nfft_cpu_ms"], r["cg_cpu_ms"]))
+                                                          / np.median(r["fft_cpu_ms"]))})
     return out
 
 
@@ -197,24 +219,29 @@ def main() -> int:
         per_camera[camera] = {"worst_nfft_over_fft_cpu": max(r["nfft_over_fft_cpu"] for r in single),
                               "worst_nfft_over_fft_cpu_per_process": process_worst,
                               "worst_eps0_error_pct": max(r["eps0_error_pct"] for r in single),
+                              "worst_nfft_without_cg_over_fft_cpu": max(r["nfft_without_cg_over_fft_cpu"]
+                                                                        for r in single),
                               "two_process_wall_ms_per_frame": throughput_ms}
 
     header = (f"{'camera':>9} {'thr':>3} {'scene':>6} {'dist':>5} {'points':>6} {'FFT med':>8} {'FFT p95':>8} "
-              f"{'FFT cpu':>8} {'NFFT med':>9} {'NFFT p95':>9} {'NFFT cpu':>9} {'CG cpu':>7} {'CG it':>6} {'ms/it':>6} "
+              f"{'FFT cpu':>8} {'NFFT med':>9} {'NFFT p95':>9} {'NFFT cpu':>9} {'pts+map':>7} {'type1':>6} "
+              f"{'CG cpu':>7} {'type2':>6} {'CG it':>6} {'ms/it':>6} "
               f"{'eps0 err%':>9} {'NFFT/FFT':>9} {'cpu ratio':>9}")
     print(header)
     for r in rows:
         print(f"{r['camera']:>9} {r['threads']:>3} {r['scene']:>6} {r['distance_m']:5.2f} {r['points']:6d} "
               f"{r['fft_median_ms']:8.2f} {r['fft_p95_ms']:8.2f} {r['fft_cpu_median_ms']:8.2f} "
               f"{r['nfft_median_ms']:9.2f} {r['nfft_p95_ms']:9.2f} {r['nfft_cpu_median_ms']:9.2f} "
-              f"{r['cg_cpu_median_ms']:7.2f} {r['cg_iterations']:6d} {r['cg_cpu_per_iteration_ms']:6.3f} "
+              f"{r['points_cpu_median_ms']:7.2f} {r['type1_cpu_median_ms']:6.2f} {r['cg_cpu_median_ms']:7.2f} "
+              f"{r['type2_cpu_median_ms']:6.2f} {r['cg_iterations']:6d} {r['cg_cpu_per_iteration_ms']:6.3f} "
               f"{r['eps0_error_pct']:9.2f} {r['nfft_over_fft']:9.1f} {r['nfft_over_fft_cpu']:9.1f}")
     for camera, c in per_camera.items():
         worst = c["worst_nfft_over_fft_cpu"]
         print(f"{camera}: worst NFFT/FFT CPU ratio (1 thread, frames of {args.processes} processes) {worst:.1f} (goal "
               f"<= {GOAL_RATIO:.0f}: {'met' if worst <= GOAL_RATIO else 'not met'}; each process alone: "
               f"{', '.join(f'{w:.1f}' for w in c['worst_nfft_over_fft_cpu_per_process'])}); worst eps0 error "
-              f"{c['worst_eps0_error_pct']:.2f} % (goal <= 1 %); 2 processes: "
+              f"{c['worst_eps0_error_pct']:.2f} % (goal <= 1 %); without CG (points and NUFFTs alone) "
+              f"{c['worst_nfft_without_cg_over_fft_cpu']:.1f}; 2 processes: "
               f"{c['two_process_wall_ms_per_frame']:.2f} ms wall per frame (FFT + NFFT range features)")
     sphere = sphere_experiment.summary(sphere_experiment.run(Intrinsics(), FeatureConfig(**cfg)),
                                        cfg["equivalence_range_m"])
@@ -226,7 +253,8 @@ def main() -> int:
     print(f"cross-camera: NFFT eps0 at a 0.1 m sphere's apex, {len(CAMERAS)} cameras x "
           f"{', '.join(f'{d:g}' for d in SPHERE_CHECK_M)} m: spread {100 * spread:.2f} % (goal <= 2 %)")
     first = per_camera[args.cameras[0]]
-    write_json(args.out, {"machine": platform.platform(), "cpu_count": mp.cpu_count(), "repeats": args.repeats,
+    write_json(args.out, {"about": ABOUT, "machine": platform.platform(), "cpu_count": mp.cpu_count(),
+                          "repeats": args.repeats,
                           "feature_config": cfg, "face_depth_margin_m": FACE_DEPTH_M,
                           "cameras": {c: CAMERAS[c].to_dict() for c in args.cameras}, "rows": rows,
                           "per_camera": per_camera,

@@ -76,6 +76,36 @@ def test_single_precision_cg_matches_double(distance):
     assert abs(maps["single"].iterations - maps["double"].iterations) <= 2
 
 
+@pytest.mark.parametrize("turned", [False, True])
+def test_points_with_holes_and_rotation_match_the_reference(turned):
+    """unit_square_points on a frame with holes (NaN, inf, 0, negative ranges) in the mask and a face-frame
+    rotation: the kept pixels, x, y, z, damping and RMS range equal an independent numpy back-projection's."""
+    nf = NFFTFeatures(INTR, CFG)
+    p = synthetic.tilted_plane(INTR, 0.8, 20.0, -10.0)  # wider than the patch: some points fall outside
+    range_m = p.range_m.astype(np.float32)
+    holes = np.flatnonzero(p.mask)[::53]
+    range_m.reshape(-1)[holes] = np.resize([np.nan, np.inf, 0.0, -1.0], holes.size)
+    c, s = np.cos(0.3), np.sin(0.3)
+    rotation = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]) if turned else None
+    pts = nf.unit_square_points(range_m, p.mask, rotation)
+    flat = np.flatnonzero(p.mask & np.isfinite(range_m) & (range_m > 0))
+    xyz = INTR.unit_rays().reshape(-1, 3)[flat] * range_m.reshape(-1)[flat, None].astype(np.float64)
+    if turned:
+        xyz = xyz @ rotation.T
+    x, y = xyz[:, 0] / CFG.patch_width_m, xyz[:, 1] / CFG.patch_height_m
+    x, y = x - x.mean(), y - y.mean()
+    keep = (x >= -0.5) & (x < 0.5) & (y >= -0.5) & (y < 0.5)
+    assert 0 < keep.sum() < keep.size
+    np.testing.assert_array_equal(pts.index, flat[keep])
+    z = xyz[keep, 2]
+    for got, want in ((pts.x, x[keep]), (pts.y, y[keep]), (pts.z, z - z.max())):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    footprint = np.mean(z**2) / (INTR.fx * INTR.fy * CFG.patch_width_m * CFG.patch_height_m)
+    assert pts.damping == pytest.approx(CFG.damping / footprint, rel=1e-12)
+    rms = np.sqrt(np.mean(range_m.reshape(-1)[flat[keep]].astype(np.float64) ** 2))
+    assert pts.rms_range_m == pytest.approx(rms, rel=1e-12)
+
+
 def test_points_outside_the_square_are_dropped_and_nan():
     """A wide plane: points beyond +-1/2 after centring get NaN features, the rest finite."""
     nf = NFFTFeatures(INTR, CFG)

@@ -16,7 +16,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 HEAVY = {"rerun-sdk", "dask", "distributed", "pyusb", "mcap", "rosbags", "prometheus-client"}
-CORE = {"numpy", "scipy", "finufft", "numba", "opencv-python-headless"}
+CORE = {"numpy", "scipy", "ducc0", "finufft", "numba", "opencv-python-headless"}
 OPTIONAL_MODULES = ("rerun", "dask", "distributed", "usb", "mcap", "mcap_protobuf", "foxglove_schemas_protobuf",
                     "google", "zstandard", "rosbags", "prometheus_client", "pyarrow", "fsspec", "matplotlib", "tqdm")
 """The top-level modules of every extra's packages: blocked, tofd must import and compute without them."""

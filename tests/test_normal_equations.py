@@ -23,8 +23,9 @@ def _half_to_full(half: np.ndarray, n: int) -> np.ndarray:
 
 @pytest.mark.parametrize("n", [8, 16])
 def test_operator_equals_dense_damped_normal_matrix(n):
-    """A^H A v through the pruned 2N circulant equals the dense NDFT matrix product (the FFTs are scipy's pocketfft
-    binding called directly: this pins its semantics), and CG's Hermitian norms equal the full spectrum's."""
+    """A^H A v through the pruned 2N circulant equals the dense NDFT matrix product (the FFTs are ducc0's, called
+    with their normalisation and direction flags: this pins their semantics), and CG's Hermitian norms equal the full
+    spectrum's."""
     rng = np.random.default_rng(n)
     x, y = rng.uniform(-0.3, 0.4, 300), rng.uniform(-0.45, 0.2, 300)
     kernel = finufft.nufft2d1(2 * np.pi * y, 2 * np.pi * x, np.ones(x.size, complex), (2 * n, 2 * n), eps=1e-13,

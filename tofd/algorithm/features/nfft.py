@@ -40,6 +40,7 @@ amplitude features for the NFFT detector variant.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import finufft
@@ -62,6 +63,17 @@ def _upsampfac(nufft_type: int, eps: float) -> float:
     """finufft's oversampling: type 1 (onto the 2N grid) is faster with the small 1.25 where it reaches the requested
     precision, type 2 (from the N grid, whose FFT is small) with 2.0 and its narrower kernel."""
     return 1.25 if nufft_type == 1 and eps >= 1e-9 else 2.0
+
+
+_IDENTITY = np.eye(3)
+
+
+@functools.cache
+def _patch_points() -> Callable[..., tuple]:
+    """The compiled back-projection (patch_points.py), imported on first use: only processes that solve load numba."""
+    from tofd.algorithm.features.patch_points import patch_points
+
+    return patch_points
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,6 +170,7 @@ class NFFTFeatures:
         self._plan_options = dict(modeord=1, nthreads=1, dtype=self._complex, spread_sort=0)
         self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
         load_kernels(self._complex)
+        self.unit_square_points(np.ones(intrinsics.shape), np.zeros(intrinsics.shape, bool))  # load its loop now
 
     def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
         """finufft plans (made once) for `surfaces` value sets on shared points: type 1 onto the 2N grid (the
@@ -181,29 +194,14 @@ class NFFTFeatures:
         (tofd.algorithm.segmentation.Foreground), applied to the points first.
         """
         flat = np.flatnonzero(mask)
-        ranges = np.take(range_m.reshape(-1), flat)
-        with np.errstate(invalid="ignore"):
-            good = np.isfinite(ranges) & (ranges > 0)
-        if not good.all():
-            flat, ranges = flat[good], ranges[good]
-        pts = np.take(self._ray_columns, flat, axis=1)  # (3, M)
-        pts *= ranges
-        if rotation is not None:
-            pts = rotation @ pts
-        x = pts[0] / self._square[0]
-        y = pts[1] / self._square[1]
-        x -= x.mean() if x.size else 0.0
-        y -= y.mean() if y.size else 0.0
-        keep = (x >= -0.5) & (x < 0.5) & (y >= -0.5) & (y < 0.5)
-        if not keep.all():
-            flat, x, y, pts, ranges = flat[keep], x[keep], y[keep], pts[:, keep], ranges[keep]
-        z = pts[2]
+        turn = _IDENTITY if rotation is None else np.ascontiguousarray(rotation, np.float64)
+        ranges = np.take(range_m.reshape(-1), flat).astype(np.float64, copy=False)
+        x, y, z, index, mean_zz, mean_rr = _patch_points()(flat, ranges, self._ray_columns, turn, *self._square)
         if not z.size:
-            return UnitSquarePoints(x, y, z, flat, 0.0, float("nan"))
+            return UnitSquarePoints(x, y, z, index, 0.0, float("nan"))
         # points per unit area of the square: 1 / mean pixel footprint, (z/fx)(z/fy) m^2 over Lx Ly
-        footprint = np.mean(z * z) / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
-        return UnitSquarePoints(x, y, z - z.max(), flat, self.cfg.damping / footprint,
-                                float(np.sqrt(np.mean(ranges * ranges))))
+        footprint = mean_zz / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
+        return UnitSquarePoints(x, y, z - z.max(), index, self.cfg.damping / footprint, float(np.sqrt(mean_rr)))
 
     def range_features(self, range_m: np.ndarray, mask: np.ndarray,
                        rotation: np.ndarray | None = None) -> Eccentricities:
