@@ -42,21 +42,22 @@ class Tolerance:
 
 
 TOLERANCES: dict[str, Tolerance] = {
-    "score": Tolerance(rel=1e-3, abs=1e-9),
+    "score": Tolerance(rel=2e-2, abs=1e-9),
     "nose_xyz_m": Tolerance(rel=0.0, abs=1e-4),
     "tip_px": Tolerance(rel=0.0, abs=0.02),
     "tip_xyz_m": Tolerance(rel=0.0, abs=1e-4),
-    "nfft_iterations": Tolerance(rel=0.0, abs=1),
+    "nfft_iterations": Tolerance(rel=0.0, abs=6),
     "nfft_residual": Tolerance(rel=0.5, abs=0.0),
-    "mean_*_nfft_*": Tolerance(rel=1e-3, abs=1e-12),
+    "mean_*_nfft_*": Tolerance(rel=2e-2, abs=1e-12),
     "mean_*_fft_*": Tolerance(rel=1e-6, abs=1e-12),
 }
 """Tolerance per field (a pattern for the map means; units: score unitless, nose_xyz_m and tip_xyz_m metres,
 tip_px pixels, nfft_iterations CG iterations, nfft_residual and means as the rows give them). The NFFT path runs
-CG in single precision up to a residual threshold, so another rounding may stop it one iteration earlier or
-later: that changes the count by 1, the residual by under half (one CG step near the threshold) and the NFFT
-maps and the score by far under 1e-3 relative. The FFT maps are direct double-precision transforms: rounding
-moves them by far under 1e-6."""
+CG in single precision until a residual threshold that keeps eps0 within 1 % of the converged value, so another
+rounding may stop it some iterations earlier or later: the NFFT maps may then differ by up to 1 % each way, hence
+scores and NFFT map means within 2 %, the residual within half and the count within a few iterations
+(tests/test_golden.py replays the clip with the threshold moved so that CG stops elsewhere and holds the check to
+these). The FFT maps are direct double-precision transforms: rounding moves them by far under 1e-6."""
 MAX_LINES = 25
 
 
