@@ -351,6 +351,7 @@ def live_rerun(cfg, clip: Path, intrinsics: Intrinsics, seconds: float, tmp: Pat
             **{f"live_{k}": r[k] for k in ("latency_p50_ms", "latency_p99_ms", "viewer_latency_p50_ms",
                                            "viewer_latency_p99_ms", "viewer_frames", "worker_cpu_ms_per_frame")},
             "live_main_cpu_ms_per_frame": r["processes"].get("main", {}).get("cpu_ms_per_frame"),
+            "live_main_thread_cpu_ms_per_frame": r["main_thread_cpu_ms_per_frame"],
             "live_viewer_cpu_ms_per_frame": r["processes"].get("viewer", {}).get("cpu_ms_per_frame")}
 
 
