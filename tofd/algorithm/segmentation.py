@@ -59,9 +59,10 @@ def component_at(mask: np.ndarray, row: int, col: int) -> np.ndarray:
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """The mask with every background region that does not touch the image border set."""
-    _, labels = cv2.connectedComponents((~mask).view(np.uint8), connectivity=4)
-    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    return mask | ~np.isin(labels, border)
+    count, labels = cv2.connectedComponents((~mask).view(np.uint8), connectivity=4)
+    outside = np.zeros(count, bool)  # per label: touches the border (label 0, the mask itself, stays as it is)
+    outside[np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])] = True
+    return mask | ~outside[labels]
 
 
 def amplitude_foreground(amplitude: np.ndarray, valid: np.ndarray) -> np.ndarray:
