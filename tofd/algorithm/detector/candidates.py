@@ -61,7 +61,7 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
 def _front_gap_m(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, intrinsics: Intrinsics,
                  direction: np.ndarray | None, radius_m: float, median_px: int) -> np.ndarray:
     """front_gap_m with the pixels' unit rays (H, W, 3) given; `intrinsics` for the focal length only."""
-    depth, valid, smooth = _face_depth(mask, range_m, rays, direction, median_px)
+    depth, valid = _face_depth(mask, range_m, rays, direction)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
     median_m = float(np.median(depth[valid]))
@@ -70,20 +70,20 @@ def _front_gap_m(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, intrin
                             max(valid.shape))))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r_px + 1, 2 * r_px + 1))
     if stride == 1:
+        smooth = filtered(depth, valid, median_px)
         gap = smooth - cv2.erode(smooth, disc)
     else:
         sampled = filtered(depth[::stride, ::stride], valid[::stride, ::stride], median_px)
-        gap = upsampled(sampled - cv2.erode(sampled, disc), smooth.shape, stride)
+        gap = upsampled(sampled - cv2.erode(sampled, disc), valid.shape, stride)
     return np.where(valid, gap, 0.0).astype(np.float32)
 
 
-def _face_depth(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, direction: np.ndarray | None,
-                median_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Depth along direction (H, W), the valid mask pixels, and the median_px median-filtered depth."""
+def _face_depth(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, direction: np.ndarray | None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Depth along direction (H, W) and the valid mask pixels."""
     with np.errstate(invalid="ignore"):
         depth = np.asarray(range_m) * (rays[..., 2] if direction is None else rays @ direction)
-    valid = np.asarray(mask, dtype=bool) & np.isfinite(depth)
-    return depth, valid, filtered(depth, valid, median_px)
+    return depth, np.asarray(mask, dtype=bool) & np.isfinite(depth)
 
 
 NOISE_WINDOW_PX = 7  # window of the local noise estimate, pixels
@@ -103,9 +103,10 @@ def depth_noise_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
 def _depth_noise_m(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, direction: np.ndarray | None,
                    median_px: int) -> np.ndarray:
     """depth_noise_m with the pixels' unit rays (H, W, 3) given."""
-    depth, valid, smooth = _face_depth(mask, range_m, rays, direction, median_px)
+    depth, valid = _face_depth(mask, range_m, rays, direction)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
+    smooth = filtered(depth, valid, median_px)
     residual = np.where(valid, np.abs(np.nan_to_num(depth - smooth)), 0.0).astype(np.float32)
     size = (NOISE_WINDOW_PX, NOISE_WINDOW_PX)
     weight = cv2.blur(valid.astype(np.float32), size)
