@@ -222,7 +222,8 @@ def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationCo
     if stride == 1:
         mask, rotation, _ = _segment(range_m, amplitude, cfg, intrinsics)
         return Foreground(mask, rotation)
-    coarse, rotation, cut = _segment(range_m[::stride, ::stride], amplitude[::stride, ::stride], cfg,
+    coarse, rotation, cut = _segment(np.ascontiguousarray(range_m[::stride, ::stride]),  # strided reads once
+                                     np.ascontiguousarray(amplitude[::stride, ::stride]), cfg,
                                      decimated(intrinsics, stride))
     mask = np.zeros(range_m.shape, dtype=bool)
     if not coarse.any():
