@@ -24,7 +24,9 @@ runs each, cameras interleaved; per camera the median run's throughput, per-stag
 and their ratios to the first camera's (the SR3000's) in the same run; and each stage's CPU time per frame (median
 over the clip's frames through the workers' FeatureStage in a child process set up like a worker, one thread per
 library, the stages' clocks read as CPU time, so other processes' load does not inflate them as it does the wall
-times; one pass after each run, the median of the passes). Writes
+times; one pass after each run, the median of the passes); the main process's CPU per frame by thread; then, per
+camera, --camera-live-seconds of the clip replayed in real time (30 fps, looped) as a live camera, latest-wins, with
+the daemon's Rerun viewer process sending frame by frame: delivered fps and the capture -> viewer latency. Writes
 bench/results/bench_pipeline_cameras.json.
 
     python bench/bench_pipeline.py --cameras sr3000,640x576 --replay-frames 240 --replay-pairs 3
@@ -338,9 +340,26 @@ def stage_cpu_ms_here(cfg, clip: str, intrinsics: Intrinsics) -> dict[str, float
     return {k: round(float(np.median(v)), 2) for k, v in times.items()}
 
 
-def compare_cameras(cfg, cameras: list[str], frames: int, replay_frames: int, runs: int, tmp: Path) -> dict:
+def live_rerun(cfg, clip: Path, intrinsics: Intrinsics, seconds: float, tmp: Path) -> dict:
+    """The clip replayed in real time (30 fps, looped) as a live camera: latest-wins, with the daemon's Rerun viewer
+    process sending frame by frame; delivered fps, drops and latencies (capture -> sink, capture -> viewer)."""
+    with ReplaySource(clip, mode="realtime", loop=True) as source:
+        r = run(replace(cfg, intrinsics=intrinsics), source, "latest", live=False, rerun=True, duration_s=seconds,
+                max_frames=None, tmp=tmp)
+    return {"live_fps": r["fps"], "live_frames_in": r["frames_in"], "live_frames_dropped": r["frames_dropped"],
+            "live_source_skipped": source.counters.get("replay_dropped", 0),
+            **{f"live_{k}": r[k] for k in ("latency_p50_ms", "latency_p99_ms", "viewer_latency_p50_ms",
+                                           "viewer_latency_p99_ms", "viewer_frames", "worker_cpu_ms_per_frame")},
+            "live_main_cpu_ms_per_frame": r["processes"].get("main", {}).get("cpu_ms_per_frame"),
+            "live_main_thread_cpu_ms_per_frame": r["main_thread_cpu_ms_per_frame"],
+            "live_viewer_cpu_ms_per_frame": r["processes"].get("viewer", {}).get("cpu_ms_per_frame")}
+
+
+def compare_cameras(cfg, cameras: list[str], frames: int, replay_frames: int, runs: int, tmp: Path,
+                    live_s: float = 0.0) -> dict:
     """Lossless replay without Rerun of a rendered clip per camera, `runs` runs each (cameras interleaved); per camera
-    the run of median steady throughput, and ratios to the first camera's."""
+    the run of median steady throughput, and ratios to the first camera's; with live_s > 0, then a live run of live_s
+    seconds with Rerun per camera (live_rerun)."""
     clips = {}
     for name in cameras:
         print(f"rendering {frames} frames at {name} ...", file=sys.stderr)
@@ -362,6 +381,8 @@ def compare_cameras(cfg, cameras: list[str], frames: int, replay_frames: int, ru
         row = {"camera": name, "pixels": CAMERAS[name].width * CAMERAS[name].height, "fps": r["fps"],
                "steady_fps": r["steady_fps"], "steady_fps_each": fps, "frames_dropped": r["frames_dropped"],
                "worker_cpu_ms_per_frame": r["worker_cpu_ms_per_frame"], "compute_bound_fps": r["compute_bound_fps"],
+               "main_cpu_ms_per_frame": r["processes"].get("main", {}).get("cpu_ms_per_frame"),
+               "cpu_bound_fps": r["cpu_bound_fps"], "main_thread_cpu_ms_per_frame": r["main_thread_cpu_ms_per_frame"],
                **{f"{k}_p50_ms": v for k, v in stages.items()}, "stage_sum_p50_ms": round(sum(stages.values()), 2),
                **{f"{k}_cpu_ms": cpu[k] for k in WORKER_STAGES if k in cpu},
                "stage_sum_cpu_ms": round(sum(cpu[k] for k in WORKER_STAGES if k in cpu), 2)}
@@ -371,12 +392,17 @@ def compare_cameras(cfg, cameras: list[str], frames: int, replay_frames: int, ru
         row["stage_cpu_over_first"] = round(row["stage_sum_cpu_ms"] / base["stage_sum_cpu_ms"], 2)
         row["worker_cpu_over_first"] = round(row["worker_cpu_ms_per_frame"] / base["worker_cpu_ms_per_frame"], 2)
         row["fps_over_first"] = round(row["steady_fps"] / base["steady_fps"], 3)
+        if live_s > 0:
+            print(f"live {live_s:g} s with Rerun at {name} ...", file=sys.stderr)
+            row.update(live_rerun(cfg, clips[name], CAMERAS[name], live_s, tmp))
         rows.append(row)
     return {"about": f"lossless replay, --rerun none, {cfg.pipeline.workers} workers, {replay_frames} frames of a "
                      f"{frames}-frame rendered clip (0.35-0.70 m) per run, median of {runs} runs per camera; "
                      f"ratios against {cameras[0]} in the same run", "cameras": {c: CAMERAS[c].to_dict()
                                                                                   for c in cameras},
-            "rows": rows, "goal_fps_640x576": 30, "goal_stage_sum_over_sr3000": 4}
+            "live_about": f"the clip replayed in real time at 30 fps (looped) as a live camera for {live_s:g} s, "
+                          "latest-wins, with the Rerun viewer process sending frame by frame" if live_s > 0 else None,
+            "rows": rows, "goal_fps_640x576": 30, "goal_stage_sum_over_sr3000": 4, "goal_live_viewer_p99_ms": 66}
 
 
 def main() -> None:
@@ -389,6 +415,8 @@ def main() -> None:
                     help=f"compare lossless replay across camera geometries (of: {', '.join(CAMERAS)}), the first "
                          "the baseline")
     ap.add_argument("--camera-frames", type=int, default=60, help="frames of each camera's rendered clip (--cameras)")
+    ap.add_argument("--camera-live-seconds", type=float, default=20.0,
+                    help="--cameras: seconds of the live run with Rerun per camera (0: none)")
     ap.add_argument("--out", type=Path, default=None,
                     help="default bench/results/bench_pipeline.json (bench_pipeline_cameras.json with --cameras)")
     args = ap.parse_args()
@@ -406,7 +434,7 @@ def main() -> None:
             results = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                                    "load_avg_at_start": os.getloadavg()},
                        **compare_cameras(cfg, args.cameras, args.camera_frames, args.replay_frames,
-                                         args.replay_pairs, Path(tmp))}
+                                         args.replay_pairs, Path(tmp), args.camera_live_seconds)}
         for r in results["rows"]:
             print(r)
         write_json(args.out or results_dir / "bench_pipeline_cameras.json", results)

@@ -32,14 +32,16 @@ FRAME_PERIOD_US = 33_333  # 30 fps
 def write_face_clip(path: Path, intrinsics: Intrinsics, frames: int, seed: int = 1) -> Path:
     """A recording (tofd's MCAP, drivers.recording.writer) of `frames` rendered noisy frames of the emulator's face
     going from 0.35 m to 0.70 m (half a cycle of drivers.emulator.scene.Motion, its sideways drift scaled from the
-    SR3000's pixels to these), with ground truth; noise seeded per frame."""
+    SR3000's pixels to these), with ground truth; noise seeded per frame; received every FRAME_PERIOD_US (host
+    times), so a realtime replay plays it at 30 fps."""
     motion = Motion(n_poses=2 * (frames - 1), drift_px=Motion().drift_px * intrinsics.fx / Intrinsics().fx)
     face = load_face("lee_perry_smith")
     device = DeviceInfo(serial="00000000", backend="emulated", model=f"rendered {intrinsics.width}x{intrinsics.height}")
     with RecordingWriter(path, config={"rendered": {"face": face.name, "frames": frames, "seed": seed}}) as writer:
         for i in range(frames):
             r = render_face(face, motion.pose(i, intrinsics), intrinsics, np.random.default_rng((seed, i)))
-            writer.write(Frame(r.range_m, r.amplitude, i, i * FRAME_PERIOD_US, 0.0, 0.0, intrinsics, device,
+            writer.write(Frame(r.range_m, r.amplitude, i, i * FRAME_PERIOD_US, i * FRAME_PERIOD_US / 1e6, 0.0,
+                               intrinsics, device,
                                ground_truth=GroundTruth(nose_px=r.nose_px, visible=r.nose_visible,
                                                         nose_xyz_m=r.nose_xyz_m)))
     return path

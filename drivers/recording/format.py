@@ -217,10 +217,11 @@ def _plane(image_data: bytes, codec: typing.Any, shape: tuple[int, int], name: s
     if dtype is None:
         raise FormatError(f"{name} image has encoding {image.encoding!r}, expected one of {sorted(_ENCODINGS)}")
     h, w = shape
-    if (image.height, image.width, image.step, len(image.data)) != (h, w, w * dtype.itemsize, h * w * dtype.itemsize):
-        raise FormatError(f"{name} image is {image.width}x{image.height} (step {image.step}, {len(image.data)} "
+    data = image.data  # protobuf copies a bytes field out at every access
+    if (image.height, image.width, image.step, len(data)) != (h, w, w * dtype.itemsize, h * w * dtype.itemsize):
+        raise FormatError(f"{name} image is {image.width}x{image.height} (step {image.step}, {len(data)} "
                           f"bytes), expected {w}x{h} {image.encoding}")
-    values = np.frombuffer(image.data, dtype=dtype).reshape(shape)
+    values = np.frombuffer(data, dtype=dtype).reshape(shape)
     if image.encoding == "32FC1":
         return values.astype(np.float32)  # a copy: writable
     return raw_to_plane(values, codec.scale, codec.invalid if codec.HasField("invalid") else None)

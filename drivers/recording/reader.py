@@ -100,6 +100,19 @@ def frames_of(messages: list[tuple[str, bytes]]) -> list[Frame]:
     return frames
 
 
+class _InPlace:
+    """A read-only file over a bytes-like object whose reads are views into it, not copies: mcap's ReadDataStream
+    over it parses a chunk and its records where they lie (message data and chunk data are memoryviews)."""
+
+    def __init__(self, data: bytes | memoryview) -> None:
+        self._view, self._at = memoryview(data), 0
+
+    def read(self, size: int) -> memoryview:
+        view = self._view[self._at:self._at + size]
+        self._at += len(view)
+        return view
+
+
 def chunk_records(chunk: Chunk, limit: int) -> Iterator[Channel | Message | Schema]:
     """The records of a chunk, decompressing at most `limit` bytes (FormatError for another compression than
     zstd, a larger declared size, a CRC mismatch, more than bounds.MAX_CHUNK_RECORDS records or a record a chunk
@@ -115,7 +128,7 @@ def chunk_records(chunk: Chunk, limit: int) -> Iterator[Channel | Message | Sche
     if len(data) != chunk.uncompressed_size or zlib.crc32(data) != chunk.uncompressed_crc:
         raise fmt.FormatError(f"chunk decompresses to {len(data)} bytes (declared {chunk.uncompressed_size}) or "
                               "fails its CRC")
-    stream = ReadDataStream(BytesIO(data))
+    stream = ReadDataStream(_InPlace(data))  # type: ignore[arg-type]  # a file's read() is all it calls
     for _ in range(bounds.MAX_CHUNK_RECORDS):
         if stream.count >= len(data):
             return
@@ -235,7 +248,7 @@ class RecordingReader:
 
     @staticmethod
     def _chunk(body: bytes) -> Chunk:
-        chunk = Chunk.read(ReadDataStream(BytesIO(body)))
+        chunk = Chunk.read(ReadDataStream(_InPlace(body)))  # type: ignore[arg-type]
         if CHUNK_HEADER_BYTES + len(chunk.compression) + 8 + len(chunk.data) != len(body):
             raise fmt.FormatError(f"chunk record of {len(body)} bytes holds {len(chunk.data)} bytes of records")
         if chunk.uncompressed_crc == 0:

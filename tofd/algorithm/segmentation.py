@@ -59,9 +59,10 @@ def component_at(mask: np.ndarray, row: int, col: int) -> np.ndarray:
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """The mask with every background region that does not touch the image border set."""
-    _, labels = cv2.connectedComponents((~mask).view(np.uint8), connectivity=4)
-    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    return mask | ~np.isin(labels, border)
+    count, labels = cv2.connectedComponents((~mask).view(np.uint8), connectivity=4)
+    outside = np.zeros(count, bool)  # per label: touches the border (label 0, the mask itself, stays as it is)
+    outside[np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])] = True
+    return mask | ~outside[labels]
 
 
 def amplitude_foreground(amplitude: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -163,12 +164,32 @@ def decimated(intrinsics: Intrinsics, stride: int) -> Intrinsics:
                       intrinsics.fy / stride, intrinsics.cx / stride, intrinsics.cy / stride)
 
 
+def nearest_samples(length: int, samples: int, stride: int) -> np.ndarray:
+    """(length,) index of the sample nearest each pixel along an axis sampled at every stride-th pixel."""
+    return np.minimum((np.arange(length) + stride // 2) // stride, samples - 1)
+
+
 def upsampled(coarse: np.ndarray, shape: tuple[int, int], stride: int) -> np.ndarray:
     """An image of every stride-th pixel brought back to `shape` by nearest neighbour (each pixel takes the value
     of the sampled pixel nearest it)."""
-    rows = np.minimum((np.arange(shape[0]) + stride // 2) // stride, coarse.shape[0] - 1)
-    cols = np.minimum((np.arange(shape[1]) + stride // 2) // stride, coarse.shape[1] - 1)
+    rows = nearest_samples(shape[0], coarse.shape[0], stride)
+    cols = nearest_samples(shape[1], coarse.shape[1], stride)
     return coarse[rows[:, None], cols[None, :]]
+
+
+def upsampled_box(coarse: np.ndarray, shape: tuple[int, int], stride: int
+                  ) -> tuple[tuple[slice, slice], np.ndarray]:
+    """bounding_box of upsampled(coarse, shape, stride) and that image within it, without upsampling the rest (a
+    bool mask with a pixel set): each pixel's nearest sample is monotone in the pixel, so the box's rows are those
+    whose nearest sample row lies in the coarse mask's box, and likewise the columns."""
+    cbox = bounding_box(coarse)
+    index, box = [], []
+    for axis, (length, cut) in enumerate(zip(shape, cbox, strict=True)):
+        nearest = nearest_samples(length, coarse.shape[axis], stride)
+        lo, hi = np.searchsorted(nearest, cut.start, "left"), np.searchsorted(nearest, cut.stop - 1, "right")
+        box.append(slice(int(lo), int(hi)))
+        index.append(nearest[lo:hi])
+    return (box[0], box[1]), coarse[index[0][:, None], index[1][None, :]]
 
 
 def bounding_box(mask: np.ndarray, margin_px: int = 0, align_px: int = 1) -> tuple[slice, slice]:
@@ -201,14 +222,13 @@ def segment_face(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationCo
     if stride == 1:
         mask, rotation, _ = _segment(range_m, amplitude, cfg, intrinsics)
         return Foreground(mask, rotation)
-    coarse, rotation, cut = _segment(range_m[::stride, ::stride], amplitude[::stride, ::stride], cfg,
+    coarse, rotation, cut = _segment(np.ascontiguousarray(range_m[::stride, ::stride]),  # strided reads once
+                                     np.ascontiguousarray(amplitude[::stride, ::stride]), cfg,
                                      decimated(intrinsics, stride))
     mask = np.zeros(range_m.shape, dtype=bool)
     if not coarse.any():
         return Foreground(mask, rotation)
-    full = upsampled(coarse, range_m.shape, stride)
-    box = bounding_box(full)
-    near = full[box]
+    box, near = upsampled_box(coarse, range_m.shape, stride)
     with np.errstate(invalid="ignore"):
         depth = range_m[box] * (intrinsics.unit_rays()[box] @ rotation[2]).astype(np.float32)
         mask[box] = near & valid_pixels(range_m[box], amplitude[box]) & (depth <= cut)

@@ -8,8 +8,8 @@ scales with the expected noise at the pixel: front_depth_m + front_noise_factor 
 noise estimated from the frame itself (depth_noise_m), because range noise grows with distance and falls with
 amplitude and a fixed allowance rejects the true tip wherever the noise is larger than on the training data.
 
-The tests run on the foreground's bounding box (plus CROP_MARGIN_PX, aligned to CROP_ALIGN_PX so that successive
-frames share the crop's rays): at modern resolutions the face covers a fraction of the frame.
+The tests run on the foreground's bounding box (plus CROP_MARGIN_PX, aligned to CROP_ALIGN_PX), with the whole
+image's rays cut to it: at modern resolutions the face covers a fraction of the frame.
 """
 
 from __future__ import annotations
@@ -30,10 +30,15 @@ def border_distance_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrins
     Pixels: Euclidean distance to the nearest non-mask pixel (outside the image counts as non-mask) minus half a
     pixel; metres: times the pixel's depth (range * z of its unit ray) / fx.
     """
+    return _border_distance_m(mask, range_m, intrinsics.unit_rays(), intrinsics.fx)
+
+
+def _border_distance_m(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, fx: float) -> np.ndarray:
+    """border_distance_m with the pixels' unit rays (H, W, 3) given (a crop's: a view into the whole image's)."""
     padded = np.pad(np.asarray(mask, dtype=np.uint8), 1)
     px = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
     with np.errstate(invalid="ignore"):
-        metres = np.maximum(px - 0.5, 0) * (np.asarray(range_m) * intrinsics.unit_rays()[..., 2]) / intrinsics.fx
+        metres = np.maximum(px - 0.5, 0) * (np.asarray(range_m) * rays[..., 2]) / fx
     return np.where(mask, np.nan_to_num(metres, nan=0.0), 0.0).astype(np.float32)
 
 
@@ -50,7 +55,13 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
     on every coarse_stride-th pixel and each pixel takes the gap of the sample nearest it, so that the median and
     the minimum see the surface (and the noise) as on the reference camera.
     """
-    depth, valid, smooth = _face_depth(mask, range_m, intrinsics, direction, median_px)
+    return _front_gap_m(mask, range_m, intrinsics.unit_rays(), intrinsics, direction, radius_m, median_px)
+
+
+def _front_gap_m(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, intrinsics: Intrinsics,
+                 direction: np.ndarray | None, radius_m: float, median_px: int) -> np.ndarray:
+    """front_gap_m with the pixels' unit rays (H, W, 3) given; `intrinsics` for the focal length only."""
+    depth, valid = _face_depth(mask, range_m, rays, direction)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
     median_m = float(np.median(depth[valid]))
@@ -59,21 +70,20 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
                             max(valid.shape))))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r_px + 1, 2 * r_px + 1))
     if stride == 1:
+        smooth = filtered(depth, valid, median_px)
         gap = smooth - cv2.erode(smooth, disc)
     else:
         sampled = filtered(depth[::stride, ::stride], valid[::stride, ::stride], median_px)
-        gap = upsampled(sampled - cv2.erode(sampled, disc), smooth.shape, stride)
+        gap = upsampled(sampled - cv2.erode(sampled, disc), valid.shape, stride)
     return np.where(valid, gap, 0.0).astype(np.float32)
 
 
-def _face_depth(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None,
-                median_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Depth along direction (H, W), the valid mask pixels, and the median_px median-filtered depth."""
-    rays = intrinsics.unit_rays()
+def _face_depth(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, direction: np.ndarray | None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Depth along direction (H, W) and the valid mask pixels."""
     with np.errstate(invalid="ignore"):
         depth = np.asarray(range_m) * (rays[..., 2] if direction is None else rays @ direction)
-    valid = np.asarray(mask, dtype=bool) & np.isfinite(depth)
-    return depth, valid, filtered(depth, valid, median_px)
+    return depth, np.asarray(mask, dtype=bool) & np.isfinite(depth)
 
 
 NOISE_WINDOW_PX = 7  # window of the local noise estimate, pixels
@@ -87,9 +97,16 @@ def depth_noise_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
     window (the mean absolute deviation of Gaussian noise is sigma sqrt(2 / pi)); the face's own curvature within
     the median window adds well under a millimetre.
     """
-    depth, valid, smooth = _face_depth(mask, range_m, intrinsics, direction, median_px)
+    return _depth_noise_m(mask, range_m, intrinsics.unit_rays(), direction, median_px)
+
+
+def _depth_noise_m(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, direction: np.ndarray | None,
+                   median_px: int) -> np.ndarray:
+    """depth_noise_m with the pixels' unit rays (H, W, 3) given."""
+    depth, valid = _face_depth(mask, range_m, rays, direction)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
+    smooth = filtered(depth, valid, median_px)
     residual = np.where(valid, np.abs(np.nan_to_num(depth - smooth)), 0.0).astype(np.float32)
     size = (NOISE_WINDOW_PX, NOISE_WINDOW_PX)
     weight = cv2.blur(valid.astype(np.float32), size)
@@ -99,17 +116,13 @@ def depth_noise_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
 
 
 CROP_MARGIN_PX = NOISE_WINDOW_PX + 5  # background ring about the foreground: wider than every filter's reach
-CROP_ALIGN_PX = 32  # crop corners on this grid: a head moving a little keeps its crop (and its cached rays)
+CROP_ALIGN_PX = 32  # crop corners on this grid: a head moving a little keeps its crop (and the front test its samples)
 
 
-def foreground_crop(mask: np.ndarray, intrinsics: Intrinsics) -> tuple[tuple[slice, slice], Intrinsics]:
-    """The (rows, cols) slices of the mask's bounding box grown by CROP_MARGIN_PX and aligned to CROP_ALIGN_PX, and
-    the intrinsics of that sub-image (principal point shifted). The mask must have a pixel set."""
-    box = bounding_box(mask, CROP_MARGIN_PX, CROP_ALIGN_PX)
-    r0, c0 = box[0].start, box[1].start
-    crop = Intrinsics(box[1].stop - c0, box[0].stop - r0, intrinsics.fx, intrinsics.fy, intrinsics.cx - c0,
-                      intrinsics.cy - r0)
-    return box, crop
+def foreground_crop(mask: np.ndarray) -> tuple[slice, slice]:
+    """The (rows, cols) slices of the mask's bounding box grown by CROP_MARGIN_PX and aligned to CROP_ALIGN_PX. The
+    mask must have a pixel set."""
+    return bounding_box(mask, CROP_MARGIN_PX, CROP_ALIGN_PX)
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,8 +155,8 @@ class Candidates:
         foreground = np.asarray(foreground, dtype=bool)
         out = np.zeros_like(foreground)
         if foreground.any():
-            box, crop = foreground_crop(foreground, intrinsics)
-            out[box] = self._crop_mask(foreground[box], np.asarray(range_m)[box], crop, direction)
+            box = foreground_crop(foreground)
+            out[box] = self._crop_mask(foreground[box], np.asarray(range_m)[box], intrinsics, box, direction)
         return out
 
     def pixels(self, foreground: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
@@ -152,17 +165,22 @@ class Candidates:
         foreground = np.asarray(foreground, dtype=bool)
         if not foreground.any():
             return np.empty(0, np.intp), np.empty(0, np.intp)
-        box, crop = foreground_crop(foreground, intrinsics)
-        rows, cols = np.nonzero(self._crop_mask(foreground[box], np.asarray(range_m)[box], crop, direction))
+        box = foreground_crop(foreground)
+        rows, cols = np.nonzero(self._crop_mask(foreground[box], np.asarray(range_m)[box], intrinsics, box, direction))
         return rows + box[0].start, cols + box[1].start
 
-    def _crop_mask(self, foreground: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics,
+    def _crop_mask(self, foreground: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, box: tuple[slice, slice],
                    direction: np.ndarray | None) -> np.ndarray:
+        """The candidate pixels of the crop `box` of the image of `intrinsics` (foreground and range_m: the crop's;
+        the rays: the whole image's, cut to the box)."""
         off = np.zeros(np.shape(foreground), np.float32)
-        border = border_distance_m(foreground, range_m, intrinsics) if self.border_margin_m > 0 else off + np.inf
+        rays = intrinsics.unit_rays()[box]
+        border = (_border_distance_m(foreground, range_m, rays, intrinsics.fx) if self.border_margin_m > 0
+                  else off + np.inf)
         front = self.front_depth_m > 0
-        gap = front_gap_m(foreground, range_m, intrinsics, direction, median_px=self.median_px) if front else off
-        noise = (depth_noise_m(foreground, range_m, intrinsics, direction, self.median_px)
+        gap = (_front_gap_m(foreground, range_m, rays, intrinsics, direction, FRONT_RADIUS_M, self.median_px)
+               if front else off)
+        noise = (_depth_noise_m(foreground, range_m, rays, direction, self.median_px)
                  if front and self.front_noise_factor > 0 else off)
         return foreground & self.keep(border, gap, noise)
 

@@ -63,7 +63,8 @@ class Detection:
 
 def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrinsics, box: Box,
            scale: float, candidates: Candidates = ALL_FOREGROUND, direction: np.ndarray | None = None,
-           margin: Margin = PAPER_RULE, tip_radius_m: float = 0.0) -> Detection:
+           margin: Margin = PAPER_RULE, tip_radius_m: float = 0.0,
+           bounds: tuple[slice, slice] | None = None) -> Detection:
     """Detect the nose in one frame from its feature maps ((H, W), NaN outside the foreground).
 
     range_m: (H, W) radial range in metres, for the 3-D point of the detected pixel and the candidate tests.
@@ -71,11 +72,16 @@ def detect(maps: dict[str, np.ndarray], range_m: np.ndarray, intrinsics: Intrins
     docstring); direction: the face's viewing direction for the front test (segmentation.Foreground.rotation
     row 2). Only candidate pixels are scored (a few thousand of 25k). margin: the acceptance rule beyond the scale.
     tip_radius_m: > 0: the accepted pixel is refined to the sub-pixel tip (tip.refine_tip, window of this radius).
+    bounds: (rows, cols) outside which every map is NaN (the segmentation mask's bounding box), so only these
+    pixels of the maps are read; None: the whole image.
     """
     require_maps(maps, box.features)
-    foreground = np.isfinite(maps[box.features[0]])
+    region = bounds or (slice(None), slice(None))
+    foreground = np.zeros(np.shape(maps[box.features[0]]), bool)
+    inside = np.isfinite(maps[box.features[0]][region])
     for name in box.features[1:]:
-        foreground &= np.isfinite(maps[name])
+        inside &= np.isfinite(maps[name][region])
+    foreground[region] = inside
     rows, cols = candidates.pixels(foreground, range_m, intrinsics, direction)
     if rows.size == 0:
         return Detection(None, None, float("inf"), False)
@@ -125,11 +131,11 @@ class NoseDetector:
         self._extractor: FeatureExtractor | None = None
 
     def detect_maps(self, maps: dict[str, np.ndarray], range_m: np.ndarray,
-                    direction: np.ndarray | None = None) -> Detection:
+                    direction: np.ndarray | None = None, bounds: tuple[slice, slice] | None = None) -> Detection:
         """Detection from named feature maps (tofd.algorithm.names), the frame's (H, W) range in metres and the
-        face's viewing direction (FrameFeatures.rotation[2]; None: the camera's z axis)."""
+        face's viewing direction (FrameFeatures.rotation[2]; None: the camera's z axis); `bounds`: see detect."""
         return detect(maps, range_m, self.intrinsics, self.box, self.scale, self.candidates, direction, self.margin,
-                      self.tip_radius_m)
+                      self.tip_radius_m, bounds)
 
     def detect_frame(self, range_m: np.ndarray, amplitude: np.ndarray) -> Detection:
         """Segment, compute this variant's features, detect."""

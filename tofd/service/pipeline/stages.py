@@ -12,6 +12,7 @@ from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import Alternative, Detection, NoseDetector, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import FAMILIES, VARIANTS, VIEWED_FAMILIES, families_for, family_maps
+from tofd.algorithm.segmentation import bounding_box
 from tofd.config import Config
 from tofd.service.pipeline.messages import DetectionMessage, FeatureReply
 from tofd.service.pipeline.results import FrameResult
@@ -45,10 +46,15 @@ class FeatureStage:
                              nfft_residual=float(ff.nfft_residual))
         if self._detector is not None:
             t0 = time.perf_counter()
-            det = self._detector.detect_maps(ff.maps, slot["range_m"], ff.rotation[2])
+            det = self._detector.detect_maps(ff.maps, slot["range_m"], ff.rotation[2], mask_box(ff.mask))
             timings["detection"] = (time.perf_counter() - t0) * 1e3
             reply["detection"] = detection_dict(det)
         return reply
+
+
+def mask_box(mask: np.ndarray) -> tuple[slice, slice]:
+    """The (rows, cols) bounding box of a bool mask (empty slices for an empty mask): the maps are NaN outside it."""
+    return bounding_box(mask) if mask.any() else (slice(0, 0), slice(0, 0))
 
 
 def detection_dict(det: Detection) -> DetectionMessage:
