@@ -92,12 +92,13 @@ def face_rotation(range_m: np.ndarray, intrinsics: Intrinsics, pixel: tuple[int,
 
 
 def refine_tip(range_m: np.ndarray, foreground: np.ndarray, intrinsics: Intrinsics, pixel: tuple[int, int],
-               rotation: np.ndarray, radius_m: float, iterations: int = 3) -> Tip:
+               rotation: np.ndarray, radius_m: float, iterations: int = 3, max_step_radii: float = MAX_STEP_RADII
+               ) -> Tip:
     """The tip near `pixel` (u, v) of a frame (module docstring).
 
     range_m: (H, W) radial range, metres; foreground: (H, W) bool, the pixels the surface is fitted to;
     rotation: (3, 3) camera -> face frame, row 2 the face's viewing direction (segmentation.Foreground.rotation),
-    refined about the pixel by face_rotation.
+    refined about the pixel by face_rotation. max_step_radii: one round's longest step, radii (MAX_STEP_RADII).
     Only windows about the pixel are read (the ring's, and 2 radii for the fit), every stride-th pixel of them
     on cameras of finer pixels than the reference (segmentation.coarse_stride): a fit needs the surface's shape, not
     every sample.
@@ -113,7 +114,7 @@ def refine_tip(range_m: np.ndarray, foreground: np.ndarray, intrinsics: Intrinsi
     points = intrinsics.unit_rays()[box][win] * range_m[box][win][:, None].astype(np.float64)
     local = points @ rotation.T  # face frame: x, y lateral, z depth along the viewing direction
     centre = rotation @ start
-    step = radius_m * MAX_STEP_RADII
+    step = radius_m * max_step_radii
     for _ in range(max(iterations, 0)):
         near = np.hypot(local[:, 0] - centre[0], local[:, 1] - centre[1]) <= radius_m
         if np.count_nonzero(near) < MIN_POINTS:
