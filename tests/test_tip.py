@@ -54,3 +54,21 @@ def test_a_window_without_a_cap_keeps_the_pixel():
     point = intrinsics.unit_rays()[50, 40] * 0.5
     assert not tip.fitted
     assert np.allclose(tip.xyz_m, point) and tip.px == pytest.approx((40, 50))
+
+
+@pytest.mark.parametrize("offset_m", [0.008, 0.012, 0.014])
+def test_a_pixel_on_the_side_of_the_nose_reaches_the_tip(offset_m):
+    """A 2 cm hemisphere on a plane (a nose on a face) seen by a 640x576 camera, the accepted pixel beside the apex:
+    the first window straddles the nose's side and its quadric's minimum lies far past the apex; the tip steps
+    toward it and re-fits rather than stopping at the pixel."""
+    intrinsics = Intrinsics(640, 576, 504.0, 504.0, 319.5, 287.5)
+    centre, radius = np.array([0.0, 0.0, 0.62]), 0.02
+    nose = sphere_range(intrinsics, centre, radius)
+    face = centre[2] / intrinsics.unit_rays()[..., 2]
+    range_m = np.fmin(nose, face)
+    apex = centre - np.array([0.0, 0.0, radius])
+    u, v = intrinsics.project(apex + np.array([offset_m, 0.0, 0.0]))
+    tip = refine_tip(range_m, np.isfinite(range_m), intrinsics, (int(round(u)), int(round(v))),
+                     rotation_to_z(np.array([0.0, 0.0, 1.0])), 0.016)
+    assert tip.fitted
+    assert np.linalg.norm(np.asarray(tip.xyz_m) - apex) < 1e-3

@@ -4,6 +4,11 @@ Pixels spaced p metres apart sample at fs = 1/p cycles per metre, so a grid mode
 The fit stays unique on the band (where the filters respond, up to the band edge, tofd.algorithm.band) while no
 alias of a band mode falls on the grid, i.e. while grid Nyquist + band edge <= fs on each axis. Past that, the damped
 solve shares the surface between aliases and the features shrink while CG still converges.
+
+What this check does not cover: surface detail beyond the pixels' own Nyquist frequency (fs / 2) in point samples
+(a rendered mesh's facets) folds into the band too. That depends on the surface, not on the camera and the band; it
+adds a sampling-phase dependent error to one frame's values, not a bias (tofd.lab.face_patch measures it), and a
+real pixel, which averages over its footprint, suppresses it.
 """
 
 from __future__ import annotations
