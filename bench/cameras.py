@@ -3,7 +3,6 @@ the emulator's face motion in any of them."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -13,19 +12,11 @@ from drivers.emulator.scene import Motion
 from drivers.frame import DeviceInfo, Frame, GroundTruth
 from drivers.intrinsics import Intrinsics
 from drivers.recording.writer import RecordingWriter
+from tofd.lab.cameras import CAMERAS as LAB_CAMERAS
 
-
-def pinhole(width: int, height: int, f: float) -> Intrinsics:
-    """Square pixels of focal length f (pixels), principal point at the image centre."""
-    return Intrinsics(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
-
-
-CAMERAS = {
-    "sr3000": Intrinsics(),  # 176x144, 47.5 degrees across
-    "320x240": pinhole(320, 240, 160 / math.tan(math.radians(35.0))),  # 70 degrees across
-    "640x576": pinhole(640, 576, 504.0),  # Azure Kinect / Femto NFOV unbinned
-    "1024x1024": pinhole(1024, 1024, 500.0),  # Azure Kinect WFOV-like
-}
+CAMERAS = {label: LAB_CAMERAS[name] for label, name in (("sr3000", "sr3000"), ("320x240", "320x240"),
+                                                          ("640x576", "k4a-nfov"), ("1024x1024", "1024x1024"))}
+"""The geometries the benchmarks compare, labelled by their pixels in the tables (tofd.lab.cameras owns them)."""
 FRAME_PERIOD_US = 33_333  # 30 fps
 
 

@@ -3,15 +3,24 @@ numbers, or a recording whose intrinsics are read from its header)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from drivers.intrinsics import Intrinsics
 
+
+def pinhole(width: int, height: int, f: float) -> Intrinsics:
+    """Square pixels of focal length f (pixels), principal point at the image centre."""
+    return Intrinsics(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
+
+
 CAMERAS: dict[str, Intrinsics] = {
-    "sr3000": Intrinsics(),
-    "k4a-nfov": Intrinsics(640, 576, 504.0, 504.0, 319.5, 287.5),  # Azure Kinect / Femto NFOV unbinned geometry
+    "sr3000": Intrinsics(),  # 176x144, 47.5 degrees across
+    "320x240": pinhole(320, 240, 160 / math.tan(math.radians(35.0))),  # 70 degrees across
+    "k4a-nfov": pinhole(640, 576, 504.0),  # Azure Kinect / Femto NFOV unbinned
+    "1024x1024": pinhole(1024, 1024, 500.0),  # Azure Kinect WFOV-like
 }
-"""Name -> intrinsics (pixels): the SR3000 the model is trained on, and a modern 640x576 TOF camera."""
+"""Name -> intrinsics (pixels): the SR3000 the model is trained on, and current TOF camera geometries."""
 
 INTRINSICS_HELP = (f"camera geometry: {' | '.join(CAMERAS)}, or WIDTH,HEIGHT,FX,FY,CX,CY (pixels), or a tofd "
                    "recording (its intrinsics); default sr3000")
