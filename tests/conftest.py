@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 
 import pytest
 
@@ -12,6 +13,16 @@ from drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, EmulatorBac
 FAST_DEVICE = {"readout_s": 0.0005, "fifo_depth": 4}
 FAST_CAMERA = {"int_time_code": 0, "read_timeout_s": 0.02, "stall_report_s": 0.1, "reconnect_initial_s": 0.01,
                "reconnect_max_s": 0.05}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Run as if started from a terminal: a shell starts a background job (`bash .ci/run &`) with SIGINT and
+    SIGQUIT ignored, tofd keeps a stop signal it was started with ignored (as nohup's SIGHUP), and the tests send
+    these to tofd processes they start and to themselves; restored here before any tofd module is imported."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if signal.getsignal(signal.SIGQUIT) == signal.SIG_IGN:
+        signal.signal(signal.SIGQUIT, signal.SIG_DFL)
 
 
 @pytest.fixture(scope="session", autouse=True)
