@@ -27,8 +27,12 @@ def pytest_configure(config: pytest.Config) -> None:
 
 @pytest.fixture(scope="session", autouse=True)
 def render_cache_dir(tmp_path_factory):
-    """The emulator's render cache of this session (inherited by the tofd processes tests start), not ~/.cache."""
-    os.environ["TOFD_CACHE_DIR"] = str(tmp_path_factory.mktemp("render-cache"))
+    """The emulator's render cache of this session (inherited by the tofd processes tests start), not ~/.cache;
+    one for all pytest-xdist workers of the run (entries are written to a temp file and renamed)."""
+    base = tmp_path_factory.getbasetemp()
+    cache = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "render-cache"
+    cache.mkdir(exist_ok=True)
+    os.environ["TOFD_CACHE_DIR"] = str(cache)
     return os.environ["TOFD_CACHE_DIR"]
 
 
