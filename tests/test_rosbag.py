@@ -37,6 +37,7 @@ from drivers.recording.reader import read_recording_info
 from drivers.recording.replay import iter_frames
 from drivers.rosbag import BagError, RangeOptions, RosbagSource
 from tofd.service.viewer import blueprint as bp
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 
 N_FRAMES = 12
 
@@ -188,7 +189,9 @@ def test_a_bag_of_another_frame_size_goes_through_the_whole_pipeline(tmp_path):
     proc = tofd("import", str(bag), str(tmp_path / "pmd.mcap"))
     assert proc.returncode == 0 and "3 frames of 224x172" in proc.stderr, proc.stderr
     proc = subprocess.run([sys.executable, "-m", "tofd", "replay", str(tmp_path / "pmd.mcap"), "--out",
-                           str(tmp_path / "r")], capture_output=True, text=True, timeout=HANG_GUARD_S,
+                           str(tmp_path / "r"), "--config", str(bundled_config(tmp_path / "tofd.toml",
+                                                                              pipeline=PATIENT_VIEWER))],
+                          capture_output=True, text=True, timeout=HANG_GUARD_S,
                           env={**os.environ, "RUST_LOG": "error"})  # with the viewer, saving pmd.rrd
     assert proc.returncode == 0, proc.stderr
     rows = results(tmp_path / "r" / "pmd.results.jsonl")
