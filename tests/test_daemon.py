@@ -25,6 +25,7 @@ def tofd(*args, **kwargs):
                             stderr=subprocess.PIPE, text=True, **kwargs)
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")  # a live run writes none, on purpose
 def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     notify = tmp_path / "notify.sock"
@@ -64,6 +65,7 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     assert not has_footer(rrd) and "footer" not in err
 
 
+@pytest.mark.slow
 def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     n = read_recording_info(CLIP).frame_count
     proc = tofd("replay", CLIP, "--out", tmp_path, "--config", write_config(tmp_path, pipeline=PATIENT_VIEWER),

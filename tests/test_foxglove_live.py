@@ -182,6 +182,7 @@ def test_a_stalled_client_and_fifty_connections_cost_the_pipeline_nothing(tmp_pa
         assert any("foxglove" in part for part in summary["shutdown"]["abandoned"])
 
 
+@pytest.mark.slow
 def test_a_port_in_use_is_a_config_error_naming_the_key(tmp_path):
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
