@@ -1,13 +1,15 @@
-"""Screenshot of a page in headless Chromium via the DevTools protocol, after waiting real seconds.
+"""Screenshots of a page in headless Chromium via the DevTools protocol, taken until one shows what a test waits for.
 
 The Rerun web viewer is a wasm app that needs real time to start; `chromium --screenshot` with virtual
 time captures only its loading screen (the wasm viewer needs real seconds to start). Outbound DNS is
-blocked (the viewer's fonts/analytics requests fail harmlessly); software WebGL via SwiftShader.
+blocked (the viewer's fonts/analytics requests fail harmlessly); software WebGL via SwiftShader. The Runtime
+domain stays disabled: reporting every console message of the viewer to the client slows its start-up many times.
 """
 
 from __future__ import annotations
 
 import base64
+import io
 import json
 import shutil
 import socket
@@ -15,9 +17,12 @@ import subprocess
 import tempfile
 import time
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import websocket
+from PIL import Image
 
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--disable-quic",
          "--no-first-run", "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -34,17 +39,17 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def screenshot(url: str, out: Path, wait_s: float) -> list[str]:
-    """Open `url`, wait `wait_s` real seconds, save a PNG of the page to `out`; the console messages.
-
-    A software-rendered viewer busy with a fast live stream can take a minute to produce the frame to capture.
-    """
+def screenshot(url: str, out: Path, shows: Callable[[np.ndarray], bool], timeout_s: float,
+               every_s: float = 2.0) -> str:
+    """Open `url` and take a screenshot every `every_s` seconds until `shows(rgb (H, W, 3) uint8)` is true or
+    `timeout_s` passed (a guard against hangs, not a speed check); the last one is saved as a PNG to `out`.
+    Returns the page's visible text then (what a failing test shows)."""
     port, profile = free_port(), tempfile.mkdtemp(prefix="tofd-chromium-")
     proc = subprocess.Popen([chromium(), *FLAGS, f"--user-data-dir={profile}", f"--remote-debugging-port={port}",
                              "about:blank"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         tabs = None
-        for _ in range(200):
+        for _ in range(600):
             try:
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/json", timeout=1) as resp:
                     tabs = json.load(resp)
@@ -55,8 +60,7 @@ def screenshot(url: str, out: Path, wait_s: float) -> list[str]:
             raise RuntimeError("chromium's DevTools endpoint did not come up")
         page = next(t for t in tabs if t["type"] == "page")
         # no Origin header: Chromium refuses DevTools connections from origins not named by --remote-allow-origins
-        ws = websocket.create_connection(page["webSocketDebuggerUrl"], timeout=60, suppress_origin=True)
-        events: list[dict] = []
+        ws = websocket.create_connection(page["webSocketDebuggerUrl"], timeout=120, suppress_origin=True)
         counter = iter(range(1, 1 << 30))
 
         def call(method: str, **params: object) -> dict:
@@ -66,24 +70,23 @@ def screenshot(url: str, out: Path, wait_s: float) -> list[str]:
                 msg = json.loads(ws.recv())
                 if msg.get("id") == mid:
                     return msg.get("result", msg)
-                events.append(msg)
 
-        call("Runtime.enable")
         call("Page.enable")
         call("Page.navigate", url=url)
-        end = time.monotonic() + wait_s
-        ws.settimeout(0.5)
-        while time.monotonic() < end:
-            try:
-                events.append(json.loads(ws.recv()))
-            except websocket.WebSocketTimeoutException:
-                pass
-        ws.settimeout(60)
-        shot = call("Page.captureScreenshot", format="png", optimizeForSpeed=True)
-        out.write_bytes(base64.b64decode(shot["data"]))
+        deadline = time.monotonic() + timeout_s
+        while True:
+            shot = call("Page.captureScreenshot", format="png", optimizeForSpeed=True)
+            if "data" in shot:  # else an error while the page changes its renderer: try again
+                png = base64.b64decode(shot["data"])
+                if shows(np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))) or time.monotonic() > deadline:
+                    break
+            elif time.monotonic() > deadline:
+                raise RuntimeError(f"no screenshot of {url}: {shot}")
+            time.sleep(every_s)
+        out.write_bytes(png)
+        text = call("Runtime.evaluate", expression="document.body ? document.body.innerText : ''")
         ws.close()
-        return [" ".join(str(a.get("value", a.get("description", "")))[:200] for a in e["params"]["args"])
-                for e in events if e.get("method") == "Runtime.consoleAPICalled"]
+        return str(text.get("result", {}).get("value", text))[-500:]
     finally:
         proc.terminate()
         try:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 
 import pytest
 
@@ -14,10 +15,24 @@ FAST_CAMERA = {"int_time_code": 0, "read_timeout_s": 0.02, "stall_report_s": 0.1
                "reconnect_max_s": 0.05}
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Run as if started from a terminal: a shell starts a background job (`bash .ci/run &`) with SIGINT and
+    SIGQUIT ignored, tofd keeps a stop signal it was started with ignored (as nohup's SIGHUP), and the tests send
+    these to tofd processes they start and to themselves; restored here before any tofd module is imported."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if signal.getsignal(signal.SIGQUIT) == signal.SIG_IGN:
+        signal.signal(signal.SIGQUIT, signal.SIG_DFL)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def render_cache_dir(tmp_path_factory):
-    """The emulator's render cache of this session (inherited by the tofd processes tests start), not ~/.cache."""
-    os.environ["TOFD_CACHE_DIR"] = str(tmp_path_factory.mktemp("render-cache"))
+    """The emulator's render cache of this session (inherited by the tofd processes tests start), not ~/.cache;
+    one for all pytest-xdist workers of the run (entries are written to a temp file and renamed)."""
+    base = tmp_path_factory.getbasetemp()
+    cache = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "render-cache"
+    cache.mkdir(exist_ok=True)
+    os.environ["TOFD_CACHE_DIR"] = str(cache)
     return os.environ["TOFD_CACHE_DIR"]
 
 

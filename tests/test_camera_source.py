@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import pytest
+
 from tofd.commands.record import _explain_device_drops
 from tofd.config import Config
 from tofd.service.camera import EMULATED_SERIAL, open_camera
 
 
+@pytest.mark.slow
 def test_emulated_camera_is_fully_rendered_before_its_first_frame():
     with open_camera(Config(), emulate=True) as camera:
         assert camera.emulator.scene.rendered  # the device never waits for the renderer

@@ -189,6 +189,7 @@ def test_replay_uses_the_configured_model_not_one_in_the_cwd_and_reports_accurac
     assert not list(out.glob(".*.tmp"))
 
 
+@pytest.mark.slow
 def test_replay_loop_results_carry_the_loop_index(tmp_path):
     proc = tofd("replay", str(CLIP), "--out", str(tmp_path), "--loop", "--frames", "110", "--rerun", "none")
     assert proc.returncode == 0, proc.stderr

@@ -14,7 +14,7 @@ from rrd_helpers import check_rrd, has_footer
 
 from drivers.recording.reader import read_recording_info
 from tofd.service.viewer import blueprint as bp
-from tofd_testing.pipeline_sources import write_config
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -25,6 +25,7 @@ def tofd(*args, **kwargs):
                             stderr=subprocess.PIPE, text=True, **kwargs)
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")  # a live run writes none, on purpose
 def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     notify = tmp_path / "notify.sock"
@@ -34,7 +35,8 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     env = {key: value for key, value in os.environ.items() if key != "RUST_LOG"}
     env.update(NOTIFY_SOCKET=str(notify), WATCHDOG_USEC="400000")
     rrd, summary_path = tmp_path / "live.rrd", tmp_path / "summary.json"
-    proc = tofd("run", "--emulate", "--config", write_config(tmp_path), "--rerun", f"save:{rrd}", "--health-port", "0",
+    config = write_config(tmp_path, pipeline=PATIENT_VIEWER)
+    proc = tofd("run", "--emulate", "--config", config, "--rerun", f"save:{rrd}", "--health-port", "0",
                 "--summary", summary_path, env=env)
     try:
         messages = []
@@ -44,7 +46,7 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
         while "WATCHDOG=1" not in messages or time.monotonic() - t_ready < 2.0:  # ~60 frames at 30 fps
             messages.append(sock.recv(100).decode())
         proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=30)
+        out, err = proc.communicate(timeout=300)  # a hang guard
     finally:
         proc.kill()
         sock.close()
@@ -63,9 +65,10 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     assert not has_footer(rrd) and "footer" not in err
 
 
+@pytest.mark.slow
 def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     n = read_recording_info(CLIP).frame_count
-    proc = tofd("replay", CLIP, "--out", tmp_path, "--config", write_config(tmp_path),
+    proc = tofd("replay", CLIP, "--out", tmp_path, "--config", write_config(tmp_path, pipeline=PATIENT_VIEWER),
                 env={**os.environ, "RUST_LOG": "error"})
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err

@@ -19,7 +19,7 @@ from drivers.recording.reader import read_recording_info
 from tofd.config import Config, ConfigError
 from tofd.service.foxglove import topics as t
 from tofd.service.foxglove.spec import parse_foxglove_spec
-from tofd_testing.pipeline_sources import write_config
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -49,7 +49,8 @@ def test_foxglove_spec_defaults_to_loopback_and_names_a_bad_value():
 def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
     info = read_recording_info(CLIP)
     intr = info.intrinsics
-    proc = tofd("replay", CLIP, "--out", tmp_path, "--config", write_config(tmp_path), "--foxglove", "127.0.0.1:0")
+    proc = tofd("replay", CLIP, "--out", tmp_path, "--config", write_config(tmp_path, pipeline=PATIENT_VIEWER),
+                "--foxglove", "127.0.0.1:0")
     try:
         url, _ = wait_for_url(proc.stderr)
         assert url.startswith("ws://127.0.0.1:")
@@ -181,6 +182,7 @@ def test_a_stalled_client_and_fifty_connections_cost_the_pipeline_nothing(tmp_pa
         assert any("foxglove" in part for part in summary["shutdown"]["abandoned"])
 
 
+@pytest.mark.slow
 def test_a_port_in_use_is_a_config_error_naming_the_key(tmp_path):
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))

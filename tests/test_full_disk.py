@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from tofd_testing.chaos_helpers import metric, metrics, tofd
-from tofd_testing.pipeline_sources import write_config
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config, write_config
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -43,7 +43,8 @@ def _leftovers(directory: Path) -> list[str]:
 @pytest.mark.slow
 def test_a_replay_onto_a_full_disk_names_each_failed_output_once_and_leaves_no_temp_file(small_disk):
     out = small_disk / "out"
-    proc = tofd("replay", CLIP, "--out", out, "--frames", "60")
+    proc = tofd("replay", CLIP, "--out", out, "--frames", "60", "--config",
+                bundled_config(small_disk.parent / "tofd.toml", pipeline=PATIENT_VIEWER))
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 1, err
     lines = [line for line in err.strip().splitlines()  # not ours: multiprocessing's semaphore warning at exit
@@ -60,8 +61,9 @@ def test_a_replay_onto_a_full_disk_names_each_failed_output_once_and_leaves_no_t
 @pytest.mark.slow
 def test_a_live_save_sink_that_fills_its_disk_shows_in_healthz_metrics_and_the_summary(small_disk, tmp_path):
     rrd, summary_path = small_disk / "live.rrd", tmp_path / "summary.json"
-    proc = tofd("run", "--emulate", "--config", write_config(tmp_path), "--rerun", f"save:{rrd}",
-                "--health-port", "0", "--summary", summary_path)
+    config = write_config(tmp_path, pipeline=PATIENT_VIEWER)
+    proc = tofd("run", "--emulate", "--config", config, "--rerun", f"save:{rrd}", "--health-port", "0", "--summary",
+                summary_path)
     try:
         lines = []
         while not any("INFO health:" in line for line in lines):

@@ -111,6 +111,7 @@ def test_check_reports_moved_detections_and_is_exact_on_pixels_and_frames():
     assert report.frames_compared == 100 and not report.bit_identical
 
 
+@pytest.mark.slow
 def test_check_exits_1_with_a_readable_diff(tmp_path):
     proc = replay(tmp_path, "--frames", "4", "--check", GOLDEN)
     assert proc.returncode == 1

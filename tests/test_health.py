@@ -7,6 +7,8 @@ import time
 import urllib.error
 import urllib.request
 
+import pytest
+
 from tofd.config import Config, config_digest
 from tofd.service.health import HealthServer, ServiceMetrics, notify_status, sd_notify, watchdog_interval_s
 from tofd.service.pipeline import Pipeline
@@ -27,6 +29,7 @@ def metric_values(text, name):
     return {m.group(1) or "": float(m.group(2)) for m in re.finditer(rf"^{name}(\{{[^}}]*\}})? (\S+)$", text, re.M)}
 
 
+@pytest.mark.slow
 def test_metrics_and_healthz_of_a_live_run():
     cfg = Config()
     snapshot = []  # the pipeline's, once it exists (the metrics come first: they are one of its sinks)

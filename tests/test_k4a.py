@@ -19,6 +19,7 @@ from drivers.recording.reader import read_recording_info
 from drivers.recording.replay import iter_frames
 from tests.k4a_helpers import CALIBRATION_JSON, K4A, k4a_libraries
 from tests.rrd_helpers import read_entities
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 
 ROOT = Path(__file__).resolve().parents[1]
 RAW = CALIBRATION_JSON.read_bytes()
@@ -233,7 +234,8 @@ def test_a_sphere_in_the_distorted_corner_comes_back_on_the_sphere(k4a, tmp_path
     path = record(k4a, tmp_path / "sphere.mkv", mode, [depth] * 3, [ir] * 3,
                   [4_000_000 + PERIOD_US * k for k in range(3)])
     out = tmp_path / "out"
-    proc = tofd("replay", path, "--out", out)
+    proc = tofd("replay", path, "--out", out, "--config",
+                bundled_config(tmp_path / "tofd.toml", pipeline=PATIENT_VIEWER))
     assert proc.returncode == 0, proc.stderr
     _, table = read_entities(str(out / "sphere.rrd"))["/world/foreground"]
     clouds = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in table.column("Points3D:positions").to_pylist()]

@@ -205,6 +205,7 @@ class GatedSink(Collect):
         super().__call__(r)
 
 
+@pytest.mark.slow
 def test_live_policy_drops_instead_of_blocking_and_never_goes_back_in_time():
     cfg = replace(CFG, pipeline=replace(CFG.pipeline, sink_queue=2))
     source = RenderedSource(45, fps=60, n_distinct=3)
@@ -225,6 +226,7 @@ def test_live_policy_drops_instead_of_blocking_and_never_goes_back_in_time():
     assert delivered == sorted(set(delivered))
 
 
+@pytest.mark.slow
 def test_a_stopped_worker_does_not_hold_back_live_output():
     """SIGSTOP one worker: the other's frames keep coming out (latest-wins), the held frame is ledgered as
     late, memory stays within the slot ring; a lossless run would wait for it instead."""

@@ -243,6 +243,7 @@ def test_replay_command_refuses_a_damaged_header_in_one_line(tmp_path, capsys):
     assert len(err) == 1 and "disagrees with the first frame" in err[0] and "Traceback" not in err[0]
 
 
+@pytest.mark.slow
 def test_replay_command_ledgers_each_faulty_frame_and_replays_the_rest(tmp_path):
     """`tofd replay` (a real subprocess) of a recording with one frame of each fault: damaged, CRC 0,
     duplicated, 10x10 planes; exit 0, each faulty frame ledgered at capture with its reason, no traceback."""

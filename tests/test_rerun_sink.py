@@ -14,6 +14,7 @@ from tofd.service.viewer.logger import frames_per_send
 from tofd_testing.pipeline_sources import RenderedSource
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("batch_frames", [1, 4])
 def test_saved_rrd_holds_every_frame(tmp_path, batch_frames):
     """Sent frame by frame or 4 at a time (19 frames: the last batch is partial, sent when the sink ends)."""
@@ -37,6 +38,7 @@ def test_saved_rrd_holds_every_frame(tmp_path, batch_frames):
     assert RrdReader(str(path)).blueprints(), "the blueprint is stored with the recording"
 
 
+@pytest.mark.slow
 def test_a_batch_is_sent_once_its_first_frame_waited_long_enough(tmp_path):
     """However large the batch, a frame reaches the stream within MAX_BATCH_AGE_S of the next one (slow replay)."""
     import time
@@ -143,6 +145,7 @@ def test_blueprint_has_an_events_view():
     assert [v.origin for v in found] == [bp.EVENTS]
 
 
+@pytest.mark.slow
 def test_saved_rrd_is_batched_and_the_viewer_sends_no_usage_data(tmp_path, monkeypatch):
     """`rerun rrd stats` does not call a saved replay "unoptimized"; with [rerun] analytics = false (default) the
     rerun binary we start sees CI=1 and has analytics off (it prints no opt-in banner and no config)."""

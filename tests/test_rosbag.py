@@ -37,6 +37,7 @@ from drivers.recording.reader import read_recording_info
 from drivers.recording.replay import iter_frames
 from drivers.rosbag import BagError, RangeOptions, RosbagSource
 from tofd.service.viewer import blueprint as bp
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 
 N_FRAMES = 12
 
@@ -117,6 +118,7 @@ def results(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
+@pytest.mark.slow
 def test_an_imported_bag_replays_and_finds_the_nose_like_the_emulated_recording(tmp_path, clip_frames):
     bag = write_frames_bag(tmp_path, "mcap", clip_frames)  # the SwissRanger defaults: mono16 device units
     out = tmp_path / "imported.mcap"
@@ -172,6 +174,7 @@ def test_a_ros2_driver_bag_has_no_sr3000_registers_but_its_signal_settings_and_d
         assert np.array_equal(got.range_m.view(np.uint32), want.range_m.view(np.uint32))
 
 
+@pytest.mark.slow
 def test_a_bag_of_another_frame_size_goes_through_the_whole_pipeline(tmp_path):
     """224x172 at 62 deg (a PMD-like sensor): the CameraInfo's intrinsics decide everything down to the viewer."""
     w, h, fov = 224, 172, 62.0
@@ -188,7 +191,9 @@ def test_a_bag_of_another_frame_size_goes_through_the_whole_pipeline(tmp_path):
     proc = tofd("import", str(bag), str(tmp_path / "pmd.mcap"))
     assert proc.returncode == 0 and "3 frames of 224x172" in proc.stderr, proc.stderr
     proc = subprocess.run([sys.executable, "-m", "tofd", "replay", str(tmp_path / "pmd.mcap"), "--out",
-                           str(tmp_path / "r")], capture_output=True, text=True, timeout=HANG_GUARD_S,
+                           str(tmp_path / "r"), "--config", str(bundled_config(tmp_path / "tofd.toml",
+                                                                              pipeline=PATIENT_VIEWER))],
+                          capture_output=True, text=True, timeout=HANG_GUARD_S,
                           env={**os.environ, "RUST_LOG": "error"})  # with the viewer, saving pmd.rrd
     assert proc.returncode == 0, proc.stderr
     rows = results(tmp_path / "r" / "pmd.results.jsonl")

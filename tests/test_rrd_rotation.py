@@ -19,7 +19,7 @@ from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config, ConfigError, config_from_dict
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.process import RerunBackend
-from tofd_testing.pipeline_sources import write_config
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -66,7 +66,7 @@ def test_a_live_run_rotates_its_rrd_by_size(tmp_path):
     out = tmp_path / "rrd"
     out.mkdir()
     proc = subprocess.Popen([sys.executable, "-m", "tofd", "run", "--emulate", "--health-port", "0",
-                             "--config", write_config(tmp_path, rerun={"rotate_mb": 2.0}),
+                             "--config", write_config(tmp_path, rerun={"rotate_mb": 2.0}, pipeline=PATIENT_VIEWER),
                              "--rerun", f"save:{out / 'live.rrd'}", "--summary", summary_path], cwd=ROOT,
                             stderr=subprocess.PIPE, text=True, env={**os.environ, "RUST_LOG": "error"})
     try:

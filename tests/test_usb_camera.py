@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -91,15 +92,25 @@ def test_timeouts_are_retried_and_counted(make_emulated_camera):
 
 
 def test_stall_is_reported_after_stall_time_and_marked_as_gap(make_emulated_camera):
-    gaps = []
+    gaps, paused_at = [], []
     camera = make_emulated_camera(on_gap=gaps.append)
-    frames = take(camera, 10, after=lambda i: i == 4 and camera.emulator.pause(0.3))
+
+    def pause(i: int) -> None:
+        if i == 4:
+            paused_at.append(time.monotonic())  # the emulator's clock
+            camera.emulator.pause(1.0)
+
+    frames = take(camera, 10, after=pause)
     assert camera.counters["stall"] == 1
-    assert camera.counters["timeout"] >= 5  # 0.3 s of 20 ms reads
+    assert camera.counters["timeout"] >= 5  # 1 s of 20 ms reads (5 even if each took ten times its timeout)
     assert len(gaps) == 1 and list(camera.gaps) == gaps
     gap = gaps[0]
-    assert gap.kind == "stall" and gap.end_monotonic_s - gap.start_monotonic_s >= 0.29
-    assert gap.last_counter == frames[4].frame_counter and gap.next_counter == frames[5].frame_counter
+    # the frames the sensor had finished before it paused (at most a FIFO's worth) come first, then the gap
+    counters = [f.frame_counter for f in frames]
+    k = counters.index(gap.last_counter)
+    assert 4 <= k <= 4 + camera.emulator.fifo_depth and gap.next_counter == counters[k + 1]
+    assert gap.kind == "stall" and gap.start_monotonic_s >= frames[4].host_monotonic_s
+    assert gap.end_monotonic_s >= paused_at[0] + 1.0  # nothing was produced before the pause ended
     assert camera.counters["device_dropped"] == device_truth(camera)
 
 

@@ -17,6 +17,7 @@ from test_cli import HANG_GUARD_S
 
 from drivers.intrinsics import Intrinsics
 from tofd.service.viewer import blueprint as bp
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 
 RECORDER = Path(__file__).with_name("realsense_recorder.py")
 LEGACY_VERSION = "2.56.5.9235"
@@ -62,10 +63,12 @@ def record_realsense(out: Path, env: dict[str, str], intrinsics: Intrinsics, sce
 
 
 def replay_saving_rrd(path: Path, out: Path) -> subprocess.CompletedProcess:
-    """`tofd replay path --out out` with the viewer saving out/<stem>.rrd (the default when Rerun is on)."""
+    """`tofd replay path --out out` with the viewer saving out/<stem>.rrd (the default when Rerun is on); the
+    bundled config, with a viewer given all the time it needs to finish the file."""
     env = {k: v for k, v in os.environ.items() if k != "RERUN"} | {"RUST_LOG": "error"}
-    return subprocess.run([sys.executable, "-m", "tofd", "replay", str(path), "--out", str(out)], capture_output=True,
-                          text=True, timeout=HANG_GUARD_S, env=env)
+    config = bundled_config(out.parent / f"{out.name}.toml", pipeline=PATIENT_VIEWER)
+    return subprocess.run([sys.executable, "-m", "tofd", "replay", str(path), "--out", str(out), "--config",
+                           str(config)], capture_output=True, text=True, timeout=HANG_GUARD_S, env=env)
 
 
 def logged_foreground(rrd: Path) -> list[np.ndarray]:

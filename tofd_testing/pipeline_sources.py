@@ -14,7 +14,7 @@ from drivers.emulator.render import Pose, load_face, render_face
 from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
 from drivers.intrinsics import Intrinsics
 from drivers.source import FrameSource
-from tofd.config import Config, load_config
+from tofd.config import Config, default_file, load_config
 
 
 def rendered_frames(n_distinct: int = 8, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, tuple[float, float]]]:
@@ -77,15 +77,28 @@ def write_test_model(path: Path, cfg: Config) -> Path:
     return save_model(model, path)
 
 
-def write_config(directory: Path, **sections: dict[str, object]) -> Path:
-    """A config file: the bundled defaults with `sections` overridden, e.g. rerun={"sink": "web"}; the detector
-    uses a model written by write_test_model."""
+PATIENT_VIEWER = {"shutdown_timeout_s": 300.0}
+"""[pipeline] settings for a run that saves an .rrd and does not test the shutdown's deadline: its viewer child
+finishes the file however long a loaded machine takes to start it (the default 10 s is the service's SIGTERM
+budget, which a short replay on busy cores can spend before the child has imported Rerun)."""
+
+
+def bundled_config(path: Path, **sections: dict[str, object]) -> Path:
+    """Write the bundled config (with its model) to `path`, with `sections` overridden, e.g.
+    pipeline=PATIENT_VIEWER."""
     cfg = load_config()
     table = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    table["detector"]["model_path"] = str(write_test_model(directory / "nose_model.json", cfg))
+    table["detector"]["model_path"] = str(default_file(cfg.detector.model_path))
     for section, values in sections.items():
         table[section].update(values)
-    path = directory / "tofd.toml"
     path.write_text("".join(f"[{name}]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in values.items()) + "\n"
                             for name, values in table.items()))
     return path
+
+
+def write_config(directory: Path, **sections: dict[str, object]) -> Path:
+    """A config file: the bundled defaults with `sections` overridden, e.g. rerun={"sink": "web"}; the detector
+    uses a model written by write_test_model."""
+    model = write_test_model(directory / "nose_model.json", load_config())
+    detector = {"model_path": str(model), **sections.pop("detector", {})}
+    return bundled_config(directory / "tofd.toml", detector=detector, **sections)

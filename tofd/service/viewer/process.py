@@ -351,7 +351,7 @@ class ViewerProcess:
             except OSError:
                 pass  # the child is gone: no status message will come
         msg = self._status_message(max(0.0, deadline - time.monotonic()))
-        self.process.join(max(0.0, min(1.0, deadline - time.monotonic())))
+        self.process.join(max(0.0, deadline - time.monotonic()))  # its interpreter's exit takes seconds on busy cores
         unsent = self.queue_frames - (self._free.get_value() if self._free is not None else 0)
         if msg is None or "closed" not in msg or self.process.is_alive():
             log.warning("the viewer did not finish in %.1f s (a stalled receiver?); abandoning it", timeout_s)
