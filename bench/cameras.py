@@ -3,6 +3,9 @@ the emulator's face motion in any of them."""
 
 from __future__ import annotations
 
+import time
+from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +14,9 @@ from drivers.emulator.render import load_face, render_face
 from drivers.emulator.scene import Motion
 from drivers.frame import DeviceInfo, Frame, GroundTruth
 from drivers.intrinsics import Intrinsics
+from drivers.recording.replay import ReplaySource
 from drivers.recording.writer import RecordingWriter
+from drivers.source import FrameSource
 from tofd.lab.cameras import CAMERAS as LAB_CAMERAS
 
 CAMERAS = {label: LAB_CAMERAS[name] for label, name in (("sr3000", "sr3000"), ("320x240", "320x240"),
@@ -36,3 +41,25 @@ def write_face_clip(path: Path, intrinsics: Intrinsics, frames: int, seed: int =
                                ground_truth=GroundTruth(nose_px=r.nose_px, visible=r.nose_visible,
                                                         nose_xyz_m=r.nose_xyz_m)))
     return path
+
+
+class MemoryCamera(FrameSource):
+    """A clip's frames read into memory once and handed over in real time (FRAME_PERIOD_US apart, looped, counters
+    and device times running on) as a camera's driver hands over raw frames: a new buffer per frame, no file read
+    or decompressed in the capture thread."""
+
+    def __init__(self, clip: Path):
+        super().__init__()
+        with ReplaySource(clip) as source:
+            self.frames = list(source)
+
+    def __iter__(self) -> Iterator[Frame]:
+        t0, i = time.monotonic(), 0
+        while not self.closed:
+            wait = t0 + i * FRAME_PERIOD_US * 1e-6 - time.monotonic()
+            if wait > 0 and self._closed.wait(wait):
+                return
+            f = self.frames[i % len(self.frames)]
+            yield replace(f, range_m=f.range_m.copy(), amplitude=f.amplitude.copy(), frame_counter=i,
+                          timestamp_us=i * FRAME_PERIOD_US, host_monotonic_s=time.monotonic(), host_wall_s=time.time())
+            i += 1
