@@ -95,6 +95,18 @@ def test_end_to_end_roc(tiny):
         assert r.answers.scale == model.variant(r.variant).operating_scale
 
 
+def test_frames_of_unknown_distance_count_overall_and_in_no_distance_bin(tiny):
+    """A recording's frame whose nose range is unknown (NaN distance) is evaluated with the others, not binned."""
+    cfg, _, test, s_train, s_test = tiny
+    model = train_model(s_train, cfg.features, cfg.segmentation)
+    distance_m = test.distance_m.copy()
+    distance_m[0] = np.nan
+    for r in evaluate_model(model, s_test, distance_m).values():
+        assert r.overall.n_images == len(test)
+        assert set(r.per_distance) == set(distance_bins(distance_m[1:]).tolist()) == set(r.answers_per_distance)
+        assert sum(p.n_images for p in r.per_distance.values()) == len(test) - 1
+
+
 def test_operating_scale_makes_no_training_error_when_one_exists(tiny):
     cfg, _, _, s_train, _ = tiny
     model = train_model(s_train, cfg.features, cfg.segmentation)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tofd.lab.evaluation import distance_bins
+from tofd.lab.evaluation import distance_groups
 from tofd.outputs import save_figure
 
 RADIUS_PX = 5.0
@@ -76,12 +76,10 @@ class Accuracy:
                 "per_distance": {f"{d:.2f}": a.counts() for d, a in self.per_distance().items()}}
 
     def per_distance(self) -> dict[float, Accuracy]:
-        """The frames of known distance grouped by tofd.lab.evaluation.distance_bins (the bins of `tofd evaluate`)."""
+        """The frames of known distance by tofd.lab.evaluation.distance_groups (the bins of `tofd evaluate`)."""
         if self.distance_m is None:
             return {}
-        known = np.isfinite(self.distance_m)
-        bins = distance_bins(self.distance_m[known])
-        return {float(b): self._subset(np.flatnonzero(known)[bins == b]) for b in np.unique(bins)}
+        return {b: self._subset(index) for b, index in distance_groups(self.distance_m).items()}
 
     def _subset(self, index: np.ndarray) -> Accuracy:
         return Accuracy(self.frame_counter[index], self.error_px[index], self.score[index],

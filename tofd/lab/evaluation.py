@@ -269,6 +269,14 @@ def distance_bins(distance_m: np.ndarray) -> np.ndarray:
     return np.round(np.round(np.asarray(distance_m) / DISTANCE_BIN_M) * DISTANCE_BIN_M, 3)
 
 
+def distance_groups(distance_m: np.ndarray) -> dict[float, np.ndarray]:
+    """Bin (distance_bins) -> indices of the frames in it; frames of unknown (non-finite) distance are in none."""
+    distance_m = np.asarray(distance_m, dtype=np.float64)
+    known = np.flatnonzero(np.isfinite(distance_m))
+    bins = distance_bins(distance_m[known])
+    return {float(b): known[bins == b] for b in np.unique(bins)}
+
+
 @dataclass(slots=True)
 class ImageMinima:
     """Per image, what each variant's per-image ROC needs (tofd.lab.roc.roc_from_min_distances): whether it has
@@ -292,18 +300,16 @@ def variant_results(model: NoseModel, minima: ImageMinima, distance_m: np.ndarra
                     margin: Margin = PAPER_RULE) -> dict[str, VariantResult]:
     """ROC curves and answers (with the acceptance rule's `margin`) of every variant of the model from the images'
     minima, overall and per distance bin (distance_m: (F,) nose distance of each image, metres)."""
-    bins = distance_bins(distance_m)
+    groups = distance_groups(distance_m)
     has_nose = minima.has_nose
     results = {}
     for name, vm in model.variants.items():
         tmin, fmin, rival = minima.true_min[name], minima.false_min[name], minima.rival[name]
         res = VariantResult(name, roc_from_min_distances(tmin, fmin, has_nose),
                             answers_at(tmin, fmin, vm.operating_scale, rival, margin))
-        for b in np.unique(bins):
-            sel = bins == b
-            res.per_distance[float(b)] = roc_from_min_distances(tmin[sel], fmin[sel], has_nose[sel])
-            res.answers_per_distance[float(b)] = answers_at(tmin[sel], fmin[sel], vm.operating_scale, rival[sel],
-                                                            margin)
+        for b, sel in groups.items():
+            res.per_distance[b] = roc_from_min_distances(tmin[sel], fmin[sel], has_nose[sel])
+            res.answers_per_distance[b] = answers_at(tmin[sel], fmin[sel], vm.operating_scale, rival[sel], margin)
         results[name] = res
     return results
 
