@@ -24,21 +24,20 @@ from tofd.algorithm.params import DetectorConfig, SegmentationConfig
 from tofd.algorithm.segmentation import bounding_box, coarse_stride, filtered, upsampled
 
 
-def border_distance_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
+def border_distance_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, *,
+                      rays: np.ndarray | None = None) -> np.ndarray:
     """(H, W) float32 distance in metres from each mask pixel to the mask border or image edge (0 off the mask).
 
     Pixels: Euclidean distance to the nearest non-mask pixel (outside the image counts as non-mask) minus half a
     pixel; metres: times the pixel's depth (range * z of its unit ray) / fx.
+    rays: (H, W, 3) unit rays of these pixels (default: intrinsics.unit_rays(); a crop passes the whole image's
+    cut to it, as `Candidates` does).
     """
-    return _border_distance_m(mask, range_m, intrinsics.unit_rays(), intrinsics.fx)
-
-
-def _border_distance_m(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, fx: float) -> np.ndarray:
-    """border_distance_m with the pixels' unit rays (H, W, 3) given (a crop's: a view into the whole image's)."""
+    rays = intrinsics.unit_rays() if rays is None else rays
     padded = np.pad(np.asarray(mask, dtype=np.uint8), 1)
     px = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
     with np.errstate(invalid="ignore"):
-        metres = np.maximum(px - 0.5, 0) * (np.asarray(range_m) * rays[..., 2]) / fx
+        metres = np.maximum(px - 0.5, 0) * (np.asarray(range_m) * rays[..., 2]) / intrinsics.fx
     return np.where(mask, np.nan_to_num(metres, nan=0.0), 0.0).astype(np.float32)
 
 
@@ -46,7 +45,7 @@ FRONT_RADIUS_M = 0.012  # the front test's neighbourhood: about the nose tip's o
 
 
 def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None = None,
-                radius_m: float = FRONT_RADIUS_M, median_px: int = 5) -> np.ndarray:
+                radius_m: float = FRONT_RADIUS_M, median_px: int = 5, *, rays: np.ndarray | None = None) -> np.ndarray:
     """(H, W) float32 metres each mask pixel lies behind the front-most mask pixel within radius_m (0 off the mask).
 
     Depth along `direction` (unit, camera frame; default the camera's z axis), median-filtered over median_px
@@ -54,14 +53,10 @@ def front_gap_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, d
     the disc's radius in pixels is radius_m at the mask's median depth. On a camera of finer pixels the test runs
     on every coarse_stride-th pixel and each pixel takes the gap of the sample nearest it, so that the median and
     the minimum see the surface (and the noise) as on the reference camera.
+    rays: (H, W, 3) unit rays of these pixels (default: intrinsics.unit_rays(); a crop passes the whole image's
+    cut to it, as `Candidates` does).
     """
-    return _front_gap_m(mask, range_m, intrinsics.unit_rays(), intrinsics, direction, radius_m, median_px)
-
-
-def _front_gap_m(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, intrinsics: Intrinsics,
-                 direction: np.ndarray | None, radius_m: float, median_px: int) -> np.ndarray:
-    """front_gap_m with the pixels' unit rays (H, W, 3) given; `intrinsics` for the focal length only."""
-    depth, valid = _face_depth(mask, range_m, rays, direction)
+    depth, valid = _face_depth(mask, range_m, intrinsics.unit_rays() if rays is None else rays, direction)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
     median_m = float(np.median(depth[valid]))
@@ -90,20 +85,16 @@ NOISE_WINDOW_PX = 7  # window of the local noise estimate, pixels
 
 
 def depth_noise_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, direction: np.ndarray | None = None,
-                  median_px: int = 5) -> np.ndarray:
+                  median_px: int = 5, *, rays: np.ndarray | None = None) -> np.ndarray:
     """(H, W) float32 local range noise standard deviation in metres (0 off the mask), estimated from the frame.
 
     sigma = sqrt(pi / 2) * mean |depth - median_px median of depth| over the mask pixels of a NOISE_WINDOW_PX
     window (the mean absolute deviation of Gaussian noise is sigma sqrt(2 / pi)); the face's own curvature within
     the median window adds well under a millimetre.
+    rays: (H, W, 3) unit rays of these pixels (default: intrinsics.unit_rays(); a crop passes the whole image's
+    cut to it, as `Candidates` does).
     """
-    return _depth_noise_m(mask, range_m, intrinsics.unit_rays(), direction, median_px)
-
-
-def _depth_noise_m(mask: np.ndarray, range_m: np.ndarray, rays: np.ndarray, direction: np.ndarray | None,
-                   median_px: int) -> np.ndarray:
-    """depth_noise_m with the pixels' unit rays (H, W, 3) given."""
-    depth, valid = _face_depth(mask, range_m, rays, direction)
+    depth, valid = _face_depth(mask, range_m, intrinsics.unit_rays() if rays is None else rays, direction)
     if not valid.any():
         return np.zeros(valid.shape, np.float32)
     smooth = filtered(depth, valid, median_px)
@@ -175,12 +166,12 @@ class Candidates:
         the rays: the whole image's, cut to the box)."""
         off = np.zeros(np.shape(foreground), np.float32)
         rays = intrinsics.unit_rays()[box]
-        border = (_border_distance_m(foreground, range_m, rays, intrinsics.fx) if self.border_margin_m > 0
+        border = (border_distance_m(foreground, range_m, intrinsics, rays=rays) if self.border_margin_m > 0
                   else off + np.inf)
         front = self.front_depth_m > 0
-        gap = (_front_gap_m(foreground, range_m, rays, intrinsics, direction, FRONT_RADIUS_M, self.median_px)
+        gap = (front_gap_m(foreground, range_m, intrinsics, direction, median_px=self.median_px, rays=rays)
                if front else off)
-        noise = (_depth_noise_m(foreground, range_m, rays, direction, self.median_px)
+        noise = (depth_noise_m(foreground, range_m, intrinsics, direction, self.median_px, rays=rays)
                  if front and self.front_noise_factor > 0 else off)
         return foreground & self.keep(border, gap, noise)
 
