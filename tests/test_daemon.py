@@ -13,6 +13,7 @@ import pytest
 from rrd_helpers import check_rrd, has_footer
 
 from drivers.recording.reader import read_recording_info
+from tofd.config import load_config
 from tofd.service.viewer import blueprint as bp
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
 
@@ -67,9 +68,11 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
 
 @pytest.mark.slow
 def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
+    """Every frame in the results and the .rrd; a replay that reached its end gives the viewer finish_timeout_s to
+    finish its file, not the SIGTERM budget (here half a second, too short for a viewer on busy cores)."""
     n = read_recording_info(CLIP).frame_count
-    proc = tofd("replay", CLIP, "--out", tmp_path, "--config", write_config(tmp_path, pipeline=PATIENT_VIEWER),
-                env={**os.environ, "RUST_LOG": "error"})
+    proc = tofd("replay", CLIP, "--out", tmp_path, "--config",
+                write_config(tmp_path, pipeline={"shutdown_timeout_s": 0.5}), env={**os.environ, "RUST_LOG": "error"})
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
     assert f"tofd replay: {n} frames processed, 0 dropped" in err
@@ -81,6 +84,9 @@ def test_replay_writes_results_and_rrd_for_every_frame(tmp_path):
     assert accepted and all(len(x["nose_px"]) == 2 and x["score"] <= 1.5 for x in accepted)
     summary = json.loads((tmp_path / f"{stem}.summary.json").read_text())
     assert summary["frames_out"] == n and summary["frames_dropped"] == 0 and summary["consistent"]
+    shutdown = summary["shutdown"]
+    assert shutdown["reason"] == "end" and shutdown["budget_s"] == load_config().pipeline.finish_timeout_s
+    assert summary["viewer"]["exit"] == "clean" and not shutdown["abandoned"]
     tables = check_rrd(tmp_path / f"{stem}.rrd", counters)
     assert has_footer(tmp_path / f"{stem}.rrd")  # a replay ends: its file keeps the index for random access
     nose = tables[bp.NOSE_2D][1]

@@ -109,6 +109,7 @@ class PipelineConfig:
     max_worker_failures: int = 5  # consecutive worker deaths without a processed frame before giving up
     drain_timeout_s: float = 10.0  # seconds to drain the queues on shutdown before dropping the rest
     shutdown_timeout_s: float = 10.0  # seconds from SIGTERM to exit, whatever the viewer does (bounds the drain)
+    finish_timeout_s: float = 120.0  # seconds a run that reached the end of its source gives its outputs to finish
     stats_window: int = 600  # frames in the rolling timing/fps window
 
     def validate(self) -> None:
@@ -117,7 +118,8 @@ class PipelineConfig:
                 "stats_window": MAX_STATS_WINDOW}
         for key, limit in most.items():
             check_count(key, getattr(self, key), limit)
-        for key in ("worker_timeout_s", "worker_start_timeout_s", "drain_timeout_s", "shutdown_timeout_s"):
+        for key in ("worker_timeout_s", "worker_start_timeout_s", "drain_timeout_s", "shutdown_timeout_s",
+                    "finish_timeout_s"):
             check_seconds(key, getattr(self, key))
         if self.policy not in ("auto", "latest", "lossless"):
             raise ValueError(f"policy: {self.policy!r} is not one of 'auto', 'latest', 'lossless'")

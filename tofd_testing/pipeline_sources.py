@@ -78,9 +78,9 @@ def write_test_model(path: Path, cfg: Config) -> Path:
 
 
 PATIENT_VIEWER = {"shutdown_timeout_s": 300.0}
-"""[pipeline] settings for a run that saves an .rrd and does not test the shutdown's deadline: its viewer child
-finishes the file however long a loaded machine takes to start it (the default 10 s is the service's SIGTERM
-budget, which a short replay on busy cores can spend before the child has imported Rerun)."""
+"""[pipeline] settings for a run that saves an .rrd and does not test the shutdown's deadline: its niced viewer
+child finishes the file however long a loaded machine takes, also when a signal stops the run (the default 10 s is
+the service's SIGTERM budget; a run that reaches its end has finish_timeout_s)."""
 
 
 def bundled_config(path: Path, **sections: dict[str, object]) -> Path:

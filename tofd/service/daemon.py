@@ -5,13 +5,16 @@ Shared by `tofd run` (live camera) and `tofd replay` (recording). SIGTERM/SIGINT
 part gets its share of pipeline.shutdown_timeout_s (shutdown.py): the drain, the threads and workers, the
 viewer's flush, and whatever does not finish in its share is killed, so the process exits within
 shutdown_timeout_s of the signal, summary written (with the shutdown's phases and what was abandoned),
-whatever the Rerun SDK or a worker does. The exit code is 0 unless the pipeline failed.
+whatever the Rerun SDK or a worker does. A run whose source ended by itself (a replay) gives them
+pipeline.finish_timeout_s instead, so that a viewer on busy cores finishes the file it was handed, cut short by a
+stop signal meanwhile. The exit code is 0 unless the pipeline failed.
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -69,11 +72,13 @@ def _health(cfg: Config, pipeline: Pipeline, metrics: ServiceMetrics) -> HealthS
 
 
 def _close(shutdown: Shutdown, pipeline: Pipeline | None, health: HealthServer | None,
-           viewers: tuple[ViewerProcess | None, ViewerProcess | None]) -> LedgerSummary | None:
+           viewers: tuple[ViewerProcess | None, ViewerProcess | None],
+           stopped: Callable[[], bool]) -> LedgerSummary | None:
     """Stop what was started, each part within its share of the shutdown budget: drain half of what is left
     (at most pipeline.drain_timeout_s), give the threads and workers a quarter of the rest before killing
     them, then the viewers (`viewers`: Foxglove's, a fifth of the rest, then Rerun's, the rest) before killing
-    them; the ledger summary (None: no pipeline was made)."""
+    them, or at once when `stopped()` turns true (a stop signal while a run that reached its end waits for them);
+    the ledger summary (None: no pipeline was made)."""
     summary = None
     if pipeline is not None:
         with shutdown.phase("pipeline"):
@@ -87,7 +92,7 @@ def _close(shutdown: Shutdown, pipeline: Pipeline | None, health: HealthServer |
         if viewer is not None:
             part = "viewer" if viewer.name == "rerun" else viewer.name
             with shutdown.phase(part):
-                report = viewer.close(shutdown.left_s(share))
+                report = viewer.close(shutdown.left_s(share), stopped)
             if report["exit"] == "killed":
                 shutdown.abandoned.append(f"{part} ({report['exit']}, {report['unsent']} frame(s) unsent)")
     return summary
@@ -148,9 +153,10 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             run_s = time.monotonic() - started_s
         finally:
             sd_notify("STOPPING=1")
-            shutdown = Shutdown.start(stop.name or ("error" if pipeline is None or pipeline.error else "end"),
-                                      pc.shutdown_timeout_s, stop.first_at_s)
-            ledger = _close(shutdown, pipeline, health, (foxglove, viewer))
+            reason = stop.name or ("error" if pipeline is None or pipeline.error else "end")
+            shutdown = Shutdown.start(reason, pc.finish_timeout_s if reason == "end" else pc.shutdown_timeout_s,
+                                      stop.first_at_s)
+            ledger = _close(shutdown, pipeline, health, (foxglove, viewer), lambda: reason == "end" and bool(stop))
             viewer_report = None if viewer is None else viewer.report
     assert pipeline is not None and ledger is not None  # else the try block raised
     snap = pipeline.snapshot()

@@ -337,8 +337,9 @@ class ViewerProcess:
             self._failure_told = True
         return str(self.output), self.failed
 
-    def close(self, timeout_s: float) -> ViewerReport:
-        """Let the child log what it was handed, flush and exit; SIGKILL it after `timeout_s`. A summary:
+    def close(self, timeout_s: float, cancelled: Callable[[], bool] = lambda: False) -> ViewerReport:
+        """Let the child log what it was handed, flush and exit; SIGKILL it after `timeout_s` or once `cancelled()`
+        (polled) turns true. A summary:
         {"exit": "clean" | "killed" | "cancelled" (stopped while starting), "frames": logged, "errors": frames
         Rerun refused, "unsent": frames handed over but not logged}."""
         if self.report:  # cancelled at start: the child is gone already
@@ -350,8 +351,9 @@ class ViewerProcess:
                 self._frames.send_bytes(CLOSE)
             except OSError:
                 pass  # the child is gone: no status message will come
-        msg = self._status_message(max(0.0, deadline - time.monotonic()))
-        self.process.join(max(0.0, deadline - time.monotonic()))  # its interpreter's exit takes seconds on busy cores
+        msg = self._status_message(max(0.0, deadline - time.monotonic()), cancelled)
+        # its interpreter's exit takes seconds on busy cores
+        self.process.join(0.0 if cancelled() else max(0.0, deadline - time.monotonic()))
         unsent = self.queue_frames - (self._free.get_value() if self._free is not None else 0)
         if msg is None or "closed" not in msg or self.process.is_alive():
             log.warning("the viewer did not finish in %.1f s (a stalled receiver?); abandoning it", timeout_s)
