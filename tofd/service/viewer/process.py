@@ -111,11 +111,11 @@ class RerunBackend:
         self.path = None if self.sink != "save" else path or Path(self.cfg.rerun.path)
 
     def __call__(self, r: FrameResult) -> None:
-        self.logger(r)
-        if self.rotation is not None and self.rotation.due():
+        if self.rotation is not None and self.rotation.due():  # before the frame: a segment never ends up empty
             self.logger.flush()
             self.target.close(self.cfg.pipeline.shutdown_timeout_s)
             self._open(self.rotation.advance())
+        self.logger(r)
 
     def flush(self) -> None:
         self.logger.flush()
