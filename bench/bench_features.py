@@ -13,7 +13,10 @@ into the patch) and map writing, type 1 (the finufft type-1 NUFFT onto the 2N gr
 A^H z), CG (the conjugate-gradient solve; also per iteration: one Toeplitz product, a real FFT pair of size 2N, plus
 the CG updates) and type 2 (the forward NUFFT of the filtered fields, with the set-up around the solve: the points
 handed to finufft, the operator made from the kernel).
-"without CG": the NFFT/FFT ratio of the other stages alone, the least any CG speed-up can reach.
+"without CG": the NFFT/FFT ratio of the other stages alone, the least any CG speed-up can reach. "floor": what the
+path would cost with no overhead at all and a stopping rule that knew the answer, as a ratio to the FFT path: the
+time inside finufft's own calls (nufft) plus the fewest CG iterations that put eps0 within 1 % of converged, each at
+the measured cost of one iteration.
 --cameras: the camera geometries to run (bench/cameras.py: the SR3000 and three current ones), each with its own FFT
 baseline measured in the same run, so the ratios compare per geometry; and the cross-camera check: the NFFT eps0 at a
 0.1 m sphere's apex for every camera at 0.35, 0.5 and 0.8 m, and its spread (goal <= 2 %).
@@ -32,6 +35,7 @@ import platform
 import time
 from pathlib import Path
 
+import finufft
 import numpy as np
 from cameras import CAMERAS
 from report import write_json
@@ -52,12 +56,16 @@ SPHERE_CHECK_M = (0.35, 0.5, 0.8)  # the cross-camera check's apex distances, me
 
 GOAL_RATIO = 2.0  # NFFT / FFT range-feature CPU time per frame at 176x144 (issue 33)
 STAGE_COLUMNS = ("points", "type1", "cg", "type2")  # the NFFT CPU time's parts (points: with the map writing)
+TIMED_COLUMNS = (*STAGE_COLUMNS, "nufft")  # and finufft's calls alone, inside type1 and type2
 ABOUT = ("FFT and NFFT range features per frame, CPU milliseconds (thread time), per camera geometry; ratios within "
          "one run. NFFT stages: points (back-projection into the patch, and the map writing), type1 (finufft type 1 "
          "onto the 2N grid: Toeplitz kernel and A^H z), cg (the solve), type2 (finufft type 2 of the filtered fields, "
          "with the set-up around the solve). nfft_without_cg_over_fft_cpu: the ratio of the other stages alone, the "
          "least a faster solve can reach. eps0_error_pct: largest deviation from the converged solution where it is "
-         "at least a tenth of its peak.")
+         "at least a tenth of its peak. nufft_cpu_median_ms: finufft's own calls (setpts, execute) inside type1 and "
+         "type2. cg_fewest_iterations: the fewest CG iterations whose eps0 is within 1 % of converged. "
+         "floor_over_fft_cpu: (nufft + cg_fewest_iterations x cg_cpu_per_iteration_ms) / FFT, the least the path "
+         "can cost without a cheaper NUFFT or Toeplitz product.")
 CONVERGED = {"cg_tolerance": 1e-9, "cg_max_iterations": 3000, "cg_precision": "double", "nufft_eps": 1e-9}
 FACE_DEPTH_M = 0.08  # metres: segmentation depth margin for the face scenes, the whole face (a worst case: 1,700-5,600
 # points; the detector's default 0.025 m keeps a third of that)
@@ -82,12 +90,14 @@ def eps0_error(eps0: np.ndarray, converged: np.ndarray) -> float:
     return float(np.max(np.abs(eps0[strong] / converged[strong] - 1.0)))
 
 
-STAGES = {"fields": (NFFTFeatures, "fields"), "type1": (nfft_module, "real_pair_spectra"), "cg": (nfft_module, "solve")}
+STAGES = {"fields": (NFFTFeatures, "fields"), "type1": (nfft_module, "real_pair_spectra"), "cg": (nfft_module, "solve"),
+          "nufft_setpts": (finufft.Plan, "setpts"), "nufft_execute": (finufft.Plan, "execute")}
+FLOOR_ERROR = 1e-2  # the eps0 accuracy of the goal: within 1 % of converged
 
 
 def count_stage_cpu(totals: dict[str, float]) -> None:
     """Make each of the NFFT path's STAGES add its CPU time (s) to totals[stage] (this process only; replaces an
-    earlier call's counters)."""
+    earlier call's counters). The nufft_ stages are finufft's own calls, wherever the path makes them."""
     for stage, (owner, name) in STAGES.items():
         function = getattr(owner, name)
         function = getattr(function, "__wrapped__", function)
@@ -101,6 +111,17 @@ def count_stage_cpu(totals: dict[str, float]) -> None:
                 totals[_stage] += time.thread_time() - start
 
         setattr(owner, name, timed)
+
+
+def fewest_iterations(intrinsics: Intrinsics, cfg: FeatureConfig, range_m: np.ndarray, mask: np.ndarray,
+                      converged: np.ndarray) -> int:
+    """The fewest CG iterations whose eps0 is within FLOOR_ERROR of `converged` (what a stopping rule that knew the
+    answer would spend; cfg.cg_max_iterations if none is)."""
+    for iterations in range(1, cfg.cg_max_iterations):
+        capped = dataclasses.replace(cfg, cg_tolerance=1e-12, cg_max_iterations=iterations)
+        if eps0_error(NFFTFeatures(intrinsics, capped).range_features(range_m, mask).eps0, converged) <= FLOOR_ERROR:
+            return iterations
+    return cfg.cg_max_iterations
 
 
 def time_frames(cfg_dict: dict, repeats: int, camera: str = "sr3000") -> list[dict]:
@@ -117,9 +138,11 @@ def time_frames(cfg_dict: dict, repeats: int, camera: str = "sr3000") -> list[di
     rows = []
     for name, d, range_m, mask in scenes(intrinsics):
         fft.range_features(range_m, mask)
-        error = eps0_error(nfft.range_features(range_m, mask).eps0, converged.range_features(range_m, mask).eps0)
+        reference = converged.range_features(range_m, mask).eps0
+        error = eps0_error(nfft.range_features(range_m, mask).eps0, reference)
+        fewest = fewest_iterations(intrinsics, cfg, range_m, mask, reference)
         t_fft, t_nfft, cpu_fft, cpu_nfft, its = [], [], [], [], []
-        stages: dict[str, list[float]] = {f"{s}_cpu_ms": [] for s in STAGE_COLUMNS}
+        stages: dict[str, list[float]] = {f"{s}_cpu_ms": [] for s in TIMED_COLUMNS}
         for _ in range(repeats):
             t0, c0 = time.perf_counter(), time.thread_time()
             fft.range_features(range_m, mask)
@@ -128,7 +151,8 @@ def time_frames(cfg_dict: dict, repeats: int, camera: str = "sr3000") -> list[di
             t2, c2 = time.perf_counter(), time.thread_time()
             spent = {k: (totals[k] - before[k]) * 1e3 for k in totals}
             for stage, ms in (("points", (c2 - c1) * 1e3 - spent["fields"]), ("type1", spent["type1"]),
-                              ("cg", spent["cg"]), ("type2", spent["fields"] - spent["type1"] - spent["cg"])):
+                              ("cg", spent["cg"]), ("type2", spent["fields"] - spent["type1"] - spent["cg"]),
+                              ("nufft", spent["nufft_setpts"] + spent["nufft_execute"])):
                 stages[f"{stage}_cpu_ms"].append(ms)
             t_fft.append((t1 - t0) * 1e3)
             t_nfft.append((t2 - t1) * 1e3)
@@ -137,14 +161,14 @@ def time_frames(cfg_dict: dict, repeats: int, camera: str = "sr3000") -> list[di
             its.append(maps.iterations)
         rows.append({"camera": camera, "scene": name, "distance_m": d, "points": int(mask.sum()), "fft_ms": t_fft,
                      "nfft_ms": t_nfft, "fft_cpu_ms": cpu_fft, "nfft_cpu_ms": cpu_nfft, **stages,
-                     "iterations": int(np.median(its)),
+                     "iterations": int(np.median(its)), "fewest_iterations": fewest,
                      "eps0_error": error})
     return rows
 
 
 def pooled(runs: list[list[dict]]) -> list[dict]:
     """Per scene, the frames of several time_frames runs together (their per-frame lists concatenated)."""
-    timed = ("fft_ms", "nfft_ms", "fft_cpu_ms", "nfft_cpu_ms", *(f"{s}_cpu_ms" for s in STAGE_COLUMNS))
+    timed = ("fft_ms", "nfft_ms", "fft_cpu_ms", "nfft_cpu_ms", *(f"{s}_cpu_ms" for s in TIMED_COLUMNS))
     return [dict(rows[0], **{k: [x for r in rows for x in r[k]] for k in timed}) for rows in zip(*runs, strict=True)]
 
 
@@ -152,19 +176,23 @@ def stats(rows: list[dict], threads: int, wall_s: float | None = None) -> list[d
     out = []
     for r in rows:
         fft, nfft = np.array(r["fft_ms"]), np.array(r["nfft_ms"])
+        per_iteration = float(np.median(r["cg_cpu_ms"]) / max(r["iterations"], 1))
+        floor = float(np.median(r["nufft_cpu_ms"])) + r["fewest_iterations"] * per_iteration
         out.append({"camera": r["camera"], "threads": threads, "scene": r["scene"], "distance_m": r["distance_m"],
                     "points": r["points"],
                     "fft_median_ms": float(np.median(fft)), "fft_p95_ms": float(np.percentile(fft, 95)),
                     "nfft_median_ms": float(np.median(nfft)), "nfft_p95_ms": float(np.percentile(nfft, 95)),
                     "fft_cpu_median_ms": float(np.median(r["fft_cpu_ms"])),
                     "nfft_cpu_median_ms": float(np.median(r["nfft_cpu_ms"])),
-                    **{f"{s}_cpu_median_ms": float(np.median(r[f"{s}_cpu_ms"])) for s in STAGE_COLUMNS},
-                    "cg_cpu_per_iteration_ms": float(np.median(r["cg_cpu_ms"]) / max(r["iterations"], 1)),
-                    "cg_iterations": r["iterations"], "eps0_error_pct": 100 * r["eps0_error"],
+                    **{f"{s}_cpu_median_ms": float(np.median(r[f"{s}_cpu_ms"])) for s in TIMED_COLUMNS},
+                    "cg_cpu_per_iteration_ms": per_iteration,
+                    "cg_iterations": r["iterations"], "cg_fewest_iterations": r["fewest_iterations"],
+                    "eps0_error_pct": 100 * r["eps0_error"],
                     "nfft_over_fft": float(np.median(nfft) / np.median(fft)),
                     "nfft_over_fft_cpu": float(np.median(r["nfft_cpu_ms"]) / np.median(r["fft_cpu_ms"])),
                     "nfft_without_cg_over_fft_cpu": float(np.median(np.subtract(r["nfft_cpu_ms"], r["cg_cpu_ms"]))
-                                                          / np.median(r["fft_cpu_ms"]))})
+                                                          / np.median(r["fft_cpu_ms"])),
+                    "floor_over_fft_cpu": floor / float(np.median(r["fft_cpu_ms"]))})
     return out
 
 
@@ -221,27 +249,32 @@ def main() -> int:
                               "worst_eps0_error_pct": max(r["eps0_error_pct"] for r in single),
                               "worst_nfft_without_cg_over_fft_cpu": max(r["nfft_without_cg_over_fft_cpu"]
                                                                         for r in single),
+                              "floor_over_fft_cpu": [min(r["floor_over_fft_cpu"] for r in single),
+                                                     max(r["floor_over_fft_cpu"] for r in single)],
                               "two_process_wall_ms_per_frame": throughput_ms}
 
     header = (f"{'camera':>9} {'thr':>3} {'scene':>6} {'dist':>5} {'points':>6} {'FFT med':>8} {'FFT p95':>8} "
               f"{'FFT cpu':>8} {'NFFT med':>9} {'NFFT p95':>9} {'NFFT cpu':>9} {'pts+map':>7} {'type1':>6} "
-              f"{'CG cpu':>7} {'type2':>6} {'CG it':>6} {'ms/it':>6} "
-              f"{'eps0 err%':>9} {'NFFT/FFT':>9} {'cpu ratio':>9}")
+              f"{'CG cpu':>7} {'type2':>6} {'nufft':>6} {'CG it':>6} {'fewest':>6} {'ms/it':>6} "
+              f"{'eps0 err%':>9} {'NFFT/FFT':>9} {'cpu ratio':>9} {'floor':>6}")
     print(header)
     for r in rows:
         print(f"{r['camera']:>9} {r['threads']:>3} {r['scene']:>6} {r['distance_m']:5.2f} {r['points']:6d} "
               f"{r['fft_median_ms']:8.2f} {r['fft_p95_ms']:8.2f} {r['fft_cpu_median_ms']:8.2f} "
               f"{r['nfft_median_ms']:9.2f} {r['nfft_p95_ms']:9.2f} {r['nfft_cpu_median_ms']:9.2f} "
               f"{r['points_cpu_median_ms']:7.2f} {r['type1_cpu_median_ms']:6.2f} {r['cg_cpu_median_ms']:7.2f} "
-              f"{r['type2_cpu_median_ms']:6.2f} {r['cg_iterations']:6d} {r['cg_cpu_per_iteration_ms']:6.3f} "
-              f"{r['eps0_error_pct']:9.2f} {r['nfft_over_fft']:9.1f} {r['nfft_over_fft_cpu']:9.1f}")
+              f"{r['type2_cpu_median_ms']:6.2f} {r['nufft_cpu_median_ms']:6.2f} {r['cg_iterations']:6d} "
+              f"{r['cg_fewest_iterations']:6d} {r['cg_cpu_per_iteration_ms']:6.3f} "
+              f"{r['eps0_error_pct']:9.2f} {r['nfft_over_fft']:9.1f} {r['nfft_over_fft_cpu']:9.1f} "
+              f"{r['floor_over_fft_cpu']:6.1f}")
     for camera, c in per_camera.items():
         worst = c["worst_nfft_over_fft_cpu"]
         print(f"{camera}: worst NFFT/FFT CPU ratio (1 thread, frames of {args.processes} processes) {worst:.1f} (goal "
               f"<= {GOAL_RATIO:.0f}: {'met' if worst <= GOAL_RATIO else 'not met'}; each process alone: "
               f"{', '.join(f'{w:.1f}' for w in c['worst_nfft_over_fft_cpu_per_process'])}); worst eps0 error "
               f"{c['worst_eps0_error_pct']:.2f} % (goal <= 1 %); without CG (points and NUFFTs alone) "
-              f"{c['worst_nfft_without_cg_over_fft_cpu']:.1f}; 2 processes: "
+              f"{c['worst_nfft_without_cg_over_fft_cpu']:.1f}; floor (finufft's calls + the fewest CG iterations "
+              f"for eps0 within 1 %) {c['floor_over_fft_cpu'][0]:.1f}-{c['floor_over_fft_cpu'][1]:.1f}; 2 processes: "
               f"{c['two_process_wall_ms_per_frame']:.2f} ms wall per frame (FFT + NFFT range features)")
     sphere = sphere_experiment.summary(sphere_experiment.run(Intrinsics(), FeatureConfig(**cfg)),
                                        cfg["equivalence_range_m"])
