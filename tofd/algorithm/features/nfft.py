@@ -40,7 +40,6 @@ amplitude features for the NFFT detector variant.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import finufft
@@ -49,6 +48,7 @@ import scipy.fft as sfft
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.band import radial_tuning
+from tofd.algorithm.features.compiled import compiled
 from tofd.algorithm.features.eccentricity import Eccentricities, MapsOut
 from tofd.algorithm.features.fft import check_frame, usable
 from tofd.algorithm.features.normal_equations import DampedNormalEquations, load_kernels, norm_weights, solve
@@ -66,14 +66,6 @@ def _upsampfac(nufft_type: int, eps: float) -> float:
 
 
 _IDENTITY = np.eye(3)
-
-
-@functools.cache
-def _patch_points() -> Callable[..., tuple]:
-    """The compiled back-projection (patch_points.py), imported on first use: only processes that solve load numba."""
-    from tofd.algorithm.features.patch_points import patch_points
-
-    return patch_points
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,6 +161,7 @@ class NFFTFeatures:
         # spread_sort=0: the points come in pixel order, local enough; finufft's bin sort costs more than it saves
         self._plan_options = dict(modeord=1, nthreads=1, dtype=self._complex, spread_sort=0)
         self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
+        self._system = DampedNormalEquations(n, self._real, self._complex)
         load_kernels(self._complex)
         self.unit_square_points(np.ones(intrinsics.shape), np.zeros(intrinsics.shape, bool))  # load its loop now
 
@@ -196,7 +189,8 @@ class NFFTFeatures:
         flat = np.flatnonzero(mask)
         turn = _IDENTITY if rotation is None else np.ascontiguousarray(rotation, np.float64)
         ranges = np.take(range_m.reshape(-1), flat).astype(np.float64, copy=False)
-        x, y, z, index, mean_zz, mean_rr = _patch_points()(flat, ranges, self._ray_columns, turn, *self._square)
+        patch_points = compiled("patch_points").patch_points
+        x, y, z, index, mean_zz, mean_rr = patch_points(flat, ranges, self._ray_columns, turn, *self._square)
         if not z.size:
             return UnitSquarePoints(x, y, z, index, 0.0, float("nan"))
         # points per unit area of the square: 1 / mean pixel footprint, (z/fx)(z/fy) m^2 over Lx Ly
@@ -283,7 +277,7 @@ class NFFTFeatures:
         ty, tx = (2 * np.pi * y).astype(self._real), (2 * np.pi * x).astype(self._real)
         type1.setpts(ty, tx)
         kernel_and_rhs = real_pair_spectra(type1, np.concatenate((np.ones((1, x.size)), values)), n + 1)
-        system = DampedNormalEquations(kernel_and_rhs[0], lam, n, self._real, self._complex)
+        system = self._system.set_kernel(kernel_and_rhs[0], lam)
         grids = kernel_and_rhs[1:]
         rhs = np.concatenate((grids[:, :h, :h], grids[:, 2 * n - h + 1:, :h]), axis=1)
         solved = solve(system, rhs, self._norm_weights, self.cfg.cg_tolerance, self.cfg.cg_max_iterations)
