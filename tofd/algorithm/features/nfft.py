@@ -39,7 +39,6 @@ amplitude features for the NFFT detector variant.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import finufft
@@ -81,6 +80,17 @@ class UnitSquarePoints:
 
 
 @dataclass(frozen=True, slots=True)
+class _Transforms:
+    """finufft plans for a number of surfaces and the arrays they reuse: type 1's output grids (pairs, 2N, 2N) and
+    type 2's input modes (surfaces x packed operators, N, N)."""
+
+    type1: finufft.Plan
+    type2: finufft.Plan
+    grids: np.ndarray
+    modes: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
 class SurfaceFields:
     """One surface's filtered fields at the points: values (K, M), float64 for Hermitian operators else complex;
     iterations: CG iterations; residual: final relative band-weighted CG residual."""
@@ -90,37 +100,24 @@ class SurfaceFields:
     residual: float
 
 
-@functools.lru_cache(maxsize=4)
-def _mirror_index(size: int, columns: int) -> np.ndarray:
-    """Flat indices into a (size, size) FFT-ordered grid of the modes -m for the first `columns` columns."""
-    neg = (-np.arange(size)) % size
-    return (neg[:, None] * size + neg[None, :columns]).ravel()
-
-
-def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int) -> np.ndarray:
+def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int, grids: np.ndarray | None = None
+                      ) -> np.ndarray:
     """(R, 2N, columns) type-1 spectra (first `columns` kx) of R real strength sets, two per complex transform.
 
     F(u + i v) = F(u) + i F(v) and F(u)_-m = conj F(u)_m for real u, so F(u) = (G + G*_-m) / 2 and
     F(v) = (G - G*_-m) / 2i, except on the unpaired m = -N row and column (their mirror is off the grid; the
     solver never uses them). Each set is scaled to mean |value| 1 first so both share finufft's precision.
-    type1: n_trans = ceil(R / 2), onto a 2N x 2N grid in FFT order.
+    type1: n_trans = ceil(R / 2), onto a 2N x 2N grid in FFT order; grids: its (ceil(R / 2), 2N, 2N) output G to
+    reuse (a new array if None).
     """
+    kernels = compiled("spectra_kernels")
     scale = np.mean(np.abs(rows), axis=1)
     scale[scale == 0] = 1.0
-    strengths = np.zeros(((len(rows) + 1) // 2, rows.shape[1]), type1.dtype)
-    strengths.real[:] = rows[0::2] / scale[0::2, None]
-    strengths.imag[: len(rows) // 2] = rows[1::2] / scale[1::2, None]
-    spectra = type1.execute(strengths)
-    pairs, size = len(spectra), spectra.shape[-1]
-    mirrored = np.take(spectra.reshape(pairs, -1), _mirror_index(size, columns), axis=1).reshape(pairs, size, columns)
-    np.conjugate(mirrored, out=mirrored)  # G*_-m
-    spectra = spectra[:, :, :columns]
-    out = np.empty((2 * pairs, size, columns), spectra.dtype)
-    np.add(spectra, mirrored, out=out[0::2])
-    np.subtract(spectra, mirrored, out=out[1::2])
-    out = out[: len(rows)]
-    factor = 0.5 * scale * np.where(np.arange(len(rows)) % 2, -1j, 1.0)  # the halves, 1/i and the set's scale
-    out *= factor.astype(out.dtype)[:, None, None]
+    strengths = np.empty(((len(rows) + 1) // 2, rows.shape[1]), type1.dtype)
+    kernels.pack_pairs(rows, scale, strengths)
+    grids = type1.execute(strengths, out=grids)
+    out = np.empty((len(rows), grids.shape[-2], columns), type1.dtype)
+    kernels.separate_pairs(grids, (0.5 * scale).astype(np.finfo(out.dtype).dtype), out)  # the halves, the sets' scales
     return out
 
 
@@ -154,18 +151,17 @@ class NFFTFeatures:
         self._complex: type[np.complexfloating] = np.complex64 if single else np.complex128
         self._norm_weights = norm_weights(band.astype(self._real))  # CG's, made once rather than every frame
         self._filters = filters.astype(self._complex)
-        self._neg_rows = (-np.arange(n)) % n
-        self._neg_cols_src = n - np.arange(n - self._h + 1, n)
+        self._full = np.empty((n, n), self._complex)  # a solution's spectrum, filtered into type 2's modes
         eps = max(cfg.nufft_eps, SINGLE_NUFFT_EPS) if single else cfg.nufft_eps
         self._nufft_eps = eps
         # spread_sort=0: the points come in pixel order, local enough; finufft's bin sort costs more than it saves
         self._plan_options = dict(modeord=1, nthreads=1, dtype=self._complex, spread_sort=0)
-        self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
+        self._plans: dict[int, _Transforms] = {}
         self._system = DampedNormalEquations(n, self._real, self._complex)
         load_kernels(self._complex)
         self.unit_square_points(np.ones(intrinsics.shape), np.zeros(intrinsics.shape, bool))  # load its loop now
 
-    def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
+    def _plans_for(self, surfaces: int) -> _Transforms:
         """finufft plans (made once) for `surfaces` value sets on shared points: type 1 onto the 2N grid (the
         kernel and each right-hand side, two real sets per complex transform), type 2 back to the points
         (the packed operators of each)."""
@@ -176,7 +172,8 @@ class NFFTFeatures:
                                  **opts)
             type2 = finufft.Plan(2, (n, n), n_trans=len(self._filters) * surfaces, isign=1, eps=eps,
                                  upsampfac=_upsampfac(2, eps), **opts)
-            self._plans[surfaces] = (type1, type2)
+            self._plans[surfaces] = _Transforms(type1, type2, np.empty((pairs, 2 * n, 2 * n), self._complex),
+                                                np.empty((len(self._filters) * surfaces, n, n), self._complex))
         return self._plans[surfaces]
 
     def unit_square_points(self, range_m: np.ndarray, mask: np.ndarray,
@@ -273,17 +270,21 @@ class NFFTFeatures:
         per row the K operators' fields at the points, CG iterations and final relative residual."""
         n, h = self._n, self._h
         values = np.atleast_2d(values)
-        type1, type2 = self._plans_for(len(values))
+        plans = self._plans_for(len(values))
         ty, tx = (2 * np.pi * y).astype(self._real), (2 * np.pi * x).astype(self._real)
-        type1.setpts(ty, tx)
-        kernel_and_rhs = real_pair_spectra(type1, np.concatenate((np.ones((1, x.size)), values)), n + 1)
+        plans.type1.setpts(ty, tx)
+        kernel_and_rhs = real_pair_spectra(plans.type1, np.concatenate((np.ones((1, x.size)), values)), n + 1,
+                                           plans.grids)
         system = self._system.set_kernel(kernel_and_rhs[0], lam)
         grids = kernel_and_rhs[1:]
         rhs = np.concatenate((grids[:, :h, :h], grids[:, 2 * n - h + 1:, :h]), axis=1)
         solved = solve(system, rhs, self._norm_weights, self.cfg.cg_tolerance, self.cfg.cg_max_iterations)
-        type2.setpts(ty, tx)
-        out = type2.execute(np.concatenate([self._filters * self._hermitian_full(s.f) for s in solved]))
         packed = len(self._filters)
+        for s, modes in zip(solved, plans.modes.reshape(len(solved), packed, n, n), strict=True):
+            compiled("spectra_kernels").hermitian_full(s.f, self._full)
+            np.multiply(self._filters, self._full, out=modes)
+        plans.type2.setpts(ty, tx)
+        out = plans.type2.execute(plans.modes)
         return [SurfaceFields(self._unpack(out[i * packed:(i + 1) * packed]), s.iterations, s.residual)
                 for i, s in enumerate(solved)]
 
@@ -292,12 +293,3 @@ class NFFTFeatures:
         if not self._hermitian:
             return packed.astype(np.complex128)
         return np.stack([part for p in packed for part in (p.real, p.imag)][: self._count])
-
-    def _hermitian_full(self, half: np.ndarray) -> np.ndarray:
-        """(N, N) FFT-ordered spectrum from the compact half (kx >= 0) by Hermitian symmetry."""
-        n, h = self._n, self._h
-        full = np.zeros((n, n), self._complex)
-        full[:h, :h] = half[:h]
-        full[n - h + 1:, :h] = half[h:]
-        full[:, n - h + 1:] = np.conj(full[np.ix_(self._neg_rows, self._neg_cols_src)])
-        return full
