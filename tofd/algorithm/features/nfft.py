@@ -29,8 +29,9 @@ circulant convolution (one pruned real FFT pair of size 2N) on the half spectrum
 Nyquist row and column held at zero keep unknowns and fields Hermitian/real). CG stops on the residual
 weighted by A(rho) (cg_tolerance; the default keeps eps0 within 1 % of the converged value wherever it is
 at least a tenth of its peak: bench/bench_features.py). A forward type-2 NUFFT evaluates the fields, two real ones
-per complex transform where the operators are Hermitian (c0 + i c2 and s2). finufft plans are made once
-(nthreads=1) and only get new points per frame.
+per complex transform where the operators are Hermitian (c0 + i c2 and s2). finufft plans, the solver and the
+grids they write are made once (nthreads=1); a frame only sets new points and kernel, and the steps between the
+transforms are compiled loops (spectra_kernels.py).
 
 Amplitude (`features(..., amplitude=...)`): the amplitude at the same points, normalised like the FFT path's,
 is a second surface on the same kernel (a second right-hand side in the same CG batch): scale-invariant
@@ -122,7 +123,8 @@ def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int, grids
 
 
 class NFFTFeatures:
-    """Plans, transfer grids and buffers for one camera geometry and config; call per frame.
+    """Plans, transfer grids and buffers for one camera geometry and config; call per frame, one frame at a time (the
+    plans and buffers are the instance's: one instance per worker process or thread).
 
     transfer: the operators to apply (tofd.algorithm.features.operators; default the eccentricity filters
     [C0, C2, S2], which range_features and features need), at the mode frequencies k / patch side.

@@ -17,8 +17,10 @@ Stopping. CG stops when the residual weighted by A(rho) (the filters' band) fall
 relative to the weighted right-hand side: smooth surfaces put most of A^H z at low frequencies that the
 filters ignore, and the plain residual stopped a sphere with eps0 off by 15 %.
 
-CG's vector updates, inner products and the damping term are one compiled loop per step (cg_kernels.py):
-as numpy and BLAS calls they cost a third of each step in call overhead.
+Per step, all right-hand sides' vector updates, inner products and damping term are one compiled call
+(cg_kernels.py): as numpy and BLAS calls they cost a third of each step in call overhead. The operator's buffers
+are made once per grid and precision (DampedNormalEquations; each frame only sets its kernel), so a step allocates
+nothing.
 
 No preconditioner: the slow modes are band-limited ones straddling the patch border, which a preconditioner
 diagonal in space (T. Chan's optimal circulant, density compensation) cannot separate; both cost iterations.
@@ -160,18 +162,19 @@ def solve(system: DampedNormalEquations, rhs: np.ndarray, weights: np.ndarray, t
     rr, banded = norms[:, 0].copy(), norms[:, 1].copy()
     initial, limit = banded.copy(), tolerance**2 * banded
     rows, reals = np.arange(len(rhs)), _as_reals(x, r, p, q)
-    solutions: list[Solution] = [None] * len(rhs)  # type: ignore[list-item]  # each set as its rhs finishes
+    solutions: dict[int, Solution] = {}
     above, iterations = int(np.count_nonzero(banded > limit)), 0
     while True:
         if above < len(rows) or iterations == max_iterations:
             done = ~(banded > limit) | (iterations == max_iterations)
             for j in np.flatnonzero(done):
                 residual = np.sqrt(banded[j] / initial[j]) if initial[j] > 0 else 0.0
-                solutions[rows[j]] = Solution(system.compact(x[j]), iterations, float(residual))
+                solutions[int(rows[j])] = Solution(system.compact(x[j]), iterations, float(residual))
             if done.all():
-                return solutions
-            rows, x, r, p, q, rr, banded, initial, limit = (a[~done] for a in (rows, x, r, p, q, rr, banded, initial,
-                                                                              limit))
+                return [solutions[i] for i in range(len(rhs))]
+            keep = ~done
+            rows, x, r, p, q = rows[keep], x[keep], r[keep], p[keep], q[keep]
+            rr, banded, initial, limit = rr[keep], banded[keep], initial[keep], limit[keep]
             reals = _as_reals(x, r, p, q)
         product(p, q)
         above = kernels.cg_step(*reals, lam, weights, data_rows, rr, banded, limit)
