@@ -70,3 +70,20 @@ def test_a_reused_instance_gives_what_a_fresh_one_gives():
                 assert g.iterations == w.iterations
                 for a, b in ((g.eps0, w.eps0), (g.eps2, w.eps2)):
                     np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9 * np.nanmax(b), equal_nan=True)
+
+
+@pytest.mark.parametrize("precision", ["single", "double"])
+def test_frames_compile_nothing_after_construction(precision):
+    """The compiled loops are loaded for the frames' argument types when the instance is made: frames (with and
+    without the amplitude surface) add no numba specialisation, so a live run's first frame does not wait for one."""
+    from tofd.algorithm.features.compiled import compiled
+
+    nf = NFFTFeatures(INTR, FeatureConfig(cg_precision=precision))
+    loops = [getattr(compiled(module), name) for module, names in (
+        ("spectra_kernels", ("pack_pairs", "separate_pairs", "hermitian_full")), ("cg_kernels", ("cg_step", "norms")),
+        ("patch_points", ("patch_points",))) for name in names]
+    before = [len(loop.signatures) for loop in loops]
+    s = synthetic.sphere(INTR, 0.5, 0.1)
+    nf.features(s.range_m, s.mask)
+    nf.features(s.range_m, s.mask, amplitude=s.amplitude)
+    assert [len(loop.signatures) for loop in loops] == before

@@ -68,6 +68,15 @@ def _upsampfac(nufft_type: int, eps: float) -> float:
 _IDENTITY = np.eye(3)
 
 
+def _load_spectra_kernels(dtype: type[np.complexfloating]) -> None:
+    """Load spectra_kernels' loops for complex `dtype` now (compiling them the first time on a machine), with the
+    argument types the frames pass, not in the first frame: a live run's first frames would wait for it."""
+    kernels, real = compiled("spectra_kernels"), np.finfo(dtype).dtype
+    kernels.pack_pairs(np.ones((1, 1)), np.ones(1), np.empty((1, 1), dtype))
+    kernels.separate_pairs(np.zeros((1, 2, 2), dtype), np.ones(1, real), np.empty((1, 2, 2), dtype))
+    kernels.hermitian_full(np.zeros((1, 1), dtype), np.empty((2, 2), dtype))
+
+
 @dataclass(frozen=True, slots=True)
 class UnitSquarePoints:
     """Foreground points prepared for the NFFT: x, y in [-1/2, 1/2), z in metres (max 0), pixel index."""
@@ -161,6 +170,7 @@ class NFFTFeatures:
         self._plans: dict[int, _Transforms] = {}
         self._system = DampedNormalEquations(n, self._real, self._complex)
         load_kernels(self._complex)
+        _load_spectra_kernels(self._complex)
         self.unit_square_points(np.ones(intrinsics.shape), np.zeros(intrinsics.shape, bool))  # load its loop now
 
     def _plans_for(self, surfaces: int) -> _Transforms:
