@@ -29,8 +29,9 @@ circulant convolution (one pruned real FFT pair of size 2N) on the half spectrum
 Nyquist row and column held at zero keep unknowns and fields Hermitian/real). CG stops on the residual
 weighted by A(rho) (cg_tolerance; the default keeps eps0 within 1 % of the converged value wherever it is
 at least a tenth of its peak: bench/bench_features.py). A forward type-2 NUFFT evaluates the fields, two real ones
-per complex transform where the operators are Hermitian (c0 + i c2 and s2). finufft plans are made once
-(nthreads=1) and only get new points per frame.
+per complex transform where the operators are Hermitian (c0 + i c2 and s2). finufft plans, the solver and the
+grids they write are made once (nthreads=1); a frame only sets new points and kernel, and the steps between the
+transforms are compiled loops (spectra_kernels.py).
 
 Amplitude (`features(..., amplitude=...)`): the amplitude at the same points, normalised like the FFT path's,
 is a second surface on the same kernel (a second right-hand side in the same CG batch): scale-invariant
@@ -39,8 +40,6 @@ amplitude features for the NFFT detector variant.
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import finufft
@@ -49,6 +48,7 @@ import scipy.fft as sfft
 
 from drivers.intrinsics import Intrinsics
 from tofd.algorithm.band import radial_tuning
+from tofd.algorithm.features.compiled import compiled
 from tofd.algorithm.features.eccentricity import Eccentricities, MapsOut
 from tofd.algorithm.features.fft import check_frame, usable
 from tofd.algorithm.features.normal_equations import DampedNormalEquations, load_kernels, norm_weights, solve
@@ -68,12 +68,13 @@ def _upsampfac(nufft_type: int, eps: float) -> float:
 _IDENTITY = np.eye(3)
 
 
-@functools.cache
-def _patch_points() -> Callable[..., tuple]:
-    """The compiled back-projection (patch_points.py), imported on first use: only processes that solve load numba."""
-    from tofd.algorithm.features.patch_points import patch_points
-
-    return patch_points
+def _load_spectra_kernels(dtype: type[np.complexfloating]) -> None:
+    """Load spectra_kernels' loops for complex `dtype` now (compiling them the first time on a machine), with the
+    argument types the frames pass, not in the first frame: a live run's first frames would wait for it."""
+    kernels, real = compiled("spectra_kernels"), np.finfo(dtype).dtype
+    kernels.pack_pairs(np.ones((1, 1)), np.ones(1), np.empty((1, 1), dtype))
+    kernels.separate_pairs(np.zeros((1, 2, 2), dtype), np.ones(1, real), np.empty((1, 2, 2), dtype))
+    kernels.hermitian_full(np.zeros((1, 1), dtype), np.empty((2, 2), dtype))
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,6 +90,17 @@ class UnitSquarePoints:
 
 
 @dataclass(frozen=True, slots=True)
+class _Transforms:
+    """finufft plans for a number of surfaces and the arrays they reuse: type 1's output grids (pairs, 2N, 2N) and
+    type 2's input modes (surfaces x packed operators, N, N)."""
+
+    type1: finufft.Plan
+    type2: finufft.Plan
+    grids: np.ndarray
+    modes: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
 class SurfaceFields:
     """One surface's filtered fields at the points: values (K, M), float64 for Hermitian operators else complex;
     iterations: CG iterations; residual: final relative band-weighted CG residual."""
@@ -98,42 +110,30 @@ class SurfaceFields:
     residual: float
 
 
-@functools.lru_cache(maxsize=4)
-def _mirror_index(size: int, columns: int) -> np.ndarray:
-    """Flat indices into a (size, size) FFT-ordered grid of the modes -m for the first `columns` columns."""
-    neg = (-np.arange(size)) % size
-    return (neg[:, None] * size + neg[None, :columns]).ravel()
-
-
-def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int) -> np.ndarray:
+def real_pair_spectra(type1: finufft.Plan, rows: np.ndarray, columns: int, grids: np.ndarray | None = None
+                      ) -> np.ndarray:
     """(R, 2N, columns) type-1 spectra (first `columns` kx) of R real strength sets, two per complex transform.
 
     F(u + i v) = F(u) + i F(v) and F(u)_-m = conj F(u)_m for real u, so F(u) = (G + G*_-m) / 2 and
     F(v) = (G - G*_-m) / 2i, except on the unpaired m = -N row and column (their mirror is off the grid; the
     solver never uses them). Each set is scaled to mean |value| 1 first so both share finufft's precision.
-    type1: n_trans = ceil(R / 2), onto a 2N x 2N grid in FFT order.
+    type1: n_trans = ceil(R / 2), onto a 2N x 2N grid in FFT order; grids: its (ceil(R / 2), 2N, 2N) output G to
+    reuse (a new array if None).
     """
+    kernels = compiled("spectra_kernels")
     scale = np.mean(np.abs(rows), axis=1)
     scale[scale == 0] = 1.0
-    strengths = np.zeros(((len(rows) + 1) // 2, rows.shape[1]), type1.dtype)
-    strengths.real[:] = rows[0::2] / scale[0::2, None]
-    strengths.imag[: len(rows) // 2] = rows[1::2] / scale[1::2, None]
-    spectra = type1.execute(strengths)
-    pairs, size = len(spectra), spectra.shape[-1]
-    mirrored = np.take(spectra.reshape(pairs, -1), _mirror_index(size, columns), axis=1).reshape(pairs, size, columns)
-    np.conjugate(mirrored, out=mirrored)  # G*_-m
-    spectra = spectra[:, :, :columns]
-    out = np.empty((2 * pairs, size, columns), spectra.dtype)
-    np.add(spectra, mirrored, out=out[0::2])
-    np.subtract(spectra, mirrored, out=out[1::2])
-    out = out[: len(rows)]
-    factor = 0.5 * scale * np.where(np.arange(len(rows)) % 2, -1j, 1.0)  # the halves, 1/i and the set's scale
-    out *= factor.astype(out.dtype)[:, None, None]
+    strengths = np.empty(((len(rows) + 1) // 2, rows.shape[1]), type1.dtype)
+    kernels.pack_pairs(rows, scale, strengths)
+    grids = type1.execute(strengths, out=grids)
+    out = np.empty((len(rows), grids.shape[-2], columns), type1.dtype)
+    kernels.separate_pairs(grids, (0.5 * scale).astype(np.finfo(out.dtype).dtype), out)  # the halves, the sets' scales
     return out
 
 
 class NFFTFeatures:
-    """Plans, transfer grids and buffers for one camera geometry and config; call per frame.
+    """Plans, transfer grids and buffers for one camera geometry and config; call per frame, one frame at a time (the
+    plans and buffers are the instance's: one instance per worker process or thread).
 
     transfer: the operators to apply (tofd.algorithm.features.operators; default the eccentricity filters
     [C0, C2, S2], which range_features and features need), at the mode frequencies k / patch side.
@@ -162,17 +162,18 @@ class NFFTFeatures:
         self._complex: type[np.complexfloating] = np.complex64 if single else np.complex128
         self._norm_weights = norm_weights(band.astype(self._real))  # CG's, made once rather than every frame
         self._filters = filters.astype(self._complex)
-        self._neg_rows = (-np.arange(n)) % n
-        self._neg_cols_src = n - np.arange(n - self._h + 1, n)
+        self._full = np.empty((n, n), self._complex)  # a solution's spectrum, filtered into type 2's modes
         eps = max(cfg.nufft_eps, SINGLE_NUFFT_EPS) if single else cfg.nufft_eps
         self._nufft_eps = eps
         # spread_sort=0: the points come in pixel order, local enough; finufft's bin sort costs more than it saves
         self._plan_options = dict(modeord=1, nthreads=1, dtype=self._complex, spread_sort=0)
-        self._plans: dict[int, tuple[finufft.Plan, finufft.Plan]] = {}
+        self._plans: dict[int, _Transforms] = {}
+        self._system = DampedNormalEquations(n, self._real, self._complex)
         load_kernels(self._complex)
+        _load_spectra_kernels(self._complex)
         self.unit_square_points(np.ones(intrinsics.shape), np.zeros(intrinsics.shape, bool))  # load its loop now
 
-    def _plans_for(self, surfaces: int) -> tuple[finufft.Plan, finufft.Plan]:
+    def _plans_for(self, surfaces: int) -> _Transforms:
         """finufft plans (made once) for `surfaces` value sets on shared points: type 1 onto the 2N grid (the
         kernel and each right-hand side, two real sets per complex transform), type 2 back to the points
         (the packed operators of each)."""
@@ -183,7 +184,8 @@ class NFFTFeatures:
                                  **opts)
             type2 = finufft.Plan(2, (n, n), n_trans=len(self._filters) * surfaces, isign=1, eps=eps,
                                  upsampfac=_upsampfac(2, eps), **opts)
-            self._plans[surfaces] = (type1, type2)
+            self._plans[surfaces] = _Transforms(type1, type2, np.empty((pairs, 2 * n, 2 * n), self._complex),
+                                                np.empty((len(self._filters) * surfaces, n, n), self._complex))
         return self._plans[surfaces]
 
     def unit_square_points(self, range_m: np.ndarray, mask: np.ndarray,
@@ -196,7 +198,8 @@ class NFFTFeatures:
         flat = np.flatnonzero(mask)
         turn = _IDENTITY if rotation is None else np.ascontiguousarray(rotation, np.float64)
         ranges = np.take(range_m.reshape(-1), flat).astype(np.float64, copy=False)
-        x, y, z, index, mean_zz, mean_rr = _patch_points()(flat, ranges, self._ray_columns, turn, *self._square)
+        patch_points = compiled("patch_points").patch_points
+        x, y, z, index, mean_zz, mean_rr = patch_points(flat, ranges, self._ray_columns, turn, *self._square)
         if not z.size:
             return UnitSquarePoints(x, y, z, index, 0.0, float("nan"))
         # points per unit area of the square: 1 / mean pixel footprint, (z/fx)(z/fy) m^2 over Lx Ly
@@ -279,17 +282,21 @@ class NFFTFeatures:
         per row the K operators' fields at the points, CG iterations and final relative residual."""
         n, h = self._n, self._h
         values = np.atleast_2d(values)
-        type1, type2 = self._plans_for(len(values))
+        plans = self._plans_for(len(values))
         ty, tx = (2 * np.pi * y).astype(self._real), (2 * np.pi * x).astype(self._real)
-        type1.setpts(ty, tx)
-        kernel_and_rhs = real_pair_spectra(type1, np.concatenate((np.ones((1, x.size)), values)), n + 1)
-        system = DampedNormalEquations(kernel_and_rhs[0], lam, n, self._real, self._complex)
+        plans.type1.setpts(ty, tx)
+        kernel_and_rhs = real_pair_spectra(plans.type1, np.concatenate((np.ones((1, x.size)), values)), n + 1,
+                                           plans.grids)
+        system = self._system.set_kernel(kernel_and_rhs[0], lam)
         grids = kernel_and_rhs[1:]
         rhs = np.concatenate((grids[:, :h, :h], grids[:, 2 * n - h + 1:, :h]), axis=1)
         solved = solve(system, rhs, self._norm_weights, self.cfg.cg_tolerance, self.cfg.cg_max_iterations)
-        type2.setpts(ty, tx)
-        out = type2.execute(np.concatenate([self._filters * self._hermitian_full(s.f) for s in solved]))
         packed = len(self._filters)
+        for s, modes in zip(solved, plans.modes.reshape(len(solved), packed, n, n), strict=True):
+            compiled("spectra_kernels").hermitian_full(s.f, self._full)
+            np.multiply(self._filters, self._full, out=modes)
+        plans.type2.setpts(ty, tx)
+        out = plans.type2.execute(plans.modes)
         return [SurfaceFields(self._unpack(out[i * packed:(i + 1) * packed]), s.iterations, s.residual)
                 for i, s in enumerate(solved)]
 
@@ -298,12 +305,3 @@ class NFFTFeatures:
         if not self._hermitian:
             return packed.astype(np.complex128)
         return np.stack([part for p in packed for part in (p.real, p.imag)][: self._count])
-
-    def _hermitian_full(self, half: np.ndarray) -> np.ndarray:
-        """(N, N) FFT-ordered spectrum from the compact half (kx >= 0) by Hermitian symmetry."""
-        n, h = self._n, self._h
-        full = np.zeros((n, n), self._complex)
-        full[:h, :h] = half[:h]
-        full[n - h + 1:, :h] = half[h:]
-        full[:, n - h + 1:] = np.conj(full[np.ix_(self._neg_rows, self._neg_cols_src)])
-        return full

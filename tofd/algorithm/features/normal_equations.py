@@ -17,8 +17,10 @@ Stopping. CG stops when the residual weighted by A(rho) (the filters' band) fall
 relative to the weighted right-hand side: smooth surfaces put most of A^H z at low frequencies that the
 filters ignore, and the plain residual stopped a sphere with eps0 off by 15 %.
 
-CG's vector updates, inner products and the damping term are one compiled loop per step (cg_kernels.py):
-as numpy and BLAS calls they cost a third of each step in call overhead.
+Per step, all right-hand sides' vector updates, inner products and damping term are one compiled call
+(cg_kernels.py): as numpy and BLAS calls they cost a third of each step in call overhead. The operator's buffers
+are made once per grid and precision (DampedNormalEquations; each frame only sets its kernel), so a step allocates
+nothing.
 
 No preconditioner: the slow modes are band-limited ones straddling the patch border, which a preconditioner
 diagonal in space (T. Chan's optimal circulant, density compensation) cannot separate; both cost iterations.
@@ -30,12 +32,12 @@ further from the converged value than CG does at the same test.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
-from types import ModuleType
 
 import ducc0
 import numpy as np
+
+from tofd.algorithm.features.compiled import compiled
 
 _KY, _KX = (1,), (2,)  # the axes of (V, 2N, ...) fields and spectra: ky (rows) and kx (columns)
 
@@ -57,50 +59,50 @@ def norm_weights(band: np.ndarray) -> np.ndarray:
     return np.repeat(np.stack((twice, twice * band.astype(np.float64) ** 2)), 2, axis=-1)
 
 
-@functools.cache
-def _kernels() -> ModuleType:
-    """The compiled loops (cg_kernels.py), imported on first use: only processes that solve load numba."""
-    from tofd.algorithm.features import cg_kernels
-
-    return cg_kernels
-
-
 def load_kernels(dtype: type[np.complexfloating]) -> None:
     """Load the compiled loops for halves of complex `dtype` now (compiling them the first time on a machine), not
     in the first solve: a live run's first frames would wait for it."""
     real = np.finfo(dtype).dtype
-    v = np.zeros((1, 2), real)
-    weights, rows = norm_weights(np.ones((1, 1))), np.zeros(1, np.intp)
+    v = np.zeros((1, 1, 2), real)
+    weights, rows, norms = norm_weights(np.ones((1, 1))), np.zeros(1, np.intp), np.ones(1)
     hermitian_norms(np.zeros((1, 1), dtype), weights)
-    _kernels().cg_step(v, v.copy(), v.copy(), v.copy(), 0.0, weights, rows, 1.0)
+    compiled("cg_kernels").cg_step(v, v.copy(), v.copy(), v.copy(), 0.0, weights, rows, norms, norms.copy(),
+                                   norms.copy())
 
 
 def hermitian_norms(half: np.ndarray, weights: np.ndarray) -> tuple[float, float]:
     """(|f|^2, |band f|^2) over the full Hermitian spectrum of a compact half (N - 1, N/2); weights from
     norm_weights(band)."""
-    return _kernels().norms(_as_reals(half)[0], weights, np.arange(len(half)))
+    return compiled("cg_kernels").norms(_as_reals(half)[0], weights, np.arange(len(half)))
 
 
 class DampedNormalEquations:
-    """A^H A (product) and lambda (added in CG's step) for one frame's points, from K on the 2N x 2N grid (finufft
-    type 1, modeord=1).
+    """A^H A (product) and lambda (added in CG's step) on the 2N x 2N grid for N x N modes, for one frame's points at
+    a time: made once with its buffers, given each frame's kernel by set_kernel (like a finufft plan its points).
 
     The FFTs are ducc0's, on one thread: it writes into given arrays, vectorises the transforms along a strided
     axis, and has no per-call dispatch of scipy.fft.
     """
 
-    def __init__(self, kernel: np.ndarray, lam: float, n: int, real: type[np.floating],
-                 complex_: type[np.complexfloating]):
-        self.lam, self.dtype = lam, complex_
-        self._h, self._size = n // 2, 2 * n
+    def __init__(self, n: int, real: type[np.floating], complex_: type[np.complexfloating]):
+        self.lam, self.dtype = 0.0, complex_
+        self._n, self._h, self._size = n, n // 2, 2 * n
         self.data_rows = np.r_[: self._h, self._size - self._h + 1: self._size]  # of the embedded layout
-        half = kernel[:, : n + 1].astype(complex_)  # a copy
+        self._half = np.empty((2 * n, n + 1), complex_)  # the kernel's, transformed into the circulant
+        self._circulant = np.empty((2 * n, 2 * n), real)
+        self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
+
+    def set_kernel(self, kernel: np.ndarray, lam: float) -> DampedNormalEquations:
+        """Take this frame's K (2N, >= N + 1), the type-1 sums on the 2N x 2N grid in FFT order (finufft modeord=1;
+        columns kx = 0 .. N used), and lambda; returns self."""
+        n, half = self._n, self._half
+        half[:] = kernel[:, : n + 1]
         half[n, :] = 0  # the unpaired -N row and column never enter (A^H A f)_k for |k| < N/2
         half[:, n] = 0
         # the inverse transform's 1 / (2N)^2 (inorm=2), which product's transforms leave out, is folded in here
-        self._circulant = ducc0.fft.c2r(half, axes=(0, 1), lastsize=2 * n, forward=False, inorm=2,
-                                        out=np.empty((2 * n, 2 * n), real), nthreads=1)
-        self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
+        ducc0.fft.c2r(half, axes=(0, 1), lastsize=2 * n, forward=False, inorm=2, out=self._circulant, nthreads=1)
+        self.lam = lam
+        return self
 
     def embed(self, half: np.ndarray) -> np.ndarray:
         """(V, 2N, N/2) embedded copies of compact halves (V, N - 1, N/2)."""
@@ -149,32 +151,31 @@ def solve(system: DampedNormalEquations, rhs: np.ndarray, weights: np.ndarray, t
     """CG from 0 on each rhs (V, N - 1, N/2) until |band * r| <= tolerance |band * rhs| or max_iterations
     (weights: norm_weights(band)).
 
-    One batched operator product per step, then one compiled update per rhs. A converged rhs leaves the batch,
+    One batched operator product and one compiled update of all rhs per step. A converged rhs leaves the batch,
     so each answer is (to rounding) the one its own solve would give.
     """
-    data_rows, step, product, lam = system.data_rows, _kernels().cg_step, system.product, system.lam
-    rows = list(range(len(rhs)))
-    norms = [hermitian_norms(b, weights) for b in rhs]
+    kernels = compiled("cg_kernels")
+    data_rows, product, lam = system.data_rows, system.product, system.lam
     r = system.embed(rhs)
     x, p, q = np.zeros_like(r), r.copy(), np.empty_like(r)
-    per_row = list(zip(*_as_reals(x, r, p, q), strict=True))  # each rhs's (x, r, p, q) viewed as reals
-    rr, r_band2 = [n[0] for n in norms], [n[1] for n in norms]
-    b_band2 = list(r_band2)
-    limit = [tolerance**2 * b for b in b_band2]
+    norms = np.array([kernels.norms(v, weights, data_rows) for v in _as_reals(r)[0]])  # (V, 2)
+    rr, banded = norms[:, 0].copy(), norms[:, 1].copy()
+    initial, limit = banded.copy(), tolerance**2 * banded
+    rows, reals = np.arange(len(rhs)), _as_reals(x, r, p, q)
     solutions: dict[int, Solution] = {}
-    iterations = 0
+    above, iterations = int(np.count_nonzero(banded > limit)), 0
     while True:
-        keep = [j for j in range(len(rows)) if r_band2[j] > limit[j] and iterations < max_iterations]
-        if len(keep) < len(rows):
-            for j in sorted(set(range(len(rows))) - set(keep)):
-                residual = np.sqrt(r_band2[j] / b_band2[j]) if b_band2[j] > 0 else 0.0
-                solutions[rows[j]] = Solution(system.compact(x[j]), iterations, float(residual))
-            if not keep:
+        if above < len(rows) or iterations == max_iterations:
+            done = ~(banded > limit) | (iterations == max_iterations)
+            for j in np.flatnonzero(done):
+                residual = np.sqrt(banded[j] / initial[j]) if initial[j] > 0 else 0.0
+                solutions[int(rows[j])] = Solution(system.compact(x[j]), iterations, float(residual))
+            if done.all():
                 return [solutions[i] for i in range(len(rhs))]
-            rows, x, r, p, q = [rows[j] for j in keep], x[keep], r[keep], p[keep], q[keep]
-            per_row = list(zip(*_as_reals(x, r, p, q), strict=True))
-            b_band2, r_band2, rr, limit = ([v[j] for j in keep] for v in (b_band2, r_band2, rr, limit))
+            keep = ~done
+            rows, x, r, p, q = rows[keep], x[keep], r[keep], p[keep], q[keep]
+            rr, banded, initial, limit = rr[keep], banded[keep], initial[keep], limit[keep]
+            reals = _as_reals(x, r, p, q)
         product(p, q)
-        for j, (xj, rj, pj, qj) in enumerate(per_row):
-            rr[j], r_band2[j] = step(xj, rj, pj, qj, lam, weights, data_rows, rr[j])
+        above = kernels.cg_step(*reals, lam, weights, data_rows, rr, banded, limit)
         iterations += 1
