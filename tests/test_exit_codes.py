@@ -1,5 +1,6 @@
 """Exit statuses and last lines as documented (`tofd --help`): an interrupted replay, a finished live run."""
 
+import argparse
 import json
 import os
 import signal
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from tofd.cli import _run, stop_signal_behind
 from tofd_testing.pipeline_sources import write_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -52,3 +54,30 @@ def test_a_live_run_reports_its_drops_in_words(tmp_path):
     last = run.stderr.strip().splitlines()[-1]
     assert last.startswith("tofd run: frames in ") and "{" not in last and "None" not in last
     assert "resource_tracker" not in run.stderr and "leaked" not in run.stderr
+
+
+class _InterruptedField:
+    """A class attribute whose __set_name__ meets a stop signal, as a dataclass field does when Ctrl-C lands while
+    its module is loading."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        raise KeyboardInterrupt
+
+
+def _load_a_module_when_interrupted(args: argparse.Namespace) -> int:
+    type("Loading", (), {"field": _InterruptedField()})
+    return 0
+
+
+def test_a_stop_signal_while_a_class_is_defined_is_an_interrupt_not_an_error(capsys):
+    """Python 3.11 re-raises it as RuntimeError from the KeyboardInterrupt; tofd still exits 130 `interrupted`."""
+    code = _run(argparse.Namespace(command="run", func=_load_a_module_when_interrupted))
+    assert code == 130
+    assert capsys.readouterr().err.strip() == "tofd run: interrupted"
+
+
+def test_stop_signal_behind_finds_the_signal_only_where_there_is_one():
+    with pytest.raises(BaseException) as caught:
+        _load_a_module_when_interrupted(argparse.Namespace())
+    assert isinstance(stop_signal_behind(caught.value), KeyboardInterrupt)
+    assert stop_signal_behind(RuntimeError("a real failure")) is None

@@ -102,6 +102,12 @@ def main(argv: list[str] | None = None, *, exit_at_once: bool = False) -> int:
     except KeyboardInterrupt as exc:  # a stop signal while the command's modules load
         print(f"tofd: interrupted{_signal_name(exc)}", file=sys.stderr)
         return 130
+    except RuntimeError as exc:
+        interrupt = stop_signal_behind(exc)
+        if interrupt is None:
+            raise
+        print(f"tofd: interrupted{_signal_name(interrupt)}", file=sys.stderr)
+        return 130
     code = _run(args)
     if exit_at_once and getattr(args, "exit_at_once", False):
         logging.shutdown()
@@ -117,6 +123,15 @@ def entry() -> typing.NoReturn:
 
     interrupt_while_loading()
     sys.exit(main(exit_at_once=True))
+
+
+def stop_signal_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The stop signal an exception was raised from, if any: Python 3.11 re-raises one that arrives while a module
+    defines a class (in a descriptor's __set_name__, e.g. a dataclass field) as a RuntimeError from it."""
+    cause: BaseException | None = exc
+    while cause is not None and not isinstance(cause, KeyboardInterrupt):
+        cause = cause.__cause__
+    return cause
 
 
 def _signal_name(exc: KeyboardInterrupt) -> str:
@@ -139,6 +154,10 @@ def _run(args: argparse.Namespace) -> int:
         print(f"tofd {args.command}: interrupted{_signal_name(exc)}", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 (an unexpected failure: one line, the traceback only with -v)
+        interrupt = stop_signal_behind(exc)
+        if interrupt is not None:
+            print(f"tofd {args.command}: interrupted{_signal_name(interrupt)}", file=sys.stderr)
+            return 130
         extra = missing_extra(exc, args.command) if isinstance(exc, ImportError) else None
         if extra is not None:  # a module of an extra that is not installed, imported as the command ran
             print(f"tofd {args.command}: {install_hint(extra)}", file=sys.stderr)
