@@ -15,6 +15,7 @@ from rrd_helpers import check_rrd, has_footer
 from drivers.recording.reader import read_recording_info
 from tofd.config import load_config
 from tofd.service.viewer import blueprint as bp
+from tofd_testing.chaos_helpers import children_of
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -135,3 +136,43 @@ def test_sigterm_while_the_viewer_and_workers_start_exits_zero_with_a_summary(tm
     assert summary["frames_in"] == 0 and summary["consistent"] and summary["shutdown"]["reason"] == "SIGTERM"
     if sink == "save":
         assert summary["viewer"] == {"exit": "cancelled", "unsent": 0}
+
+
+def viewer_of(pid: int) -> int | None:
+    """The viewer child of a tofd process: the child that maps the viewer's shared-memory slot ring."""
+    for kid in children_of(pid):
+        try:
+            if f"/dev/shm/tofd_{pid}_viewer_" in Path(f"/proc/{kid}/maps").read_text():
+                return kid
+        except OSError:
+            continue
+    return None
+
+
+@pytest.mark.slow
+def test_a_replay_waits_for_a_slow_viewer_and_loses_no_frame_of_its_rrd(tmp_path):
+    """A lossless replay whose viewer takes no frame for several times the SIGTERM budget (stopped, as a niced
+    viewer on busy cores can be) waits for it: every frame in the .rrd, no viewer drop."""
+    n = read_recording_info(CLIP).frame_count
+    proc = tofd("replay", CLIP, "--out", tmp_path, "--config",
+                write_config(tmp_path, pipeline={"shutdown_timeout_s": 0.5}), env={**os.environ, "RUST_LOG": "error"})
+    stopped = None
+    try:
+        deadline = time.monotonic() + 120
+        while (stopped := viewer_of(proc.pid)) is None and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert stopped is not None, "no viewer child"
+        while not any(p.stat().st_size for p in tmp_path.glob("*results.jsonl*")) and time.monotonic() < deadline:
+            time.sleep(0.01)  # until frames flow (the results file grows under a temp name)
+        os.kill(stopped, signal.SIGSTOP)
+        time.sleep(3.0)  # six SIGTERM budgets
+        os.kill(stopped, signal.SIGCONT)
+        _, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    stem = CLIP.name.split(".")[0]
+    summary = json.loads((tmp_path / f"{stem}.summary.json").read_text())
+    assert summary["viewer_dropped"] == 0 and summary["frames_out"] == n, summary
+    counters = [json.loads(x)["frame_counter"] for x in (tmp_path / f"{stem}.results.jsonl").read_text().splitlines()]
+    check_rrd(tmp_path / f"{stem}.rrd", counters)

@@ -60,3 +60,20 @@ def test_a_viewer_that_dies_refuses_frames_and_closes_at_once(tmp_path):
     assert time.monotonic() - t0 < 5.0, "close waited for a dead child"
     assert report["exit"] == "killed" and report["unsent"] >= 1
     assert not shm_of(os.getpid())
+
+
+def test_a_wait_for_a_busy_viewer_ends_when_cancelled(tmp_path):
+    """A lossless sink waits long for a slot (finish_timeout_s); a stop signal (cancelled) ends that wait."""
+    v, _ = viewer(tmp_path, queue_frames=1)
+    os.kill(v.process.pid, signal.SIGSTOP)  # a viewer that takes no frame while stopped
+    try:
+        assert v.offer(result(0, MISS, None), block_s=5.0)  # the one slot
+        stop_at = time.monotonic() + 0.5
+        t0 = time.monotonic()
+        refused = v.offer(result(1, MISS, None), block_s=600.0, cancelled=lambda: time.monotonic() >= stop_at)
+        waited = time.monotonic() - t0
+    finally:
+        os.kill(v.process.pid, signal.SIGCONT)
+    assert not refused and v.stalled
+    assert 0.5 <= waited < 300.0, waited  # it waited until cancelled, not for the 600 s asked
+    assert v.close(60.0)["exit"] == "clean"

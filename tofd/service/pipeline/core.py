@@ -59,13 +59,13 @@ class PipelineError(RuntimeError):
 
 
 class OfferingViewer(Protocol):
-    """A best-effort viewer: `offer` returns at once (or within `block_s`), False if it refused the frame, which
-    is ledgered as a viewer drop for `drop_reason`. One whose output can fail also has `failure()`: (output file,
-    why) once, when it failed (a full disk), else None."""
+    """A best-effort viewer: `offer` returns at once (or within `block_s`, sooner once `cancelled()` is true), False
+    if it refused the frame, which is ledgered as a viewer drop for `drop_reason`. One whose output can fail also
+    has `failure()`: (output file, why) once, when it failed (a full disk), else None."""
 
     drop_reason: str
 
-    def offer(self, result: FrameResult, block_s: float) -> bool: ...
+    def offer(self, result: FrameResult, block_s: float, cancelled: Callable[[], bool]) -> bool: ...
 
 
 class InlineViewer(Protocol):
@@ -382,7 +382,8 @@ class Pipeline:
     # ---------------------------------------------------------------- sink
     def _sink_loop(self) -> None:
         failure = getattr(self.viewer, "failure", None)  # an offering viewer whose output can fail
-        block_s = self.cfg.pipeline.shutdown_timeout_s if self.policy == "lossless" else 0.0
+        # lossless: the viewer's file is an output like the results, so a slow (niced, busy) viewer is waited for
+        block_s = self.cfg.pipeline.finish_timeout_s if self.policy == "lossless" else 0.0
         while True:
             result = self.outq.get(POLL_S)
             if result is None:
@@ -395,12 +396,12 @@ class Pipeline:
                 continue
             self.ledger.deliver(result.seq)
             self.stats.record(result.timings_ms)
-            if self.viewer is not None and not self.viewer.offer(result, block_s):
+            if self.viewer is not None and not self.viewer.offer(result, block_s, self._abort.is_set):
                 self.ledger.skip_viewer(result.seq, result.frame.frame_counter, "blocked")
             if failure is not None and (failed := failure()) is not None:
                 self._output_failed(*failed)
             for live in self.live_viewers:
-                if not live.offer(result, 0.0):
+                if not live.offer(result, 0.0, self._abort.is_set):
                     self.ledger.skip_viewer(result.seq, result.frame.frame_counter, live.drop_reason)
 
     def _write_outputs(self, result: FrameResult) -> None:

@@ -300,14 +300,15 @@ class ViewerProcess:
             pass
         return None
 
-    def offer(self, result: FrameResult, block_s: float = 0.0) -> bool:
-        """Hand a frame to the viewer; False (refused) if no slot frees up within `block_s` seconds or it is
-        closing. Once a frame was refused, later offers do not wait until a slot is free again."""
+    def offer(self, result: FrameResult, block_s: float = 0.0, cancelled: Callable[[], bool] = lambda: False) -> bool:
+        """Hand a frame to the viewer; False (refused) if no slot frees up within `block_s` seconds (or before
+        `cancelled()` turns true) or it is closing. Once a frame was refused, later offers do not wait until a slot
+        is free again."""
         deadline = time.monotonic() + (0.0 if self.stalled else block_s)
         if self._free is None:  # released
             return False
         while not self._free.acquire(timeout=max(0.0, min(POLL_S, deadline - time.monotonic()))):
-            if self._closing or time.monotonic() >= deadline:
+            if self._closing or cancelled() or time.monotonic() >= deadline:
                 self.stalled = True
                 return False
         self.stalled = False
