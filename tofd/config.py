@@ -109,7 +109,7 @@ class PipelineConfig:
     max_worker_failures: int = 5  # consecutive worker deaths without a processed frame before giving up
     drain_timeout_s: float = 10.0  # seconds to drain the queues on shutdown before dropping the rest
     shutdown_timeout_s: float = 10.0  # seconds from SIGTERM to exit, whatever the viewer does (bounds the drain)
-    finish_timeout_s: float = 120.0  # seconds a finished run gives its outputs to finish; a lossless one the viewer a frame
+    finish_timeout_s: float = 120.0  # seconds a finished run gives its outputs; a lossless run its viewer, per frame
     stats_window: int = 600  # frames in the rolling timing/fps window
 
     def validate(self) -> None:
