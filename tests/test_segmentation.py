@@ -29,6 +29,17 @@ def test_otsu_splits_two_clusters():
     assert 1.4 < otsu_threshold(values) < 3.6
 
 
+def test_otsu_of_one_value_or_none_keeps_nothing_above_it():
+    assert otsu_threshold(np.full(100, 2.5)) == 2.5
+    assert otsu_threshold(np.array([])) == np.inf
+
+
+def test_a_frame_of_uniform_amplitude_has_no_foreground_and_no_error():
+    """No contrast in the amplitude (a blank or saturated frame): an empty mask, not an exception."""
+    _, range_m, amp = _scene()
+    assert not segment(range_m, np.ones_like(amp), SegmentationConfig(), INTR).any()
+
+
 RAY_Z = INTR.unit_rays()[..., 2]
 
 

@@ -39,7 +39,12 @@ def valid_pixels(range_m: np.ndarray, amplitude: np.ndarray | None = None) -> np
 
 
 def otsu_threshold(values: np.ndarray) -> float:
-    """Otsu's threshold of a 1-D sample: the histogram split that maximises the between-class variance."""
+    """Otsu's threshold of a 1-D sample: the histogram split that maximises the between-class variance; a sample
+    of one value (or none) has no split, and its threshold is that value (inf for none): nothing lies above it."""
+    if values.size == 0:
+        return float("inf")
+    if np.min(values) == np.max(values):
+        return float(values.flat[0])
     hist, edges = np.histogram(values, bins=OTSU_BINS)
     centres = (edges[:-1] + edges[1:]) / 2
     w0 = np.cumsum(hist, dtype=np.float64)
