@@ -30,12 +30,12 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_detection.json"))
     args = parser.parse_args()
-    from drivers.emulator.render import Pose, render_face
     from tofd.algorithm.detector import NoseDetector, load_model
     from tofd.algorithm.extract import FeatureExtractor
     from tofd.algorithm.names import families_for
     from tofd.algorithm.segmentation import segment_face
     from tofd.config import load_config
+    from tofd.drivers.emulator.render import Pose, render_face
     from tofd.lab.faces import HOLDOUT_SUBJECTS, SUBJECTS, make_subject
 
     cfg, model = load_config(args.config), load_model(args.model)

@@ -40,12 +40,12 @@ import numpy as np
 from cameras import CAMERAS
 from report import write_json
 
-from drivers.emulator.render import Pose, load_face, render_face
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import FFTFeatures, NFFTFeatures
 from tofd.algorithm.features import nfft as nfft_module
 from tofd.algorithm.segmentation import segment
 from tofd.config import FeatureConfig, SegmentationConfig
+from tofd.drivers.emulator.render import Pose, load_face, render_face
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import shapes as synthetic
 from tofd.lab import sphere_experiment
 from tofd.process_setup import keep_arrays_on_the_heap

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 from report import write_json
 
-from drivers import intrinsics as lens_module
-from drivers.intrinsics import Intrinsics
+from tofd.drivers import intrinsics as lens_module
+from tofd.drivers.intrinsics import Intrinsics
 
 K4A_NFOV = Intrinsics(640, 576, 504.6076, 504.7325, 332.7811, 348.8297, "rational_polynomial",
                       (0.54794, -0.020971, 2.0558e-05, -7.2104e-05, -0.0026522, 0.88968, 0.08613, -0.01391))

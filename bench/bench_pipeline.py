@@ -52,10 +52,10 @@ from cameras import CAMERAS, MemoryCamera, write_face_clip
 from proc_stats import cpu_s, own_thread_cpu_s, rss_mb
 from report import write_json
 
-from drivers.emulator.backend import open_emulated_camera
-from drivers.intrinsics import Intrinsics
-from drivers.recording.replay import ReplaySource
 from tofd.config import load_config
+from tofd.drivers.emulator.backend import open_emulated_camera
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording.replay import ReplaySource
 from tofd.process_setup import prepare_service_process
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline, maps_read

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 from report import write_json
 
-from drivers.recording.replay import ReplaySource, iter_frames
-from drivers.recording.writer import RecordingWriter
+from tofd.drivers.recording.replay import ReplaySource, iter_frames
+from tofd.drivers.recording.writer import RecordingWriter
 
 CLIP = Path(__file__).resolve().parent.parent / "replay_data" / "emulated_face_035_070.mcap"
 

@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 from report import write_json
 
-from drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, FaceScene, Motion
-from drivers.usb import protocol as p
+from tofd.drivers import sr3000
+from tofd.drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, FaceScene, Motion
+from tofd.drivers.usb import protocol as p
 
 CASES = [  # name, INT_TIME code, readout_s, test pattern
     ("30fps_scene", 30, 0.0085, False),
@@ -47,7 +48,7 @@ def run_case(int_time_code: int, readout_s: float, pattern: bool, seconds: float
             if now - start >= seconds:
                 break
         elapsed = time.perf_counter() - start
-    offered_fps = 1 / (4 * p.integration_time_us(int_time_code) * 1e-6 + readout_s)
+    offered_fps = 1 / (4 * sr3000.integration_time_us(int_time_code) * 1e-6 + readout_s)
     return {"offered_fps": offered_fps, "delivered_fps": n / elapsed, "frames": n,
             "device_dropped": camera.counters["device_dropped"],
             "p50_interval_ms": float(np.percentile(gaps_ms[1:], 50)),
@@ -63,7 +64,7 @@ def conversion_baseline_ms(repeats: int = 300) -> float:
     for _ in range(repeats):
         header = p.check_frame(frame)
         dist, amp = p.split_payload(memoryview(frame)[p.HEADER_LEN:])
-        p.raw_to_range_m(dist, header.mod_freq_khz)
+        sr3000.raw_to_range_m(dist, header.mod_freq_khz)
         amp.astype(np.float32)
     return (time.perf_counter() - start) / repeats * 1e3
 

@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.emulator.render import load_face, render_face
-from drivers.emulator.scene import Motion
-from drivers.frame import DeviceInfo, Frame, GroundTruth
-from drivers.intrinsics import Intrinsics
-from drivers.recording.replay import ReplaySource
-from drivers.recording.writer import RecordingWriter
-from drivers.source import FrameSource
+from tofd.drivers.emulator.render import load_face, render_face
+from tofd.drivers.emulator.scene import Motion
+from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording.replay import ReplaySource
+from tofd.drivers.recording.writer import RecordingWriter
+from tofd.drivers.source import FrameSource
 from tofd.lab.cameras import CAMERAS as LAB_CAMERAS
 
 CAMERAS = {label: LAB_CAMERAS[name] for label, name in (("sr3000", "sr3000"), ("320x240", "320x240"),
@@ -26,8 +26,8 @@ FRAME_PERIOD_US = 33_333  # 30 fps
 
 
 def write_face_clip(path: Path, intrinsics: Intrinsics, frames: int, seed: int = 1) -> Path:
-    """A recording (tofd's MCAP, drivers.recording.writer) of `frames` rendered noisy frames of the emulator's face
-    going from 0.35 m to 0.70 m (half a cycle of drivers.emulator.scene.Motion, its sideways drift scaled from the
+    """A recording (tofd's MCAP, tofd.drivers.recording.writer) of `frames` rendered noisy frames of the emulator's face
+    going from 0.35 m to 0.70 m (half a cycle of tofd.drivers.emulator.scene.Motion, its sideways drift scaled from the
     SR3000's pixels to these), with ground truth; noise seeded per frame; received every FRAME_PERIOD_US (host
     times), so a realtime replay plays it at 30 fps."""
     motion = Motion(n_poses=2 * (frames - 1), drift_px=Motion().drift_px * intrinsics.fx / Intrinsics().fx)

@@ -261,9 +261,9 @@ def bad_pixel_frames(work: Path) -> dict:
 # ---------------------------------------------------------------- fuzz
 def fuzz_trial(path: Path, reference: dict) -> dict:
     """Read one fuzzed recording as `tofd replay` does (header, then every frame); what came out."""
-    from drivers.recording.reader import read_recording_info
-    from drivers.recording.replay import ReplaySource
-    from drivers.source import DriverError
+    from tofd.drivers.recording.reader import read_recording_info
+    from tofd.drivers.recording.replay import ReplaySource
+    from tofd.drivers.source import DriverError
 
     try:
         read_recording_info(path)
@@ -284,9 +284,9 @@ def fuzz_trial(path: Path, reference: dict) -> dict:
 
 def fuzz(work: Path, trials: int, seed: int = 17) -> dict:
     """`trials` seeded mutations of an excerpt of the bundled clip through the replay reader."""
-    from drivers.recording.replay import iter_frames
+    from tofd.drivers.recording.replay import iter_frames
 
-    logging.getLogger("drivers.recording.replay").setLevel(logging.ERROR)  # every trial warns of its damage
+    logging.getLogger("tofd.drivers.recording.replay").setLevel(logging.ERROR)  # every trial warns of its damage
     clip = excerpt(BUNDLED, work / "clip.mcap", FUZZ_FRAMES)
     reference = {f.frame_counter: f.range_m for f in iter_frames(clip)}
     data, rng = clip.read_bytes(), np.random.default_rng(seed)

@@ -24,8 +24,8 @@ from pathlib import Path
 from cameras import CAMERAS
 from report import write_json
 
-from drivers.emulator.render import load_face
 from tofd.config import FeatureConfig
+from tofd.drivers.emulator.render import load_face
 from tofd.lab.face_patch import PHASES_PX, PROBES_M, read_patch
 
 REFERENCE = "1024x1024"  # the finest pixels at every distance

@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 from report import add_model_arguments, shown_path, write_json
 
-from drivers.emulator.render import render_face
 from tofd.algorithm.detector import NoseDetector, load_model
 from tofd.algorithm.detector.tip import refine_tip
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.segmentation import rotation_to_z
 from tofd.config import load_config
+from tofd.drivers.emulator.render import render_face
 from tofd.lab.cameras import parse_intrinsics
 from tofd.lab.faces import CV_SUBJECTS, SUBJECTS, check_subjects, make_subject
 from tofd.lab.sequences import ISSUE_MOTION, head_motion

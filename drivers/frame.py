@@ -10,15 +10,13 @@ from typing import Literal
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.sr3000 import MOD_FREQS_MHZ
 
 COUNTER_LIMIT = 1 << 32
 """Frame counters are 32-bit on the device: 0 <= counter < COUNTER_LIMIT."""
 TIMESTAMP_LIMIT_US = 1 << 63
 """Device timestamps are non-negative int64 microseconds."""
-
-MOD_FREQS_MHZ = (40.0, 30.0, 21.0, 20.0, 19.0)
-"""MOD_FREQ register index -> modulation frequency in MHz (SR3000)."""
 
 
 @dataclass(frozen=True, slots=True)

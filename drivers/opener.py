@@ -1,8 +1,8 @@
 """What an input file is, told by its content (magic bytes, or a ROS 2 bag directory's metadata.yaml) rather than
 its name, and the FrameSource that reads it: the one table `tofd replay`, `tofd import` and `tofd batch` consult.
 
-Each InputFormat says how it is read: "recording" (tofd's own MCAP: drivers.recording.replay), "bag" (imported to a
-tofd recording first: drivers.rosbag) or "source" (a FrameSource reading the file directly, made by `open`).
+Each InputFormat says how it is read: "recording" (tofd's own MCAP: tofd.drivers.recording.replay), "bag" (imported to a
+tofd recording first: bags.driver_bag) or "source" (a FrameSource reading the file directly, made by `open`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from drivers.source import FrameSource
+from tofd.drivers.source import FrameSource
 
 SNIFF_BYTES = 64
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -60,11 +60,11 @@ def _is_bag(path: Path, head: bytes) -> bool:
 
 
 def _bag_of(kind: str) -> Callable[[Path, bytes], bool]:
-    """Whether a file is a ROS bag whose topics are those of a vendor SDK's recording `kind` (drivers.bags)."""
+    """Whether a file is a ROS bag whose topics are those of a vendor SDK's recording `kind` (bags.opener)."""
 
     def matches(path: Path, head: bytes) -> bool:
-        from drivers.bags import bag_kind
-        from drivers.source import DriverError
+        from tofd.drivers.bags.opener import bag_kind
+        from tofd.drivers.source import DriverError
 
         if not _is_bag(path, head):
             return False
@@ -77,13 +77,13 @@ def _bag_of(kind: str) -> Callable[[Path, bytes], bool]:
 
 
 def _open_bag(path: Path) -> FrameSource:
-    from drivers.bags import open_bag
+    from tofd.drivers.bags.opener import open_bag
 
     return open_bag(path)
 
 
 def _open_k4a(path: Path) -> FrameSource:
-    from drivers.k4a_mkv import K4aRecordingSource
+    from tofd.drivers.k4a.mkv import K4aRecordingSource
 
     return K4aRecordingSource(path)
 

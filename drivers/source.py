@@ -8,7 +8,7 @@ from collections import Counter, deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from drivers.frame import Frame
+from tofd.drivers.frame import Frame
 
 
 class DriverError(RuntimeError):

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ import signal
 
 import pytest
 
-from drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, EmulatorBackend, FaceScene, Motion
+from tofd.drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, EmulatorBackend, FaceScene, Motion
 
 # Fast settings for tests: INT_TIME code 0 and a 0.5 ms readout give a frame every 1.3 ms (~770 fps).
 FAST_DEVICE = {"readout_s": 0.0005, "fifo_depth": 4}

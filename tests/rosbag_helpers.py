@@ -15,11 +15,11 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
-from drivers.driver_layouts import LAYOUTS
-from drivers.frame import Frame
-from drivers.intrinsics import Intrinsics
-from drivers.rosbag import CAMERA_INFO_TYPE, IMAGE_TYPE
-from drivers.usb import protocol
+from tofd.drivers import sr3000
+from tofd.drivers.bags.driver_bag import CAMERA_INFO_TYPE, IMAGE_TYPE
+from tofd.drivers.bags.driver_layouts import LAYOUTS
+from tofd.drivers.frame import Frame
+from tofd.drivers.intrinsics import Intrinsics
 
 BagKind = Literal["ros1", "sqlite3", "mcap"]
 BAG_KINDS: tuple[BagKind, ...] = ("ros1", "sqlite3", "mcap")
@@ -96,7 +96,7 @@ def range_image(frame: Frame, encoding: str, unit: str = "device", depth: str = 
     if encoding == "32FC1":
         return metres
     if unit == "device":
-        return protocol.range_m_to_raw(metres, protocol.mod_freq_khz(frame.registers.mod_freq_index))
+        return sr3000.range_m_to_raw(metres, sr3000.mod_freq_khz(frame.registers.mod_freq_index))
     mm = np.rint(np.nan_to_num(metres, nan=0.0, posinf=0.0, neginf=0.0) * 1000.0)
     return np.clip(mm, 0, 65535).astype(np.uint16)
 

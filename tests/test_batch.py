@@ -22,13 +22,13 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from drivers.frame import Frame, GroundTruth
-from drivers.recording.index import frame_index
 from tofd.batch.golden import compare, load_golden
 from tofd.batch.rows import frame_row, pipeline_fields
 from tofd.batch.runner import CLUSTER_CONFIG, RunOptions, batch_client, prepare, read_rows, run_plan
 from tofd.cli import main
 from tofd.config import load_config
+from tofd.drivers.frame import Frame, GroundTruth
+from tofd.drivers.recording.index import frame_index
 from tofd.lab.dataset import load_dataset, save_dataset, sidecar_path
 from tofd.lab.evaluation import distance_bins
 from tofd.lab.faces import generate

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.emulator.render import Pose, render_face
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.segmentation import coarse_stride, decimated, segment_face
 from tofd.config import load_config
+from tofd.drivers.emulator.render import Pose, render_face
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab.cameras import CAMERAS, parse_intrinsics
 from tofd.lab.faces import SUBJECTS, make_subject
 from tofd.service.model import load_detector

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import border_distance_m, front_gap_m
 from tofd.algorithm.detector.candidates import Candidates
 from tofd.algorithm.segmentation import bounding_box, upsampled, upsampled_box
+from tofd.drivers.intrinsics import Intrinsics
 
 
 def test_upsampled_box_is_the_box_of_the_upsampled_mask() -> None:

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from rrd_helpers import check_rrd, has_footer
 
-from drivers.recording.reader import read_recording_info
 from tofd.config import load_config
+from tofd.drivers.recording.reader import read_recording_info
 from tofd.service.viewer import blueprint as bp
 from tofd_testing.chaos_helpers import children_of
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config

@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from drivers.frame import Frame, GroundTruth
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.frame import Frame, GroundTruth
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab.dataset import Dataset, DatasetError, dataset_from_frames, load_dataset, save_dataset
 
 

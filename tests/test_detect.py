@@ -7,7 +7,6 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import (
     VARIANTS,
     Box,
@@ -28,6 +27,7 @@ from tofd.algorithm.detector import (
     stack_features,
 )
 from tofd.config import FeatureConfig, SegmentationConfig
+from tofd.drivers.intrinsics import Intrinsics
 
 
 def test_box_of_uniform_cloud_matches_its_quantiles():
@@ -264,8 +264,8 @@ def test_front_test_allowance_grows_with_the_local_noise():
 
 
 def test_rendered_detection_reports_the_tip_and_survives_the_worker_message():
-    from drivers.emulator.render import Pose, render_face
     from tofd.config import load_config
+    from tofd.drivers.emulator.render import Pose, render_face
     from tofd.lab.faces import SUBJECTS, make_subject
     from tofd.service.model import load_detector
     from tofd.service.pipeline.stages import detection_dict, detection_from

@@ -14,10 +14,10 @@ from rosbag_helpers import bag_path, compressed_depth, image, lens_camera_info, 
 from test_cli import one_line_error, tofd
 from vendor_bag_helpers import assert_on_sphere, logged_foreground, pinhole_errors, replay_saving_rrd
 
-from drivers.bags import open_bag
-from drivers.driver_layouts import LAYOUTS
-from drivers.intrinsics import Intrinsics
-from drivers.rosbag import RangeOptions, RosbagSource
+from tofd.drivers.bags.driver_bag import RangeOptions, RosbagSource
+from tofd.drivers.bags.driver_layouts import LAYOUTS
+from tofd.drivers.bags.opener import open_bag
+from tofd.drivers.intrinsics import Intrinsics
 
 LAYOUT = {layout.driver: layout for layout in LAYOUTS}
 N_FRAMES = 3

@@ -13,8 +13,8 @@ import pytest
 import usb.core
 import usb.util
 
-from drivers.emulator.backend import EmulatedSR3000, EmulatorBackend
-from drivers.emulator.device import frame_period_s
+from tofd.drivers.emulator.backend import EmulatedSR3000, EmulatorBackend
+from tofd.drivers.emulator.device import frame_period_s
 
 IN, OUT = 0xC0, 0x40
 FRAME = 64 + 101_376
@@ -174,7 +174,7 @@ def test_access_denied_device_still_enumerates():
 
 
 def test_scene_is_deterministic_and_prerenders_in_background():
-    from drivers.emulator.backend import FaceScene, Motion
+    from tofd.drivers.emulator.backend import FaceScene, Motion
 
     background = FaceScene(motion=Motion(n_poses=4))
     background.prerender_in_background().join(timeout=30)

@@ -11,11 +11,11 @@ import sys
 import numpy as np
 import pytest
 
-from drivers.emulator.render import Pose, render_face
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import VARIANTS, save_model
 from tofd.algorithm.names import MAP_NAMES
 from tofd.config import Config, DetectorConfig
+from tofd.drivers.emulator.render import Pose, render_face
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab.evaluation import (
     distance_bins,
     evaluate_model,

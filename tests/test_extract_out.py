@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from drivers.emulator.render import Pose, load_face, render_face
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.features import Eccentricities
 from tofd.algorithm.names import MAP_NAMES
 from tofd.config import FeatureConfig, SegmentationConfig
+from tofd.drivers.emulator.render import Pose, load_face, render_face
+from tofd.drivers.intrinsics import Intrinsics
 
 
 def test_maps_written_into_given_arrays_equal_new_ones():

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector.model_file import ModelMismatch, NoseModel
 from tofd.algorithm.features import NFFTFeatures, SamplingError
 from tofd.algorithm.features.sampling import farthest_range_m
 from tofd.config import FeatureConfig, SegmentationConfig
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import shapes as synthetic
 
 CFG = FeatureConfig()

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import Eccentricities, FFTFeatures
 from tofd.config import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import shapes as synthetic
 
 INTR = Intrinsics()

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 import scipy.fft as sfft
 
-from drivers.emulator.render import Pose, load_face, render_face
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import FFTFeatures
 from tofd.algorithm.features.transfer import pixel_frequencies_per_m, transfer_functions
 from tofd.config import FeatureConfig
+from tofd.drivers.emulator.render import Pose, load_face, render_face
+from tofd.drivers.intrinsics import Intrinsics
 
 CFG = FeatureConfig()
 CAMERAS = {"sr3000": Intrinsics(), "640x576": Intrinsics(640, 576, 504.0, 504.0, 319.5, 287.5)}

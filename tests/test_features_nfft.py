@@ -3,10 +3,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import FFTFeatures, NFFTFeatures
 from tofd.algorithm.features.transfer import transfer_functions
 from tofd.config import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import shapes as synthetic
 
 INTR = Intrinsics()

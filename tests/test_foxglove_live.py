@@ -15,8 +15,8 @@ import psutil
 import pytest
 from foxglove_client import SUBPROTOCOL, Client, wait_for_url
 
-from drivers.recording.reader import read_recording_info
 from tofd.config import Config, ConfigError
+from tofd.drivers.recording.reader import read_recording_info
 from tofd.service.foxglove import topics as t
 from tofd.service.foxglove.spec import parse_foxglove_spec
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config

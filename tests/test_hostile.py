@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import ReplaySource
-from drivers.source import DriverError
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import ReplaySource
+from tofd.drivers.source import DriverError
 from tofd.lab.dataset import DatasetError, DatasetFile, load_dataset
 from tofd_testing.hostile_inputs import CONFIG_CASES, DATASET_CASES, RECORDING_CASES, npz_bomb
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from rosbag_helpers import write_frames_bag
 
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import iter_frames
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
 
 ROOT = Path(__file__).resolve().parent.parent
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"

@@ -39,7 +39,7 @@ ALGORITHM = BLOCKER + """
 import json
 import numpy as np
 import tofd
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.config import Config
 
@@ -83,7 +83,7 @@ def test_tofd_and_the_algorithm_run_without_any_optional_module():
     (["evaluate", "--help"], ("matplotlib", "tqdm", "fsspec"), "lab"),
 ])
 def test_a_command_whose_extra_is_missing_names_the_extra(tmp_path, command, blocked, extra):
-    (tmp_path / "header.bag").write_bytes(b"#ROSBAG V2.0\n")  # read as a bag (drivers.opener) before rosbags is needed
+    (tmp_path / "header.bag").write_bytes(b"#ROSBAG V2.0\n")  # a bag by its magic, before rosbags is needed
     proc = run_blocked(COMMAND, blocked, *(a.format(tmp=tmp_path) for a in command))
     assert proc.returncode == 2, proc.stderr[-3000:]
     assert proc.stderr == f"tofd {command[0]}: needs the '{extra}' extra: pip install 'tofd[{extra}]'\n"
@@ -95,8 +95,8 @@ def wheel(tmp_path_factory) -> Path:
     src = tmp_path_factory.mktemp("src")
     for name in ("pyproject.toml", "README.md"):
         shutil.copy(ROOT / name, src / name)
-    for name in ("tofd", "drivers", "config"):
-        shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("tofd", "drivers", "config"):  # tofd/drivers, the link to drivers/, kept as a link
+        shutil.copytree(ROOT / name, src / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"))
     out = tmp_path_factory.mktemp("wheel")
     proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
                            str(out), str(src)], capture_output=True, text=True, timeout=600)
@@ -128,9 +128,15 @@ def test_the_wheels_core_requirements_are_the_algorithms_only(wheel):
     assert {"dask[distributed]", "distributed", "pyarrow"} <= required["batch"]
     assert "rosbags" in required["rosbag"]
     assert "tofd[batch,lab,rosbag,service]" in required["all"] and "tofd[all]" in required["test"]
+
+
+def test_the_wheel_installs_one_top_level_name_tofd_with_its_drivers_and_type_information(wheel):
     with zipfile.ZipFile(wheel) as zf:
-        tops = {n.split("/")[0] for n in zf.namelist()}
-    assert "tofd_testing" not in tops and "tests" not in tops  # test support stays in the checkout
+        names = zf.namelist()
+    tops = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
+    assert tops == {"tofd"}
+    assert {"tofd/py.typed", "tofd/drivers/frame.py", "tofd/drivers/bags/scan.py", "tofd/drivers/k4a/mkv.py",
+            "tofd/drivers/data/lee_perry_smith.npz", "tofd/defaults/tofd.toml"} <= set(names)
 
 
 def test_ci_runs_exactly_the_readmes_test_command_and_the_readme_installs_every_extra_for_the_main_job():
@@ -138,7 +144,7 @@ def test_ci_runs_exactly_the_readmes_test_command_and_the_readme_installs_every_
     assert len(commands) == 2, commands
     main_job, tests = commands
     assert "pip install '.[all]' && .venv/bin/tofd replay" in main_job
-    assert "pip install '.[test]'" in tests
+    assert "pip install -e '.[test]'" in tests  # the suite runs against the checkout installed (editable)
     ci = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line.startswith("python3 -m venv")]
     assert ci == [tests]
 

@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
-from drivers.k4a_mkv import K4aRecordingError, K4aRecordingSource
-from drivers.lens_k4a import DEPTH_MODES, depth_lens
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import iter_frames
 from tests.k4a_helpers import CALIBRATION_JSON, K4A, k4a_libraries
 from tests.rrd_helpers import read_entities
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.k4a.lens import DEPTH_MODES, depth_lens
+from tofd.drivers.k4a.mkv import K4aRecordingError, K4aRecordingSource
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from drivers.intrinsics import Intrinsics
-from drivers.recording import format as fmt
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import iter_frames
-from drivers.recording.schemas import CameraCalibration
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording import format as fmt
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
+from tofd.drivers.recording.schemas import CameraCalibration
 from tofd_testing.recording_helpers import assert_frames_equal, write_recording
 
 # an Azure Kinect NFOV-unbinned-like depth lens (strong barrel distortion) and a fisheye lens

@@ -5,11 +5,11 @@ import finufft
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import NFFTFeatures
 from tofd.algorithm.features.normal_equations import DampedNormalEquations, norm_weights, solve
 from tofd.algorithm.features.spectra_kernels import hermitian_full
 from tofd.config import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import shapes as synthetic
 
 INTR = Intrinsics()

@@ -4,10 +4,10 @@ import finufft
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import NFFTFeatures
 from tofd.algorithm.features.normal_equations import DampedNormalEquations, hermitian_norms, norm_weights, solve
 from tofd.config import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import shapes as synthetic
 
 

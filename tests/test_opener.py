@@ -1,4 +1,4 @@
-"""Inputs recognised by content (drivers.opener), whatever their names; `tofd import` and `tofd batch` on an
+"""Inputs recognised by content (tofd.drivers.opener), whatever their names; `tofd import` and `tofd batch` on an
 Azure Kinect recording written by Microsoft's recorder."""
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.k4a_mkv import K4aRecordingSource
-from drivers.opener import identify
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import iter_frames
 from tests.k4a_helpers import CALIBRATION_JSON, k4a_libraries
 from tests.rosbag_helpers import BAG_KINDS, write_frames_bag
+from tofd.drivers.k4a.mkv import K4aRecordingSource
+from tofd.drivers.opener import identify
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
 from tofd_testing.recording_helpers import write_recording
 
 ROOT = Path(__file__).resolve().parents[1]

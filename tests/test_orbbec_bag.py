@@ -12,10 +12,10 @@ from bag_scenes import K4A_LIKE, Scene, depth_units, render, sphere_errors
 from orbbec_bag_helpers import write_orbbec_bag
 from test_cli import one_line_error, tofd
 
-from drivers.bags import open_bag
-from drivers.opener import identify
-from drivers.orbbec_bag import PROPERTY_DEPTH_UNIT_MM, OrbbecSource
-from drivers.recording.replay import iter_frames
+from tofd.drivers.bags.opener import open_bag
+from tofd.drivers.bags.orbbec import PROPERTY_DEPTH_UNIT_MM, OrbbecSource
+from tofd.drivers.opener import identify
+from tofd.drivers.recording.replay import iter_frames
 
 N_FRAMES = 3
 K = (K4A_LIKE.fx, K4A_LIKE.fy, K4A_LIKE.cx, K4A_LIKE.cy)

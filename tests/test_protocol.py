@@ -1,4 +1,4 @@
-"""drivers.usb.protocol against the literal values of docs/protocol.md."""
+"""tofd.drivers.usb.protocol against the literal values of docs/protocol.md."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import zlib
 import numpy as np
 import pytest
 
-from drivers.usb import protocol as p
+from tofd.drivers import sr3000
+from tofd.drivers.usb import protocol as p
 
 C = 299_792_458.0
 
@@ -26,8 +27,8 @@ def test_constants_are_the_pages():
     assert p.STATUS_STRUCT.format == "<IIB3x" and p.STATUS_STRUCT.size == 12
     assert p.PAYLOAD_LEN == 101_376
     assert p.READ_BUFFER_LEN == 101_888 and p.READ_BUFFER_LEN % 512 == 0 and p.READ_BUFFER_LEN >= p.FRAME_LEN
-    assert [p.mod_freq_khz(i) for i in range(5)] == [40000, 30000, 21000, 20000, 19000]
-    assert p.integration_time_us(30) == 6200
+    assert [sr3000.mod_freq_khz(i) for i in range(5)] == [40000, 30000, 21000, 20000, 19000]
+    assert sr3000.integration_time_us(30) == 6200
 
 
 def header(**overrides) -> p.FrameHeader:
@@ -93,13 +94,13 @@ def test_register_write_rules(register, value, refused):
 
 def test_distance_conversion():
     raw = np.array([[0, 1, 32767, 65534, 65535]], dtype=np.uint16)
-    metres = p.raw_to_range_m(raw, 20000)
+    metres = sr3000.raw_to_range_m(raw, 20000)
     assert metres.dtype == np.float32
     np.testing.assert_allclose(metres[0, :4], raw[0, :4] / 65535 * C / (2 * 20e6), rtol=1e-6)
     assert np.isnan(metres[0, 4])
-    back = p.range_m_to_raw(metres, 20000)
+    back = sr3000.range_m_to_raw(metres, 20000)
     np.testing.assert_array_equal(back, raw)
-    assert p.range_m_to_raw(np.array([np.nan, 8.0, -0.01]), 20000).tolist() == [0xFFFF, 0xFFFF, 0]
+    assert sr3000.range_m_to_raw(np.array([np.nan, 8.0, -0.01]), 20000).tolist() == [0xFFFF, 0xFFFF, 0]
 
 
 def test_pattern_planes_and_payload_split():

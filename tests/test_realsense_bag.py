@@ -22,11 +22,11 @@ from vendor_bag_helpers import (
     replay_saving_rrd,
 )
 
-from drivers.bags import open_bag
-from drivers.opener import identify
-from drivers.realsense_bag import RealSenseSource
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import iter_frames
+from tofd.drivers.bags.opener import open_bag
+from tofd.drivers.bags.realsense import RealSenseSource
+from tofd.drivers.opener import identify
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
 
 VERSIONS = {"db3": ("current", 1e-4), "bag": (LEGACY_VERSION, 5e-4)}
 """File kind -> (pyrealsense2 version, depth unit in metres): units other than 1 mm, so that they must be read."""

@@ -15,14 +15,14 @@ from mcap_protobuf.decoder import DecoderFactory
 from test_cli import CLIP
 
 import tofd
-from drivers.frame import Registers, SensorInfo
-from drivers.intrinsics import Intrinsics
-from drivers.recording import format as fmt
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import ReplaySource, iter_frames
-from drivers.recording.schemas import RawImage
-from drivers.recording.writer import RecordingWriter
 from tofd import cli
+from tofd.drivers.frame import Registers, SensorInfo
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording import format as fmt
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import ReplaySource, iter_frames
+from tofd.drivers.recording.schemas import RawImage
+from tofd.drivers.recording.writer import RecordingWriter
 from tofd_testing.recording_helpers import DEVICE, assert_frames_equal, make_frame, write_recording
 
 
@@ -172,8 +172,8 @@ def test_writer_rejects_bad_fsync_interval(tmp_path):
 
 def test_realistic_face_frames_stay_small(tmp_path):
     """Rendered SR3000-like frames (noise, flying pixels) as the USB backend delivers them: <= 100 kB each."""
-    from drivers.emulator.render import Pose, load_face, render_face
-    from drivers.usb import protocol
+    from tofd.drivers.emulator.render import Pose, load_face, render_face
+    from tofd.drivers.usb import protocol
 
     mesh, rng = load_face("lee_perry_smith"), np.random.default_rng(1)
     path = tmp_path / "face.mcap"

@@ -17,12 +17,12 @@ from mcap_protobuf.decoder import DecoderFactory
 from rerun.chunk import RrdReader
 from rrd_helpers import image_at
 
-from drivers.recording import format as fmt
-from drivers.recording.index import frame_index, read_chunks
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import iter_frames
-from drivers.usb import protocol
 from tofd import cli
+from tofd.drivers import sr3000
+from tofd.drivers.recording import format as fmt
+from tofd.drivers.recording.index import frame_index, read_chunks
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
 from tofd_testing.recording_helpers import assert_frames_equal, write_recording
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -34,7 +34,7 @@ V1_CLIP = Path(__file__).resolve().parent / "data" / "v1_first3.mcap"
 def raw_range(frame) -> np.ndarray:
     """The device's uint16 distance values of a USB-like frame (0xFFFF where the range is NaN)."""
     scale = fmt.range_scales_m(frame.registers)[0]
-    return np.where(np.isnan(frame.range_m), protocol.RAW_INVALID, np.rint(frame.range_m / np.float64(scale)))
+    return np.where(np.isnan(frame.range_m), sr3000.RAW_INVALID, np.rint(frame.range_m / np.float64(scale)))
 
 
 @pytest.fixture(scope="module")

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from drivers.emulator.render import FACE_NAMES, FaceMesh, Pose, SensorModel, load_face, rasterize, render_face
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.emulator.render import FACE_NAMES, FaceMesh, Pose, SensorModel, load_face, rasterize, render_face
+from tofd.drivers.intrinsics import Intrinsics
 
 INTR = Intrinsics()
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.emulator import render_cache
-from drivers.emulator.scene import FaceScene, Motion
+from tofd.drivers.emulator import render_cache
+from tofd.drivers.emulator.scene import FaceScene, Motion
 
 
 def rendered(scene: FaceScene) -> list:

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from drivers.frame import Frame
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import ReplaySource
-from drivers.source import DriverError
+from tofd.drivers.frame import Frame
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import ReplaySource
+from tofd.drivers.source import DriverError
 from tofd_testing.recording_helpers import FRAME_PERIOD_S, assert_frames_equal, write_recording
 
 
@@ -180,7 +180,7 @@ def test_truncated_file_replays_its_prefix_and_says_where_it_stopped(clip, tmp_p
         cut_path = tmp_path / f"cut{cut}.mcap"
         cut_path.write_bytes(data[:cut])
         source = ReplaySource(cut_path)
-        with caplog.at_level(logging.WARNING, logger="drivers.recording.replay"):
+        with caplog.at_level(logging.WARNING, logger="tofd.drivers.recording.replay"):
             caplog.clear()
             replayed = collect(source)
         expected = sum(end <= cut for end in ends)

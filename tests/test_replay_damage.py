@@ -12,11 +12,11 @@ import pytest
 from mcap.reader import make_reader
 from test_replay import collect, counters
 
-from drivers.intrinsics import Intrinsics
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import ReplaySource
-from drivers.recording.writer import RecordingWriter
-from drivers.source import DriverError
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import ReplaySource
+from tofd.drivers.recording.writer import RecordingWriter
+from tofd.drivers.source import DriverError
 from tofd_testing.recording_helpers import (
     RECORDING_FAULTS,
     SMALL_INTRINSICS,

@@ -95,8 +95,8 @@ def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tm
     import rerun as rr
     from rrd_helpers import feature_map_at, image_at, read_entities
 
-    from drivers.frame import Frame
-    from drivers.intrinsics import Intrinsics
+    from tofd.drivers.frame import Frame
+    from tofd.drivers.intrinsics import Intrinsics
     from tofd.service.pipeline.results import FrameResult
 
     intr = Intrinsics()

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import Candidates
 from tofd.algorithm.tracking import TrackerConfig
 from tofd.config import load_config
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab.conditions import CONDITIONS, TRAIN_CONDITION, parse_conditions
 from tofd.lab.robustness import MatrixSpec, condition_table, run_matrix, summarize
 from tofd.lab.sequences import evaluate_sequence, head_motion

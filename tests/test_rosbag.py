@@ -29,13 +29,13 @@ from rosbag_helpers import (
 from rrd_helpers import check_rrd, image_at
 from test_cli import CLIP, HANG_GUARD_S, one_line_error, tofd
 
-from drivers.driver_layouts import LAYOUTS
-from drivers.emulator.render import Pose, load_face, render_face
-from drivers.frame import Frame
-from drivers.intrinsics import Intrinsics
-from drivers.recording.reader import read_recording_info
-from drivers.recording.replay import iter_frames
-from drivers.rosbag import BagError, RangeOptions, RosbagSource
+from tofd.drivers.bags.driver_bag import BagError, RangeOptions, RosbagSource
+from tofd.drivers.bags.driver_layouts import LAYOUTS
+from tofd.drivers.emulator.render import Pose, load_face, render_face
+from tofd.drivers.frame import Frame
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
 from tofd.service.viewer import blueprint as bp
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 

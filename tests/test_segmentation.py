@@ -4,10 +4,10 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.emulator.render import Pose, load_face, render_face
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.segmentation import component_at, fill_holes, otsu_threshold, rotation_to_z, segment, segment_face
 from tofd.config import ConfigError, SegmentationConfig, config_from_dict
+from tofd.drivers.emulator.render import Pose, load_face, render_face
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import shapes as synthetic
 
 INTR = Intrinsics()

@@ -3,9 +3,9 @@ import json
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.cli import main
 from tofd.config import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import sphere_experiment as experiment_sphere
 
 CFG = FeatureConfig()

@@ -4,9 +4,9 @@ direction, from an accepted pixel a few pixels off it."""
 import numpy as np
 import pytest
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector.tip import refine_tip
 from tofd.algorithm.segmentation import rotation_to_z
+from tofd.drivers.intrinsics import Intrinsics
 
 
 def sphere_range(intrinsics: Intrinsics, centre: np.ndarray, radius: float) -> np.ndarray:

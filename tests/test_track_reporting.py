@@ -12,13 +12,13 @@ import pytest
 from rrd_helpers import read_entities
 from test_health import metric_values
 
-from drivers.frame import Frame
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import Detection
 from tofd.algorithm.names import MAP_NAMES
 from tofd.algorithm.tracking import NoseTracker, TrackerConfig
 from tofd.batch.rows import frame_row
 from tofd.config import Config, load_config
+from tofd.drivers.frame import Frame
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.health import HealthServer, ServiceMetrics
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline

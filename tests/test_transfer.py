@@ -2,7 +2,6 @@ import numpy as np
 import pytest
 import scipy.fft as sfft
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.band import BAND_FLOOR, band_edge_per_m
 from tofd.algorithm.features.transfer import (
     eccentricity_filters,
@@ -11,6 +10,7 @@ from tofd.algorithm.features.transfer import (
     transfer_functions,
 )
 from tofd.config import ConfigError, FeatureConfig, config_from_dict
+from tofd.drivers.intrinsics import Intrinsics
 
 CFG = FeatureConfig()
 

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, EmulatorBackend
-from drivers.usb.camera import UsbCamera, list_devices
-from drivers.usb.errors import AccessDenied, DeviceNotFound
-from drivers.usb.protocol import Register
+from tofd.drivers.emulator.backend import EmulatedCamera, EmulatedSR3000, EmulatorBackend
+from tofd.drivers.usb.camera import UsbCamera, list_devices
+from tofd.drivers.usb.errors import AccessDenied, DeviceNotFound
+from tofd.drivers.usb.protocol import Register
 
 C = 299_792_458.0
 
@@ -281,8 +281,8 @@ def test_tofd_devices_emulate(capsys):
 
 
 def test_frames_carry_the_amplitude_threshold_set_while_streaming(make_emulated_camera, tmp_path):
-    from drivers.recording.replay import iter_frames
-    from drivers.recording.writer import RecordingWriter
+    from tofd.drivers.recording.replay import iter_frames
+    from tofd.drivers.recording.writer import RecordingWriter
 
     camera = make_emulated_camera()
     before = take(camera, 2)
@@ -299,9 +299,9 @@ def test_frames_carry_the_amplitude_threshold_set_while_streaming(make_emulated_
 
 
 def test_power_up_registers_of_the_camera_are_the_frame_defaults(small_scene):
-    from drivers.frame import Registers
-    from drivers.usb.device import registers_from_bank
     from tofd.config import CameraConfig
+    from tofd.drivers.frame import Registers
+    from tofd.drivers.usb.device import registers_from_bank
 
     emulator = EmulatedSR3000("30000009", small_scene)
     assert registers_from_bank(bytes(emulator.registers)) == Registers()  # the emulator's power-up bank

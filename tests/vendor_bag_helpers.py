@@ -15,7 +15,7 @@ from bag_scenes import Scene, depth_units, render, sphere_errors
 from rrd_helpers import read_entities
 from test_cli import HANG_GUARD_S
 
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.viewer import blueprint as bp
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 __version__ = "0.1.0"
 
 _EXPORTS = {
-    "Intrinsics": "drivers.intrinsics",
+    "Intrinsics": "tofd.drivers.intrinsics",
     "FeatureConfig": "tofd.algorithm.params",
     "Eccentricities": "tofd.algorithm.features",
     "SamplingError": "tofd.algorithm.features",
@@ -56,7 +56,6 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # the same names for type checkers (tests/test_api.py checks both lists agree)
-    from drivers.intrinsics import Intrinsics as Intrinsics
     from tofd.algorithm.detector import Detection as Detection
     from tofd.algorithm.detector import NoseModel as NoseModel
     from tofd.algorithm.detector import load_model as load_model
@@ -73,3 +72,4 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/test_api.py checks 
     from tofd.api_detect import load_dataset as load_dataset
     from tofd.api_detect import render_dataset as render_dataset
     from tofd.api_detect import train_model as train_model
+    from tofd.drivers.intrinsics import Intrinsics as Intrinsics

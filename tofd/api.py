@@ -11,10 +11,10 @@ from typing import Literal
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import Eccentricities, FFTFeatures, NFFTFeatures, Transfer
 from tofd.algorithm.features.transfer import eccentricity_filters
 from tofd.algorithm.params import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 
 Method = Literal["nfft", "fft"]
 METHODS: tuple[str, ...] = ("nfft", "fft")

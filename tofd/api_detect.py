@@ -8,10 +8,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import Candidates, Detection, Margin, NoseDetector, NoseModel, load_model
 from tofd.api import checked_image, checked_range
 from tofd.config import Config, default_file, load_config
+from tofd.drivers.intrinsics import Intrinsics
 
 if TYPE_CHECKING:
     from tofd.lab.dataset import Dataset

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from tofd.config import check_serial
 
 if TYPE_CHECKING:
-    from drivers.rosbag import RangeOptions
+    from tofd.drivers.bags.driver_bag import RangeOptions
 
 
 def positive_int(text: str) -> int:
@@ -45,9 +45,15 @@ def serial(text: str) -> str:
 
 
 def add_bag_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options saying how a ROS bag holds frames (drivers.rosbag.RangeOptions; defaults: the bag's driver's)."""
-    from drivers.driver_layouts import LAYOUTS
-    from drivers.rosbag import AMPLITUDE_ENCODINGS, DEPTH_CONVENTIONS, RANGE_ENCODINGS, RANGE_UNITS, RangeOptions
+    """How a ROS bag holds frames (tofd.drivers.bags.driver_bag.RangeOptions; defaults: the bag's driver's)."""
+    from tofd.drivers.bags.driver_bag import (
+        AMPLITUDE_ENCODINGS,
+        DEPTH_CONVENTIONS,
+        RANGE_ENCODINGS,
+        RANGE_UNITS,
+        RangeOptions,
+    )
+    from tofd.drivers.bags.driver_layouts import LAYOUTS
 
     d = RangeOptions()
     group = parser.add_argument_group(
@@ -71,7 +77,7 @@ def add_bag_arguments(parser: argparse.ArgumentParser) -> None:
 
 def bag_options(args: argparse.Namespace) -> RangeOptions:
     """The RangeOptions of add_bag_arguments' options."""
-    from drivers.rosbag import RangeOptions
+    from tofd.drivers.bags.driver_bag import RangeOptions
 
     return RangeOptions(args.range_topic, args.amplitude_topic, args.camera_info_topic, args.range_unit, args.depth,
                         args.mod_freq_mhz)

@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-from drivers.frame import DEFAULT_REGISTER_VALUES
-from drivers.intrinsics import Intrinsics
-from drivers.recording.bounds import intrinsics_problem
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
+from tofd.drivers.frame import DEFAULT_REGISTER_VALUES
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording.bounds import intrinsics_problem
 from tofd.errors import ConfigError
 
 
@@ -67,9 +67,9 @@ def check_serial(serial: str) -> str:
 
 @dataclass(frozen=True, slots=True)
 class CameraConfig:
-    """Which camera to attach to, the registers to apply, and how to ride out faults (drivers.usb.camera).
+    """Which camera to attach to, the registers to apply, and how to ride out faults (tofd.drivers.usb.camera).
 
-    Field names match drivers.usb.camera.UsbCamera's keywords: UsbCamera(**dataclasses.asdict(cfg)).
+    Field names match tofd.drivers.usb.camera.UsbCamera's keywords: UsbCamera(**dataclasses.asdict(cfg)).
     """
 
     serial: str = ""  # 8 hex digits; empty = first camera found
@@ -270,7 +270,7 @@ def _build(cls: type, table: dict, prefix: str) -> object:
 
 def config_from_dict(table: dict) -> Config:
     """Build a Config from a parsed TOML table, rejecting unknown keys, wrong types, numbers that are not finite
-    or out of their bounds, and intrinsics no camera has (drivers.recording.bounds.intrinsics_problem)."""
+    or out of their bounds, and intrinsics no camera has (tofd.drivers.recording.bounds.intrinsics_problem)."""
     cfg = typing.cast(Config, _build(Config, table, ""))
     if (problem := intrinsics_problem(cfg.intrinsics)) is not None:
         raise ConfigError(f"intrinsics: {problem}")

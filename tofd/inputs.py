@@ -1,6 +1,6 @@
 """Every input tofd reads as a FrameSource, and what one says about itself (for `tofd info` and `tofd export`).
 
-open_input opens what drivers.opener recognises (the one table of input kinds); a kind whose file has a header
+open_input opens what tofd.drivers.opener recognises (the one table of input kinds); a kind whose file has a header
 worth showing gets a branch there that describes it; everything else (frames, duration, rate, camera,
 intrinsics, damage) is read from the frames and the source's counters, the same for every kind.
 """
@@ -15,12 +15,12 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from drivers.frame import DeviceInfo, Frame
-from drivers.intrinsics import Intrinsics
-from drivers.source import FrameSource
+from tofd.drivers.frame import DeviceInfo, Frame
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.source import FrameSource
 
 if TYPE_CHECKING:
-    from drivers.rosbag import RangeOptions
+    from tofd.drivers.bags.driver_bag import RangeOptions
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,17 +86,17 @@ class InputSummary:
 
 
 def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[FrameSource, InputDescription]:
-    """A lossless FrameSource on `path` and its format, recognised by drivers.opener (`bag_options`: a ROS bag's
+    """A lossless FrameSource on `path` and its format, recognised by tofd.drivers.opener (`bag_options`: a ROS bag's
     topics and range encoding); DriverError (or OSError) when it cannot be read."""
-    from drivers.opener import identify
-    from drivers.source import DriverError
+    from tofd.drivers.opener import identify
+    from tofd.drivers.source import DriverError
 
     try:
         fmt = identify(path)
     except ValueError as exc:
         raise DriverError(str(exc)) from None
     if fmt.read_as == "bag":
-        from drivers.bags import open_bag
+        from tofd.drivers.bags.opener import open_bag
 
         source = open_bag(path, bag_options)
         if fmt.name != "rosbag":  # a vendor SDK's recording
@@ -106,8 +106,8 @@ def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[Fra
         return source, InputDescription(kind, "", () if kind == "ROS 1 bag" else (("storage", storage),))
     if fmt.read_as == "source" and fmt.open is not None:
         return fmt.open(path), InputDescription(fmt.description, "")
-    from drivers.recording.reader import read_recording_info
-    from drivers.recording.replay import ReplaySource
+    from tofd.drivers.recording.reader import read_recording_info
+    from tofd.drivers.recording.replay import ReplaySource
 
     info = read_recording_info(path)
     created = datetime.fromtimestamp(info.created_wall_s, UTC).strftime("%Y-%m-%d %H:%M:%S UTC") \

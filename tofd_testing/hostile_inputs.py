@@ -19,9 +19,9 @@ import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.records import Attachment, Chunk, Message, Metadata
 
-from drivers.recording import format as fmt
-from drivers.recording.bounds import MAX_ATTACHMENT_BYTES, MAX_CHUNK_BYTES
-from drivers.recording.mcap_writer import McapChunkWriter
+from tofd.drivers.recording import format as fmt
+from tofd.drivers.recording.bounds import MAX_ATTACHMENT_BYTES, MAX_CHUNK_BYTES
+from tofd.drivers.recording.mcap_writer import McapChunkWriter
 from tofd.lab.npz import MAX_LOADED_BYTES
 from tofd_testing.recording_helpers import frame_spans, write_recording
 

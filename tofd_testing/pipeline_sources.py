@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.emulator.render import Pose, load_face, render_face
-from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
-from drivers.intrinsics import Intrinsics
-from drivers.source import FrameSource
 from tofd.config import Config, default_file, load_config
+from tofd.drivers.emulator.render import Pose, load_face, render_face
+from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.source import FrameSource
 
 
 def rendered_frames(n_distinct: int = 8, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, tuple[float, float]]]:

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
-from drivers.intrinsics import Intrinsics
-from drivers.recording.reader import ZSTD_FIELD, RecordingReader
-from drivers.recording.replay import iter_frames
-from drivers.recording.writer import RecordingWriter
-from drivers.usb import protocol
+from tofd.drivers import sr3000
+from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording.reader import ZSTD_FIELD, RecordingReader
+from tofd.drivers.recording.replay import iter_frames
+from tofd.drivers.recording.writer import RecordingWriter
 
 DEVICE = DeviceInfo(serial="0A1B2C3D", firmware="1.0", backend="emulated")
 FRAME_PERIOD_S = 1 / 30
@@ -24,15 +24,15 @@ DEFAULT_INTRINSICS = Intrinsics()
 def make_frame(counter: int, *, quantized: bool = True, registers: Registers = DEFAULT_REGISTERS,
                intrinsics: Intrinsics = DEFAULT_INTRINSICS, t0: float = 1000.0) -> Frame:
     """A frame like the USB backend delivers (quantized=True: range and amplitude from uint16 raw values via
-    drivers.usb.protocol) or arbitrary float32 planes (quantized=False, with NaN, -0.0 and inf), 30 fps timing,
+    tofd.drivers.usb.protocol) or arbitrary float32 planes (quantized=False, with NaN, -0.0 and inf), 30 fps timing,
     and ground truth on every frame but each 5th (none) and 7th (not visible, no 3-D point)."""
     rng = np.random.default_rng(counter)
     shape = intrinsics.shape
     if quantized:
         v, u = np.indices(shape)
         raw = (3000 + 20 * u + 10 * v + rng.integers(0, 64, size=shape)).astype(np.uint16)  # a noisy slope
-        raw[:10, :20] = protocol.RAW_INVALID
-        range_m = protocol.raw_to_range_m(raw, protocol.mod_freq_khz(registers.mod_freq_index))
+        raw[:10, :20] = sr3000.RAW_INVALID
+        range_m = sr3000.raw_to_range_m(raw, sr3000.mod_freq_khz(registers.mod_freq_index))
         amplitude = (1000 + rng.integers(0, 512, size=shape)).astype(np.float32)
         amplitude[-1, -3:] = [0, 1, 65535]
     else:

@@ -1,6 +1,6 @@
 """The emulated SR3000-style camera as a pyusb backend, so the real pyusb code path runs without hardware.
 
-    from drivers.emulator.backend import EmulatedSR3000, EmulatorBackend
+    from tofd.drivers.emulator.backend import EmulatedSR3000, EmulatorBackend
     backend = EmulatorBackend(EmulatedSR3000(serial="30000001"))
     dev = usb.core.find(idVendor=0x0852, idProduct=0x0074, backend=backend)   # a real usb.core.Device
 
@@ -18,11 +18,11 @@ from typing import Any
 
 import usb.backend
 
-from drivers.emulator.device import EmulatedSR3000
-from drivers.emulator.scene import FaceScene, Motion
-from drivers.usb import protocol as p
-from drivers.usb.camera import UsbCamera
-from drivers.usb.errors import libusb_error
+from tofd.drivers.emulator.device import EmulatedSR3000
+from tofd.drivers.emulator.scene import FaceScene, Motion
+from tofd.drivers.usb import protocol as p
+from tofd.drivers.usb.camera import UsbCamera
+from tofd.drivers.usb.errors import libusb_error
 
 __all__ = ["EmulatedCamera", "EmulatedSR3000", "EmulatorBackend", "FaceScene", "Motion", "open_emulated_camera"]
 

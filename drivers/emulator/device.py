@@ -22,10 +22,11 @@ from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from drivers.emulator.scene import FaceScene
-from drivers.frame import GroundTruth
-from drivers.usb import protocol as p
-from drivers.usb.errors import libusb_error
+from tofd.drivers import sr3000
+from tofd.drivers.emulator.scene import FaceScene
+from tofd.drivers.frame import GroundTruth
+from tofd.drivers.usb import protocol as p
+from tofd.drivers.usb.errors import libusb_error
 
 READOUT_S = 0.0085
 FIFO_DEPTH = 4
@@ -33,7 +34,7 @@ _WAIT_SLICE_S = 0.05  # a blocked read re-checks plugging at least this often
 
 def frame_period_s(int_time_code: int, readout_s: float = READOUT_S) -> float:
     """Seconds between frames: four exposures of (code + 1) * 0.2 ms, then the readout."""
-    return 4 * p.integration_time_us(int_time_code) * 1e-6 + readout_s
+    return 4 * sr3000.integration_time_us(int_time_code) * 1e-6 + readout_s
 
 
 @dataclass(frozen=True, slots=True)
@@ -224,12 +225,12 @@ class EmulatedSR3000:
 
     def _transfer(self, frame: _Produced, fault: str | None) -> bytes:
         """Header + payload of a produced frame, damaged as `fault` says."""
-        freq = p.mod_freq_khz(frame.mod_freq_index)
+        freq = sr3000.mod_freq_khz(frame.mod_freq_index)
         test_pattern = frame.data_source == 1
         payload, crc = self._pattern_payload if test_pattern else self.scene.payload(frame.counter, freq)
         header = p.FrameHeader(
             frame.counter, frame.timestamp_us, freq, frame.int_time_code, frame.acq_mode, frame.data_source,
-            frame.dropped_total, p.integration_time_us(frame.int_time_code), crc,
+            frame.dropped_total, sr3000.integration_time_us(frame.int_time_code), crc,
             flags=p.FrameFlags.TEST_PATTERN if test_pattern else 0).pack()
         if fault == "partial_frame":
             return header + payload[: len(payload) // 2]

@@ -1,6 +1,6 @@
 """Generate the bundled recording: the emulated camera's face moving from 0.35 m to 0.70 m, with ground truth.
 
-    python -m drivers.emulator.make_replay_data [OUT] [--frames N]
+    python -m tofd.drivers.emulator.make_replay_data [OUT] [--frames N]
 
 Records frames 0..N-1 of the emulated camera (through the real pyusb path of the USB backend) whose
 scene is half a cycle of the emulator's Motion: the nose tip goes from 0.35 m to 0.70 m while the head
@@ -14,14 +14,14 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from drivers.emulator.backend import FaceScene, Motion, open_emulated_camera
-from drivers.recording.writer import RecordingWriter
+from tofd.drivers.emulator.backend import FaceScene, Motion, open_emulated_camera
+from tofd.drivers.recording.writer import RecordingWriter
 
 DEFAULT_OUT = Path(__file__).resolve().parent.parent / "replay_data" / "emulated_face_035_070.mcap"
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m drivers.emulator.make_replay_data", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m tofd.drivers.emulator.make_replay_data", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", nargs="?", type=Path, default=DEFAULT_OUT, help=f"default {DEFAULT_OUT}")
     parser.add_argument("--frames", type=int, default=101, help="frames from 0.35 m to 0.70 m (default 101)")

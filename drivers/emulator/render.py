@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,7 +46,7 @@ def load_face(name: str) -> FaceMesh:
     """Load a bundled face mesh by name (see drivers/data/README.md for sources and licences)."""
     if name not in FACE_NAMES:
         raise ValueError(f"unknown face {name!r}; bundled faces: {', '.join(FACE_NAMES)}")
-    with resources.files("drivers").joinpath("data", f"{name}.npz").open("rb") as fh:
+    with resources.files("tofd.drivers").joinpath("data", f"{name}.npz").open("rb") as fh:
         data = np.load(fh, allow_pickle=False)
         return FaceMesh(name, data["vertices"].astype(np.float64), data["faces"].astype(np.int64), int(data["nose"]))
 

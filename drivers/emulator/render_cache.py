@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.frame import GroundTruth
+from tofd.drivers.frame import GroundTruth
 
 log = logging.getLogger(__name__)
 

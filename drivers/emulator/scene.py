@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.emulator import render, render_cache
-from drivers.emulator.render import Pose, SensorModel, load_face, render_face
-from drivers.frame import GroundTruth
-from drivers.intrinsics import Intrinsics
-from drivers.usb import protocol as p
+from tofd.drivers import sr3000
+from tofd.drivers.emulator import render, render_cache
+from tofd.drivers.emulator.render import Pose, SensorModel, load_face, render_face
+from tofd.drivers.frame import GroundTruth
+from tofd.drivers.intrinsics import Intrinsics
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,8 +54,9 @@ class FaceScene:
         self.mesh = load_face(face)
         self.motion = motion or Motion()
         self.intrinsics = intrinsics or Intrinsics()
-        if self.intrinsics.shape != (p.HEIGHT, p.WIDTH):
-            raise ValueError(f"intrinsics: shape {self.intrinsics.shape}, the protocol has {(p.HEIGHT, p.WIDTH)}")
+        if self.intrinsics.shape != (sr3000.HEIGHT, sr3000.WIDTH):
+            raise ValueError(f"intrinsics: shape {self.intrinsics.shape}, expected the SR3000's "
+                             f"{(sr3000.HEIGHT, sr3000.WIDTH)}")
         self.model = model
         self.seed = seed
         self._poses: dict[int, tuple[np.ndarray, np.ndarray, GroundTruth]] = {}
@@ -110,7 +111,7 @@ class FaceScene:
         key = (frame_counter % self.motion.n_poses, freq_khz)
         if key not in self._payloads:
             range_m, amplitude, _ = self._pose(frame_counter)
-            data = np.stack([p.range_m_to_raw(range_m, freq_khz), amplitude]).tobytes()
+            data = np.stack([sr3000.range_m_to_raw(range_m, freq_khz), amplitude]).tobytes()
             self._payloads[key] = (data, zlib.crc32(data))
         return self._payloads[key]
 

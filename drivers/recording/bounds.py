@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
 
 MAX_IMAGE_SIDE = 4096
 """Widest or tallest image accepted, pixels."""

@@ -9,7 +9,7 @@ A recording is an MCAP file (https://mcap.dev) with profile "tofd":
 - Metadata "tofd.recording" (format version, software version, creation time), an attachment "config.json"
   (the service configuration), then the SCHEMAS and CHANNELS records (fixed ids), then, before the first
   frame, metadata "tofd.intrinsics", "tofd.device" and "tofd.registers" (an SR3000 source) or "tofd.sensor" (any
-  other camera: its signal and settings, drivers.frame.SensorInfo) (every metadata map sealed with a CRC).
+  other camera: its signal and settings, tofd.drivers.frame.SensorInfo) (every metadata map sealed with a CRC).
 - One zstd-compressed, CRC-32-checked chunk per frame holding its messages in channel order:
   /camera/frame (tofd.FrameHeader: counter, device and host times, intrinsics, device, registers or sensor,
   ground truth, plane codecs), /camera/range and /camera/amplitude (foxglove.RawImage, frame_id IMAGE_FRAME_ID) and
@@ -31,10 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers, SensorInfo
-from drivers.intrinsics import Intrinsics
-from drivers.recording import schemas
-from drivers.usb import protocol as p
+from tofd.drivers import sr3000
+from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth, Registers, SensorInfo
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording import schemas
 
 FORMAT_VERSION = 2
 PROFILE = "tofd"
@@ -86,11 +86,11 @@ def channel_role(topic: str, message_encoding: str) -> str | None:
 
 def range_scales_m(registers: Registers | None) -> tuple[float, ...]:
     """Candidate metres per raw distance unit at the frame's modulation frequency (raw/65535 * c/(2 f)):
-    rounded to float32 as the USB backend multiplies (drivers.usb.protocol.raw_to_range_m), and exact; none
+    rounded to float32 as the USB backend multiplies (tofd.drivers.usb.protocol.raw_to_range_m), and exact; none
     without SR3000 registers (such a range plane is stored as float32)."""
     if registers is None:
         return ()
-    scale = p.non_ambiguity_range_m(p.mod_freq_khz(registers.mod_freq_index)) / 65535.0
+    scale = sr3000.non_ambiguity_range_m(sr3000.mod_freq_khz(registers.mod_freq_index)) / 65535.0
     return float(np.float32(scale)), scale
 
 
@@ -199,7 +199,7 @@ def encode_frame(frame: Frame) -> list[bytes]:
     """The messages of one frame, in CHANNELS order (ValueError for a frame the format cannot hold)."""
     shape = frame.intrinsics.shape
     ns = message_times(frame)[0]
-    planes = {"range_m": (range_scales_m(frame.registers), p.RAW_INVALID), "amplitude": ((1.0,), None)}
+    planes = {"range_m": (range_scales_m(frame.registers), sr3000.RAW_INVALID), "amplitude": ((1.0,), None)}
     images, codecs = [], {}
     for name, (scales, invalid) in planes.items():
         plane = _check_plane(name, getattr(frame, name), shape)

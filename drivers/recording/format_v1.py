@@ -15,9 +15,9 @@ import struct
 
 import numpy as np
 
-from drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
-from drivers.intrinsics import Intrinsics
-from drivers.recording.format import FormatError, raw_to_plane
+from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth, Registers
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording.format import FormatError, raw_to_plane
 
 FRAME_ENCODING = "tofd.frame.v1"
 _LEN = struct.Struct("<I")

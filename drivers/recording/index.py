@@ -4,7 +4,7 @@ A tofd recording holds one frame per chunk (format 2: its header, images and cal
 (in file order) is frame k: reading frames [first, stop) seeks straight to chunk `first` and never scans the
 chunks before it. Works on any seekable binary file object (a local file or an fsspec file). A recording
 without an intact summary (its writer was killed) has no index: read it sequentially with
-drivers.recording.reader.
+tofd.drivers.recording.reader.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 
-from drivers.frame import Frame
-from drivers.recording.bounds import MAX_CHUNK_BYTES, MAX_RECORD_BYTES
-from drivers.recording.reader import channel_role, chunk_records, frames_of
+from tofd.drivers.frame import Frame
+from tofd.drivers.recording.bounds import MAX_CHUNK_BYTES, MAX_RECORD_BYTES
+from tofd.drivers.recording.reader import channel_role, chunk_records, frames_of
 
 _FOOTER_TAIL = 8 + 8 + 4 + 8
 """Bytes from the footer record's summary_start field to the end of an MCAP file."""
@@ -32,7 +32,7 @@ _FOOTER_TAIL = 8 + 8 + 4 + 8
 @dataclass(frozen=True, slots=True)
 class FrameIndex:
     """Where each chunk of a recording starts (bytes, file order) and the (channel id, role) of each channel whose
-    messages make frames (roles: drivers.recording.reader.channel_role)."""
+    messages make frames (roles: tofd.drivers.recording.reader.channel_role)."""
 
     chunk_offsets: tuple[int, ...]
     frame_channels: frozenset[tuple[int, str]]

@@ -5,9 +5,9 @@ Reading is sequential and needs neither MCAP's summary nor its footer, so a reco
 killed replays up to its last complete frame. Every chunk's CRC is checked (a chunk without one is
 refused); at a record that is cut short, fails its CRC or does not parse, the reader resyncs at the next
 intact chunk, so every readable frame is replayed. Frames lost to damage (by counter), invalid frames
-(drivers.frame.frame_problem) and duplicated frames (same counter and device timestamp) are rejected
-by the replay (drivers.recording.replay). Every size the file declares is bounded before it is trusted
-(drivers.recording.bounds): records, decompressed chunks (only zstd, which tofd writes; at most what one frame
+(tofd.drivers.frame.frame_problem) and duplicated frames (same counter and device timestamp) are rejected
+by the replay (tofd.drivers.recording.replay). Every size the file declares is bounded before it is trusted
+(tofd.drivers.recording.bounds): records, decompressed chunks (only zstd, which tofd writes; at most what one frame
 of the recording's intrinsics needs), records per chunk, metadata, attachments, the summary and image sizes.
 """
 
@@ -30,12 +30,12 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Message, Metadata, Schema, Statistics
 from mcap.writer import MCAP0_MAGIC
 
-from drivers.frame import DeviceInfo, Frame, Registers, SensorInfo
-from drivers.intrinsics import Intrinsics
-from drivers.recording import bounds, format_v1
-from drivers.recording import format as fmt
-from drivers.recording.bounds import MAX_RECORD_BYTES
-from drivers.source import DriverError
+from tofd.drivers.frame import DeviceInfo, Frame, Registers, SensorInfo
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording import bounds, format_v1
+from tofd.drivers.recording import format as fmt
+from tofd.drivers.recording.bounds import MAX_RECORD_BYTES
+from tofd.drivers.source import DriverError
 
 StopReason = Literal["end", "truncated", "corrupt"]
 CHUNK_HEADER_BYTES = 8 + 8 + 8 + 4 + 4  # start time, end time, uncompressed size, CRC, compression length

@@ -1,9 +1,9 @@
 """Replay of tofd recordings: ReplaySource (a FrameSource) and iter_frames; the replay policy over one
-RecordingReader (drivers.recording.reader): lossless or realtime (times a speed), a counter range, seek and loop.
+RecordingReader (tofd.drivers.recording.reader): lossless or realtime (times a speed), a counter range, seek and loop.
 
 The recording's head is read once, by the source's reader (`info` is its header); a damaged recording replays
 every intact frame and rejects (FrameSource.reject, for the pipeline's drop ledger) frames lost to damage (by
-counter), invalid frames (drivers.frame.frame_problem) and duplicated frames (same counter and device timestamp).
+counter), invalid frames (tofd.drivers.frame.frame_problem) and duplicated frames (same counter and device timestamp).
 Where the file ends early or has no intact chunk after damage, the source says why (`stopped_reason`,
 `stop_detail`, `last_good_counter`, counters["corrupt_tail"]).
 """
@@ -17,16 +17,16 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Literal
 
-from drivers.frame import Frame, frame_problem
-from drivers.intrinsics import Intrinsics
-from drivers.recording.reader import (
+from tofd.drivers.frame import Frame, frame_problem
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording.reader import (
     Damage,
     RecordingInfo,
     RecordingReader,
     StopReason,
     recording_info,
 )
-from drivers.source import DriverError, FrameSource
+from tofd.drivers.source import DriverError, FrameSource
 
 log = logging.getLogger(__name__)
 

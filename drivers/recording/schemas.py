@@ -18,7 +18,7 @@ tofd.FrameHeader (proto2, built here rather than from a .proto so that no protoc
       optional PlaneCodec amplitude = 10;    // how /camera/amplitude's pixels give amplitude
       optional Sensor sensor = 11;           // absent: an SR3000 frame (registers) or a file written before it
     }
-    message Sensor {  // drivers.frame.SensorInfo: a non-SR3000 source's signal and settings (registers absent)
+    message Sensor {  // tofd.drivers.frame.SensorInfo: a non-SR3000 source's signal and settings (registers absent)
       optional double depth_unit_m = 1;     // metres per raw depth value in the source file
       optional string amplitude = 2;        // "amplitude", "ir" or "active_brightness"
       optional int64 invalid_value = 3;     // absent: none

@@ -19,10 +19,10 @@ from pathlib import Path
 from mcap.records import Message
 from mcap.writer import LIBRARY_IDENTIFIER
 
-from drivers.frame import Frame
-from drivers.recording import format as fmt
-from drivers.recording import schemas
-from drivers.recording.mcap_writer import McapChunkWriter
+from tofd.drivers.frame import Frame
+from tofd.drivers.recording import format as fmt
+from tofd.drivers.recording import schemas
+from tofd.drivers.recording.mcap_writer import McapChunkWriter
 
 
 def software_version() -> str:

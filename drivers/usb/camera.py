@@ -34,12 +34,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.frame import DEFAULT_REGISTER_VALUES, DeviceInfo, Frame, GroundTruth, Registers
-from drivers.intrinsics import Intrinsics
-from drivers.source import FrameSource
-from drivers.usb import protocol as p
-from drivers.usb.device import DeviceListing, list_devices, open_device
-from drivers.usb.errors import (
+from tofd.drivers import sr3000
+from tofd.drivers.frame import DEFAULT_REGISTER_VALUES, DeviceInfo, Frame, GroundTruth, Registers
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.source import FrameSource
+from tofd.drivers.usb import protocol as p
+from tofd.drivers.usb.device import DeviceListing, list_devices, open_device
+from tofd.drivers.usb.errors import (
     DeviceGone,
     EndpointStalled,
     TransferOverflow,
@@ -122,7 +123,7 @@ class UsbCamera(FrameSource):
         if serial:
             p.parse_serial(serial)
         for name, value, top in (("int_time_code", int_time_code, 255),
-                                 ("mod_freq_index", mod_freq_index, len(p.MOD_FREQS_MHZ) - 1)):
+                                 ("mod_freq_index", mod_freq_index, len(sr3000.MOD_FREQS_MHZ) - 1)):
             if not 0 <= value <= top:
                 raise ValueError(f"{name}: expected 0..{top}, got {value}")
         if read_timeout_s < 0.001:
@@ -264,7 +265,7 @@ class UsbCamera(FrameSource):
         truth = None
         if self.ground_truth is not None and not header.flags & p.FrameFlags.TEST_PATTERN:
             truth = self.ground_truth(header.frame_counter)
-        return Frame(range_m=p.raw_to_range_m(distance, header.mod_freq_khz),
+        return Frame(range_m=sr3000.raw_to_range_m(distance, header.mod_freq_khz),
                      amplitude=amplitude.astype(np.float32), frame_counter=header.frame_counter,
                      timestamp_us=header.timestamp_us, host_monotonic_s=now_mono, host_wall_s=now_wall,
                      intrinsics=self.intrinsics, device=self.device_info,
@@ -276,7 +277,7 @@ class UsbCamera(FrameSource):
 
     def _frame_registers(self, header: p.FrameHeader) -> Registers:
         """The Registers a frame was taken with, from its header (one object per distinct setting)."""
-        index = p.mod_freq_index(header.mod_freq_khz)
+        index = sr3000.mod_freq_index(header.mod_freq_khz)
         key = (header.int_time_code, header.mod_freq_khz, header.acq_mode, header.data_source, self._amp_threshold)
         if key not in self._header_registers:
             self._header_registers[key] = Registers(

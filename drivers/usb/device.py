@@ -8,9 +8,9 @@ from dataclasses import dataclass
 import usb.core
 import usb.util
 
-from drivers.frame import Registers
-from drivers.usb import protocol as p
-from drivers.usb.errors import AccessDenied, DeviceNotFound, UsbCameraError, usb_errors
+from tofd.drivers.frame import Registers
+from tofd.drivers.usb import protocol as p
+from tofd.drivers.usb.errors import AccessDenied, DeviceNotFound, UsbCameraError, usb_errors
 
 CONTROL_TIMEOUT_MS = 1000
 

@@ -5,17 +5,16 @@ from __future__ import annotations
 import errno
 from collections.abc import Iterator
 from contextlib import contextmanager
+from importlib import resources
 from pathlib import Path
 
 import usb.core
 
-from drivers.source import DriverError
+from tofd.drivers.source import DriverError
 
 UDEV_RULE_NAME = "70-tofd-sr3000.rules"
-_ROOT = Path(__file__).resolve().parent.parent.parent  # holds the package drivers/ (a checkout or site-packages)
-UDEV_RULE = next((path for path in (_ROOT / "config" / UDEV_RULE_NAME, _ROOT / "tofd" / "defaults" / UDEV_RULE_NAME)
-                  if path.is_file()), _ROOT / "config" / UDEV_RULE_NAME)
-"""The udev rule shipped with tofd: config/ of a source checkout, tofd/defaults/ of an installed tofd."""
+UDEV_RULE = Path(str(resources.files("tofd.defaults").joinpath(UDEV_RULE_NAME)))
+"""The udev rule shipped with tofd (config/, installed as tofd.defaults)."""
 
 LIBUSB_ERRORS = {  # errno -> (libusb-1.0 code, message), as pyusb's libusb1 backend raises them
     errno.EIO: (-1, "Input/output error"),

@@ -1,4 +1,5 @@
-"""SR3000-style USB protocol, version 1 (docs/protocol.md): constants and structs.
+"""SR3000-style USB protocol, version 1 (docs/protocol.md): the wire's constants and structs (the device model
+itself: tofd.drivers.sr3000).
 
 Shared by the USB backend (host side) and the emulated camera (device side), so both speak one definition.
 All multi-byte fields are little-endian.
@@ -13,7 +14,8 @@ from enum import IntEnum, IntFlag
 
 import numpy as np
 
-from drivers.frame import DEFAULT_REGISTER_VALUES, MOD_FREQS_MHZ
+from tofd.drivers.frame import DEFAULT_REGISTER_VALUES
+from tofd.drivers.sr3000 import HEIGHT, MOD_FREQS_MHZ, WIDTH
 
 VENDOR_ID = 0x0852
 PRODUCT_ID = 0x0074
@@ -72,7 +74,7 @@ READ_ONLY_REGISTERS = frozenset({Register.STATUS})
 DEFAULT_REGISTERS = {Register.INT_TIME: DEFAULT_REGISTER_VALUES.int_time_code,
                      Register.MOD_FREQ: DEFAULT_REGISTER_VALUES.mod_freq_index,
                      Register.ACQ_MODE: DEFAULT_REGISTER_VALUES.acq_mode}
-"""Power-up register bank of the camera (the values of drivers.frame.Registers' defaults)."""
+"""Power-up register bank of the camera (the values of tofd.drivers.frame.Registers' defaults)."""
 """Power-up values of the named registers; every other register powers up as 0."""
 
 
@@ -86,24 +88,6 @@ def register_write_error(register: int, value: int) -> str | None:
         return f"value {value} of register 0x{register:02X} is not a byte (0..255)"
     if register == Register.MOD_FREQ and value >= len(MOD_FREQS_MHZ):
         return f"MOD_FREQ index {value} out of range (0..{len(MOD_FREQS_MHZ) - 1})"
-    return None
-
-
-def integration_time_us(int_time_code: int) -> int:
-    """INT_TIME code -> integration time in microseconds: (code + 1) * 200."""
-    return (int_time_code + 1) * 200
-
-
-def mod_freq_khz(mod_freq_index: int) -> int:
-    """MOD_FREQ index -> modulation frequency in kHz (3 -> 20000)."""
-    return round(MOD_FREQS_MHZ[mod_freq_index] * 1000)
-
-
-def mod_freq_index(freq_khz: int) -> int | None:
-    """Modulation frequency in kHz -> MOD_FREQ index, None if it is not one of the table's frequencies."""
-    for index in range(len(MOD_FREQS_MHZ)):
-        if mod_freq_khz(index) == freq_khz:
-            return index
     return None
 
 
@@ -127,8 +111,6 @@ class BadHeader(ProtocolError):
 INFO_STRUCT = struct.Struct("<4sHHHBBHI14s")
 INFO_MAGIC = b"SR3K"
 PROTOCOL_VERSION = 1
-WIDTH = 176
-HEIGHT = 144
 PLANES = 2
 FIRMWARE_VERSION = 0x0100  # 1.0
 
@@ -212,7 +194,6 @@ SAMPLE_FORMAT_U16LE = 1
 PAYLOAD_LEN = WIDTH * HEIGHT * 2 * PLANES  # 101,376 bytes
 FRAME_LEN = HEADER_LEN + PAYLOAD_LEN  # 101,440 bytes
 READ_BUFFER_LEN = -(-FRAME_LEN // MAX_PACKET) * MAX_PACKET  # 101,888 bytes: whole packets, >= one frame
-RAW_INVALID = 0xFFFF  # end of the non-ambiguity range: saturated or no return
 
 
 class FrameFlags(IntFlag):
@@ -284,30 +265,6 @@ def check_frame(data: bytes | memoryview) -> FrameHeader:
     if zlib.crc32(data[HEADER_LEN:end]) != header.payload_crc32:
         raise CrcError(f"payload CRC mismatch in frame {header.frame_counter}")
     return header
-
-
-# ------------------------------------------------------------------------------------- unit conversion
-SPEED_OF_LIGHT_M_S = 299_792_458.0
-
-
-def non_ambiguity_range_m(freq_khz: int) -> float:
-    """c / (2 f_mod) in metres (7.49 m at 20 MHz)."""
-    return SPEED_OF_LIGHT_M_S / (2.0 * freq_khz * 1e3)
-
-
-def raw_to_range_m(raw: np.ndarray, freq_khz: int, out: np.ndarray | None = None) -> np.ndarray:
-    """uint16 distance -> float32 metres = raw / 65535 * c / (2 f_mod); raw 0xFFFF -> NaN."""
-    scale = np.float32(non_ambiguity_range_m(freq_khz) / 65535.0)
-    out = np.multiply(raw, scale, out=out, dtype=np.float32)
-    out[raw == RAW_INVALID] = np.nan
-    return out
-
-
-def range_m_to_raw(range_m: np.ndarray, freq_khz: int) -> np.ndarray:
-    """float metres -> uint16 distance (inverse of raw_to_range_m); NaN or beyond the range -> 0xFFFF."""
-    raw = np.rint(np.asarray(range_m, dtype=np.float64) * (65535.0 / non_ambiguity_range_m(freq_khz)))
-    invalid = ~np.isfinite(raw) | (raw >= RAW_INVALID)
-    return np.where(invalid, RAW_INVALID, np.clip(np.nan_to_num(raw), 0, RAW_INVALID - 1)).astype("<u2")
 
 
 def split_payload(payload: bytes | memoryview | np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import Eccentricities, FFTFeatures, NFFTFeatures, SamplingError
 from tofd.algorithm.features.eccentricity import MapsOut
 from tofd.algorithm.names import FAMILIES, FAMILY_TABLE, Family
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
 from tofd.algorithm.segmentation import segment_face
+from tofd.drivers.intrinsics import Intrinsics
 
 
 @dataclass(slots=True)

@@ -6,9 +6,9 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.band import band_edge_per_m
 from tofd.algorithm.names import VARIANTS
+from tofd.drivers.intrinsics import Intrinsics
 
 _SR3000 = Intrinsics()
 SR3000_PATCH_M = (_SR3000.width / _SR3000.fx * 0.5, _SR3000.height / _SR3000.fy * 0.5)

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.params import SegmentationConfig
+from tofd.drivers.intrinsics import Intrinsics
 
 OTSU_BINS = 256
 LOG_FLOOR = 1e-4  # amplitudes below this fraction of the maximum count as this fraction

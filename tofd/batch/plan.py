@@ -18,13 +18,13 @@ import fsspec
 from mcap.writer import MCAP0_MAGIC
 
 import tofd
-from drivers.recording.index import frame_index
 from tofd.batch import rows
+from tofd.drivers.recording.index import frame_index
 from tofd.lab.dataset import DATASET_SUFFIX, DatasetError, DatasetFile
 
 RECORDING_SUFFIX = ".mcap"
 SOURCE_SUFFIXES = (".mkv", ".bag", ".db3")
-"""Other files a directory is searched for (recognised by content when planned: drivers.opener)."""
+"""Other files a directory is searched for (recognised by content when planned: tofd.drivers.opener)."""
 INPUT_SUFFIXES = (RECORDING_SUFFIX, DATASET_SUFFIX, *SOURCE_SUFFIXES)
 
 
@@ -39,10 +39,10 @@ class Partition:
     first: int
     stop: int
     offsets: tuple[int, ...]
-    frame_channels: tuple[tuple[int, str], ...]  # (channel id, role): drivers.recording.index.FrameIndex
+    frame_channels: tuple[tuple[int, str], ...]  # (channel id, role): tofd.drivers.recording.index.FrameIndex
     output: str  # URL of the partition's Parquet file
     dataset: bool = False
-    reader: str = ""  # a drivers.opener format whose FrameSource reads the whole file sequentially (e.g. "k4a")
+    reader: str = ""  # a tofd.drivers.opener format whose FrameSource reads the whole file sequentially (e.g. "k4a")
 
     def to_json(self) -> str:
         return json.dumps(asdict(self))
@@ -191,9 +191,9 @@ def _plan_recording(inp: InputPlan, out: str, run_digest: str, partition_frames:
 
 
 def _plan_by_content(inp: InputPlan, out: str, run_digest: str, partition_frames: int, taken: set[str]) -> None:
-    """A local file named otherwise, recognised by its content (drivers.opener): a tofd recording, or a file a
+    """A local file named otherwise, recognised by its content (tofd.drivers.opener): a tofd recording, or a file a
     FrameSource reads (one sequential partition, like a recording without an index)."""
-    from drivers.opener import identify
+    from tofd.drivers.opener import identify
 
     try:
         fmt = identify(inp.url)

@@ -21,14 +21,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from drivers.frame import Frame
-from drivers.intrinsics import Intrinsics
-from drivers.recording.index import FrameIndex, read_chunks
 from tofd.algorithm.detector import Candidates, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.batch.plan import Partition
 from tofd.batch.rows import ROW_SCHEMA, eval_columns, frame_row
 from tofd.config import Config, config_from_dict
+from tofd.drivers.frame import Frame
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.recording.index import FrameIndex, read_chunks
 from tofd.lab.dataset import DatasetFile
 from tofd.lab.evaluation import NOSE_RADIUS_M, frame_samples, image_minima
 from tofd.process_setup import prepare_compute_process
@@ -66,9 +66,9 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
         yield from _dataset_frames(part, stats, errors)
         return
     if not part.offsets:  # no index, or a file a FrameSource reads: the whole file, sequentially
-        from drivers.opener import open_source
-        from drivers.recording.replay import ReplaySource
-        from drivers.source import DriverError, FrameSource
+        from tofd.drivers.opener import open_source
+        from tofd.drivers.recording.replay import ReplaySource
+        from tofd.drivers.source import DriverError, FrameSource
 
         t0 = time.perf_counter()
         try:

@@ -18,10 +18,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.recording.format import FORMAT_VERSION
-    from drivers.recording.replay import ReplaySource
-    from drivers.recording.writer import RecordingWriter
-    from drivers.source import DriverError
+    from tofd.drivers.recording.format import FORMAT_VERSION
+    from tofd.drivers.recording.replay import ReplaySource
+    from tofd.drivers.recording.writer import RecordingWriter
+    from tofd.drivers.source import DriverError
     from tofd.errors import UsageError
     from tofd.outputs import check_output_file
 

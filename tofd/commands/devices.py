@@ -14,12 +14,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.usb.camera import list_devices
-    from drivers.usb.errors import UsbCameraError
+    from tofd.drivers.usb.camera import list_devices
+    from tofd.drivers.usb.errors import UsbCameraError
 
     backend = None
     if args.emulate:
-        from drivers.emulator.backend import EmulatorBackend
+        from tofd.drivers.emulator.backend import EmulatorBackend
 
         backend = EmulatorBackend()
     try:

@@ -59,7 +59,7 @@ def write_png(path: Path, plane: np.ndarray) -> None:
         raise OSError(f"cannot write {path}")
 
 
-def write_ply(path: Path, frame) -> int:  # noqa: ANN001 (drivers.frame.Frame)
+def write_ply(path: Path, frame) -> int:  # noqa: ANN001 (tofd.drivers.frame.Frame)
     """The frame's valid pixels as a binary PLY point cloud (x, y, z metres, amplitude); the number of points."""
     points = frame.intrinsics.backproject(frame.range_m).reshape(-1, 3)
     valid = np.isfinite(frame.range_m).reshape(-1) & (frame.range_m.reshape(-1) > 0)
@@ -77,7 +77,7 @@ def write_ply(path: Path, frame) -> int:  # noqa: ANN001 (drivers.frame.Frame)
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.source import DriverError
+    from tofd.drivers.source import DriverError
     from tofd.errors import UsageError
     from tofd.inputs import InputSummary, frames_with_rejects, open_input
     from tofd.outputs import prepare_output_dir

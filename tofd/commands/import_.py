@@ -1,11 +1,11 @@
 """Import a ROS bag (ROS 1 .bag; ROS 2 directory, .db3 or .mcap) or an Azure Kinect / Orbbec Femto .mkv as a tofd
-recording that `tofd replay` takes (inputs are recognised by content: drivers.opener).
+recording that `tofd replay` takes (inputs are recognised by content: tofd.drivers.opener).
 
 A RealSense SDK recording (librealsense's ROS 2 .db3 or legacy ROS 1 .bag) or an Orbbec SDK v2 .bag is read
 as its SDK wrote it (depth + infrared by frame number, units, lens and device from the file). In a camera
 driver's bag each header stamp with a range image, an amplitude image and a CameraInfo becomes one frame, on the
 topics of the driver the bag's topics show (swissranger_camera, orbbec_camera, azure_kinect_ros_driver,
-realsense2_camera, royale; drivers.driver_layouts) or those named by the options. Range images: 32FC1 in metres,
+realsense2_camera, royale; bags.driver_layouts) or those named by the options. Range images: 32FC1 in metres,
 or 16UC1/mono16 in device units (--range-unit device: raw / 65535 x c / (2 f_mod), 0xFFFF = no return) or
 millimetres (--range-unit mm, REP 118: 0 = no return); radial range or z-depth along the optical axis (--depth z,
 converted to radial range with the CameraInfo's undistorted rays). A damaged bag gives the frames before the
@@ -24,8 +24,8 @@ from typing import TYPE_CHECKING
 from tofd import arguments
 
 if TYPE_CHECKING:
-    from drivers.rosbag import RangeOptions
-    from drivers.source import FrameSource, Rejected
+    from tofd.drivers.bags.driver_bag import RangeOptions
+    from tofd.drivers.source import FrameSource, Rejected
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,11 +40,11 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
     """Write the frames of `bag` to the recording `out` (renamed into place when complete) with a progress bar;
     returns what was written, e.g. "12 frames of 176x144". The frames the source rejected (a damaged tail) are
     added to `rejected`. UsageError names a bad bag."""
-    from drivers.bags import open_bag
-    from drivers.opener import identify, open_source
-    from drivers.recording.writer import RecordingWriter
-    from drivers.rosbag import BagError, RangeOptions
-    from drivers.source import DriverError
+    from tofd.drivers.bags.driver_bag import BagError, RangeOptions
+    from tofd.drivers.bags.opener import open_bag
+    from tofd.drivers.opener import identify, open_source
+    from tofd.drivers.recording.writer import RecordingWriter
+    from tofd.drivers.source import DriverError
     from tofd.errors import UsageError
     from tofd.outputs import AtomicFile
     from tofd.progress import Progress

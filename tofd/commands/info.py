@@ -48,7 +48,7 @@ def describe(summary) -> list[str]:  # noqa: ANN001 (tofd.inputs.InputSummary, i
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.source import DriverError
+    from tofd.drivers.source import DriverError
     from tofd.errors import UsageError
     from tofd.inputs import summarize
 

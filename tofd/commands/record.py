@@ -21,7 +21,7 @@ from tofd import arguments
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from drivers.source import FrameSource
+    from tofd.drivers.source import FrameSource
 
 PROGRESS_INTERVAL_S = 1.0
 
@@ -57,9 +57,9 @@ def _status(frames: int, elapsed_s: float, nbytes: int, counters: dict[str, int]
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.recording.writer import RecordingWriter
-    from drivers.source import DriverError
     from tofd.config import load_config
+    from tofd.drivers.recording.writer import RecordingWriter
+    from tofd.drivers.source import DriverError
     from tofd.service.camera import open_camera
     from tofd.service.signals import StopSignals
 

@@ -9,7 +9,7 @@ ground truth also gets an accuracy line (detection and track) and <stem>.accurac
 frames). --rerun adds or replaces the viewer sink; --foxglove HOST:PORT streams the replay to Foxglove as well, at the
 recorded pace.
 --check GOLDEN compares the per-frame results with a golden file (docs/BATCH.md) and exits 1 on a regression.
-Inputs are recognised by content (drivers.opener): a ROS 1 or ROS 2 bag is imported to a temporary recording first
+Inputs are recognised by content (tofd.drivers.opener): a ROS 1 or ROS 2 bag is imported to a temporary recording first
 (as `tofd import` does, with the same options); an Azure Kinect / Orbbec Femto .mkv is read directly, or imported
 first for --realtime, --foxglove, --loop and --seek.
 """
@@ -30,9 +30,9 @@ from tofd.service.daemon import RERUN_SPEC_HELP
 from tofd.service.foxglove.spec import FOXGLOVE_SPEC_HELP, parse_foxglove_spec
 
 if TYPE_CHECKING:
-    from drivers.intrinsics import Intrinsics
-    from drivers.source import FrameSource, Rejected
     from tofd.algorithm.detector import NoseModel
+    from tofd.drivers.intrinsics import Intrinsics
+    from tofd.drivers.source import FrameSource, Rejected
 
 log = logging.getLogger(__name__)
 
@@ -76,8 +76,8 @@ def _report_accuracy(results: Path, plot: Path) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.opener import identify
-    from drivers.rosbag import RangeOptions
+    from tofd.drivers.bags.driver_bag import RangeOptions
+    from tofd.drivers.opener import identify
     from tofd.errors import UsageError
 
     if args.speed is not None and not (args.realtime or args.foxglove not in (None, "none")):
@@ -109,10 +109,10 @@ def main(args: argparse.Namespace) -> int:
 def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list[Rejected] | None = None) -> int:
     """Replay the tofd recording `recording` (args.file, or the recording a bag was imported to, with the frames
     its import rejected ledgered after its own)."""
-    from drivers.bag_source import RejectsAfter
-    from drivers.recording.replay import ReplaySource
-    from drivers.source import DriverError
     from tofd.config import load_config
+    from tofd.drivers.bags.source import RejectsAfter
+    from tofd.drivers.recording.replay import ReplaySource
+    from tofd.drivers.source import DriverError
     from tofd.errors import UsageError
 
     cfg = _replay_config(args, load_config(args.config), stem)
@@ -134,11 +134,11 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list
 
 
 def _replay_source(args: argparse.Namespace, stem: str) -> int:
-    """Replay a file a FrameSource reads directly (drivers.opener), lossless, from its first frame: its lost
+    """Replay a file a FrameSource reads directly (tofd.drivers.opener), lossless, from its first frame: its lost
     frames are ledgered as the pipeline meets them."""
-    from drivers.opener import open_source
-    from drivers.source import DriverError
     from tofd.config import load_config
+    from tofd.drivers.opener import open_source
+    from tofd.drivers.source import DriverError
     from tofd.errors import UsageError
 
     cfg = _replay_config(args, load_config(args.config), stem)
@@ -161,8 +161,8 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
            total: int | None, stem: str) -> int:
     """Run the pipeline over `source` and write the outputs; the source may say where a damaged file stopped
     (stopped_reason, last_good_counter, stop_detail, as ReplaySource does)."""
-    from drivers.source import DriverError
     from tofd.batch.golden import GoldenRecorder
+    from tofd.drivers.source import DriverError
     from tofd.outputs import prepare_output_dir
     from tofd.process_setup import prepare_service_process
     from tofd.progress import Progress

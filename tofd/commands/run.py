@@ -51,8 +51,8 @@ def _raise_stopped(signum: int, _first: bool) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.source import DriverError
     from tofd.config import load_config
+    from tofd.drivers.source import DriverError
     from tofd.outputs import check_output_file
     from tofd.process_setup import prepare_service_process
     from tofd.service.camera import open_camera

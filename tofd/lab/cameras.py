@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
 
 
 def pinhole(width: int, height: int, f: float) -> Intrinsics:
@@ -40,8 +40,8 @@ def parse_intrinsics(text: str) -> Intrinsics:
             raise ValueError(f"{text!r}: width and height must be integers >= 8, fx and fy > 0")
         return Intrinsics(int(w), int(h), fx, fy, cx, cy)
     if Path(text).is_file():
-        from drivers.recording.reader import read_recording_info
-        from drivers.source import DriverError
+        from tofd.drivers.recording.reader import read_recording_info
+        from tofd.drivers.source import DriverError
 
         try:
             info = read_recording_info(text)

@@ -7,7 +7,7 @@ Each other condition changes one of these, so a failing cell names its cause.
 
 from __future__ import annotations
 
-from drivers.emulator.render import SensorModel
+from tofd.drivers.emulator.render import SensorModel
 
 TRAIN_CONDITION = "train_sensor"
 

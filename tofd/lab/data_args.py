@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from drivers.intrinsics import Intrinsics
 from tofd.config import Config
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.errors import UsageError
 from tofd.lab.cameras import INTRINSICS_HELP, parse_intrinsics
 from tofd.lab.dataset import Dataset, load_labelled

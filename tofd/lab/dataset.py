@@ -18,8 +18,8 @@ Without `nose_xyz_m` the nose tip is back-projected from `range` at `nose_px` (m
 3x3 neighbourhood, over the pixels within 2 cm of its nearest).
 
 Intrinsics: optional sidecar `<stem>.json` next to `<stem>.npz` holding {"intrinsics": {width, height, fx, fy,
-cx, cy}} (drivers.intrinsics.Intrinsics.to_dict); the SR3000 default when there is none.
-Recordings with ground truth (drivers.recording.replay) are read with `load_labelled` / `dataset_from_frames`.
+cx, cy}} (tofd.drivers.intrinsics.Intrinsics.to_dict); the SR3000 default when there is none.
+Recordings with ground truth (tofd.drivers.recording.replay) are read with `load_labelled` / `dataset_from_frames`.
 `DatasetFile` reads frame ranges of a dataset at any fsspec URL as Frames with ground truth (for `tofd batch`).
 """
 
@@ -37,8 +37,8 @@ from pathlib import Path
 import fsspec
 import numpy as np
 
-from drivers.frame import Frame, GroundTruth
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.frame import Frame, GroundTruth
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.errors import UsageError
 from tofd.lab.npz import NpzError, check_npz, read_npy_header
 from tofd.outputs import AtomicFile, write_text
@@ -236,8 +236,8 @@ def load_labelled(path: str | Path) -> Dataset:
     path = Path(path)
     if path.suffix == ".npz":
         return load_dataset(path)
-    from drivers.recording.replay import iter_frames
-    from drivers.source import DriverError
+    from tofd.drivers.recording.replay import iter_frames
+    from tofd.drivers.source import DriverError
 
     try:
         return dataset_from_frames(iter_frames(path), subject=path.stem)

@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import (
     ALL_FOREGROUND,
     PAPER_RULE,
@@ -43,6 +42,7 @@ from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import MAP_NAMES
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
 from tofd.algorithm.segmentation import filtered, valid_pixels
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab.dataset import Dataset
 from tofd.lab.roc import Answers, RocCurve, answers_at, margin_scale, roc_from_min_distances
 from tofd.process_setup import THREAD_ENV, child_environment, prepare_compute_process

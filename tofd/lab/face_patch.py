@@ -1,6 +1,6 @@
 """The NFFT features of one face surface read at the same surface points from several cameras.
 
-A noise-free rendered head (drivers.emulator.render, its nose tip at `distance_m`) is segmented to the face within
+A noise-free rendered head (tofd.drivers.emulator.render, its nose tip at `distance_m`) is segmented to the face within
 `MASK_RADIUS_M` of the true tip; its NFFT fields c0, c2, s2 (tofd.algorithm.features.nfft) are read at the
 projections of the true tip and of points beside it (`PROBES_M`), and eps0 = c0^2, eps2 = c2^2 + s2^2 there.
 
@@ -24,11 +24,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from drivers.emulator.render import FaceMesh, Pose, load_face, render_face
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import NFFTFeatures
 from tofd.algorithm.features.operators import eccentricity_transfer
 from tofd.algorithm.params import FeatureConfig
+from tofd.drivers.emulator.render import FaceMesh, Pose, load_face, render_face
+from tofd.drivers.intrinsics import Intrinsics
 
 MASK_RADIUS_M = 0.09  # metres: the face patch, points this near the true nose tip
 PROBES_M = ((0.0, 0.0, 0.0), (0.015, 0.0, 0.0), (0.0, 0.02, 0.0))  # metres: the tip, and 1.5 cm right, 2 cm below

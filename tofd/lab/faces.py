@@ -1,4 +1,4 @@
-"""Labelled SR3000-like face frames for training and evaluating the nose detector (drivers.emulator.render).
+"""Labelled SR3000-like face frames for training and evaluating the nose detector (tofd.drivers.emulator.render).
 
 Subjects are the two bundled meshes plus identity variations of them: anisotropic scaling about the nose tip
 and smooth local displacements (Gaussian radial-basis bumps, metres) around landmark vertices -- nose tip,
@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.emulator.render import FaceMesh, Pose, SensorModel, load_face, render_face
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.emulator.render import FaceMesh, Pose, SensorModel, load_face, render_face
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab.dataset import Dataset
 
 LANDMARK_OFFSETS_M: dict[str, tuple[float, float]] = {
@@ -45,7 +45,7 @@ class Subject:
     """An identity: a base mesh, an anisotropic scale about the nose tip, and local bumps."""
 
     name: str
-    mesh: str  # drivers.emulator.render.FACE_NAMES
+    mesh: str  # tofd.drivers.emulator.render.FACE_NAMES
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     bumps: tuple[Bump, ...] = ()
 

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.emulator.render import Pose, SensorModel, render_face
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import Detection, NoseDetector
 from tofd.algorithm.tracking import NoseTracker, TrackerConfig
+from tofd.drivers.emulator.render import Pose, SensorModel, render_face
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab.faces import SUBJECTS, make_subject
 
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
 
 DEFAULT_GAIN = 5000.0
 

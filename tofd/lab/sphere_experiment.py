@@ -14,9 +14,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.features import FFTFeatures, NFFTFeatures
 from tofd.algorithm.params import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import shapes as synthetic
 from tofd.outputs import save_figure
 

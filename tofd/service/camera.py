@@ -5,8 +5,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 
-from drivers.source import FrameSource
 from tofd.config import Config
+from tofd.drivers.source import FrameSource
 
 EMULATED_SERIAL = "30000001"
 
@@ -21,11 +21,11 @@ def open_camera(config: Config, emulate: bool) -> FrameSource:
     """
     kwargs = dataclasses.asdict(config.camera)
     if emulate:
-        from drivers.emulator.backend import open_emulated_camera
+        from tofd.drivers.emulator.backend import open_emulated_camera
 
         serial = kwargs.pop("serial") or EMULATED_SERIAL
         log.info("rendering the emulated camera's scene (a few seconds)")
         return open_emulated_camera(serial=serial, prerender=True, intrinsics=config.intrinsics, **kwargs)
-    from drivers.usb.camera import UsbCamera
+    from tofd.drivers.usb.camera import UsbCamera
 
     return UsbCamera(**kwargs, intrinsics=config.intrinsics)

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from drivers.source import FrameSource
 from tofd.config import Config, ConfigError, config_digest
+from tofd.drivers.source import FrameSource
 from tofd.progress import Progress
 from tofd.service.health import HealthServer, ServiceMetrics, sd_notify
 from tofd.service.model import ModelIdentity, read_model_file, service_model

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.params import DetectorConfig, SegmentationConfig
 from tofd.algorithm.segmentation import bounding_box, coarse_stride, filtered, upsampled
+from tofd.drivers.intrinsics import Intrinsics
 
 
 def border_distance_m(mask: np.ndarray, range_m: np.ndarray, intrinsics: Intrinsics, *,

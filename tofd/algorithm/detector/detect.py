@@ -10,7 +10,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector.acceptance import PAPER_RULE, Margin, region_bests
 from tofd.algorithm.detector.box import Box, require_maps, stack_features
 from tofd.algorithm.detector.candidates import ALL_FOREGROUND, Candidates
@@ -20,6 +19,7 @@ from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import families_for
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
 from tofd.algorithm.segmentation import rotation_to_z
+from tofd.drivers.intrinsics import Intrinsics
 
 MAX_ALTERNATIVES = 3  # regions whose best pixel a frame reports as alternatives
 

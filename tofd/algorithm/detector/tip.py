@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.segmentation import coarse_stride, rotation_to_z
+from tofd.drivers.intrinsics import Intrinsics
 
 MIN_POINTS = 8  # fewer foreground points in the window than this: no fit (6 coefficients)
 OUTLIER_SIGMAS = 3.0  # residuals beyond this many robust sigmas (1.4826 x MAD) are dropped before refitting

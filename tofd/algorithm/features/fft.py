@@ -21,12 +21,12 @@ import numpy as np
 import scipy.fft as sfft
 from scipy import ndimage
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.band import band_edge_per_m
 from tofd.algorithm.features.eccentricity import Eccentricities, MapsOut
 from tofd.algorithm.features.operators import Transfer, eccentricity_transfer, evaluate
 from tofd.algorithm.features.transfer import pixel_frequencies_per_m
 from tofd.algorithm.params import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 
 KERNEL_TAIL = 1e-9  # fraction of each operator's impulse-response L1 mass allowed beyond the padding
 SIZE_STEP = 8  # box FFT lengths are fast lengths that are multiples of this (or the whole frame's)

@@ -46,7 +46,6 @@ import finufft
 import numpy as np
 import scipy.fft as sfft
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.band import radial_tuning
 from tofd.algorithm.features.compiled import compiled
 from tofd.algorithm.features.eccentricity import Eccentricities, MapsOut
@@ -55,6 +54,7 @@ from tofd.algorithm.features.normal_equations import DampedNormalEquations, load
 from tofd.algorithm.features.operators import Transfer, eccentricity_transfer, evaluate
 from tofd.algorithm.features.sampling import check_sampling
 from tofd.algorithm.params import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 
 SINGLE_NUFFT_EPS = 2e-5  # finufft's float32 precision floor at upsampfac 1.25 (below it narrows its kernel and warns)
 

@@ -13,8 +13,8 @@ real pixel, which averages over its footprint, suppresses it.
 
 from __future__ import annotations
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.params import FeatureConfig
+from tofd.drivers.intrinsics import Intrinsics
 
 
 class SamplingError(ValueError):

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.band import radial_tuning
+from tofd.drivers.intrinsics import Intrinsics
 
 
 def transfer_functions(kx_per_m: np.ndarray, ky_per_m: np.ndarray, rho0_per_m: float,

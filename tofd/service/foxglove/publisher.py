@@ -44,8 +44,8 @@ from foxglove.messages import (
     Vector3,
 )
 
-from drivers.intrinsics import Intrinsics
 from tofd.config import Config
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.foxglove import topics as t
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer.pixels import corner_origin, track_box_px

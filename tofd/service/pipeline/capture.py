@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from drivers.frame import Frame
-from drivers.source import FrameSource
+from tofd.drivers.frame import Frame
+from tofd.drivers.source import FrameSource
 
 
 class GapTracker:

@@ -28,13 +28,13 @@ import time
 from collections.abc import Callable
 from typing import Protocol
 
-from drivers.frame import COUNTER_LIMIT, Frame, frame_problem
-from drivers.intrinsics import Intrinsics
-from drivers.source import FrameSource
 from tofd.algorithm.detector import NoseModel
 from tofd.algorithm.names import VIEWED_MAPS, family_maps
 from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config, config_table
+from tofd.drivers.frame import COUNTER_LIMIT, Frame, frame_problem
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.source import FrameSource
 from tofd.service.pipeline import monitor
 from tofd.service.pipeline.capture import GapTracker
 from tofd.service.pipeline.ledger import DropLedger, LedgerSummary

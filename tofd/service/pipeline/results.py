@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from drivers.frame import Frame
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.tracking import TrackState
+from tofd.drivers.frame import Frame
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.outputs import AtomicFile
 
 

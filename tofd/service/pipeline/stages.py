@@ -7,13 +7,13 @@ import time
 
 import numpy as np
 
-from drivers.frame import Frame
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.detector import Alternative, Detection, NoseDetector, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import FAMILIES, VARIANTS, VIEWED_FAMILIES, families_for, family_maps
 from tofd.algorithm.segmentation import bounding_box
 from tofd.config import Config
+from tofd.drivers.frame import Frame
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.pipeline.messages import DetectionMessage, FeatureReply
 from tofd.service.pipeline.results import FrameResult
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.process_setup import THREAD_ENV, child_environment
 from tofd.service.pipeline import messages
 from tofd.service.pipeline.messages import WorkerReady, WorkerReply, WorkerTask

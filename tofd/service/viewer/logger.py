@@ -28,9 +28,9 @@ import pyarrow as pa
 import rerun as rr
 from rerun.encodings import ColorModelLike
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.names import FAMILY_TABLE
 from tofd.config import RerunConfig
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.pipeline.stats import TIMED_STAGES
 from tofd.service.viewer import blueprint as bp

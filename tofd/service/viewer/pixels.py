@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.tracking import TrackState
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.pipeline.results import track_px
 
 CENTRE_TO_CORNER_PX = 0.5

@@ -12,9 +12,9 @@ from typing import TypedDict
 
 import numpy as np
 
-from drivers.frame import Frame
-from drivers.intrinsics import Intrinsics
 from tofd.algorithm.names import VIEWED_MAPS
+from tofd.drivers.frame import Frame
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.pipeline.messages import DetectionMessage
 from tofd.service.pipeline.results import FrameResult, track_dict, track_from
 from tofd.service.pipeline.slots import SLOT_FIELDS, SlotRing

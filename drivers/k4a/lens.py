@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import Intrinsics
 
 DEPTH_CAMERA_LOCATION = "CALIBRATION_CameraLocationD0"
 BROWN_CONRADY = "CALIBRATION_LensDistortionModelBrownConrady"

@@ -14,7 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from drivers.bag_scan import BagError, DamagedMessage
+from tofd.drivers.bags.scan import BagError, DamagedMessage
 
 RANGE_ENCODINGS: dict[str, str] = {"32FC1": "f4", "16UC1": "u2", "mono16": "u2"}
 """Range image encoding -> numpy dtype (byte order from the message's is_bigendian)."""

@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from drivers.bag_scan import BagError, BagReader, DamagedMessage, RawMessage
-from drivers.frame import AmplitudeKind, Frame, SensorInfo
-from drivers.intrinsics import Intrinsics
-from drivers.source import FrameSource, Rejected
+from tofd.drivers.bags.scan import BagError, BagReader, DamagedMessage, RawMessage
+from tofd.drivers.frame import AmplitudeKind, Frame, SensorInfo
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.source import FrameSource, Rejected
 
 log = logging.getLogger(__name__)
 
@@ -33,12 +33,12 @@ def depth_metres(raw: np.ndarray, metres_per_unit: float) -> np.ndarray:
 
 
 class BagSource(FrameSource):
-    """A FrameSource reading a bag through drivers.bag_scan.BagReader.
+    """A FrameSource reading a bag through tofd.drivers.bags.scan.BagReader.
 
     After iteration, `intrinsics` is the calibration of the frames (None when none was delivered), `damage` says
     why reading stopped early (None: the whole bag was read) and `settings` holds what the file says about the
     device and how it was set (units, rates, options), for the provenance of an imported recording. Frames
-    without SR3000 registers carry it as `sensor` (drivers.frame.SensorInfo), with `amplitude_kind`, the raw
+    without SR3000 registers carry it as `sensor` (tofd.drivers.frame.SensorInfo), with `amplitude_kind`, the raw
     planes' units (note_signal) and the frame period from the first PERIOD_FRAMES device timestamps.
     """
 

@@ -7,7 +7,7 @@ Two layouts, both under /device_<d>/sensor_<s>/<Stream>_<index>/ with a /file_ve
   depth_units=..;" written with the same bag time as its image; the stream's camera_info is a String
   "width=..;fx=..;ppx=..;model=Brown Conrady;coeffs=.." (and a sensor_msgs/CameraInfo every frame).
 - librealsense <= 2.56: a ROS 1 bag (.bag). Images are sensor_msgs/Image carrying an undeclared float32 depth
-  unit (metres) after their data (drivers.ros1_wire), header.seq = frame number, header.stamp = device
+  unit (metres) after their data (tofd.drivers.bags.ros1_wire), header.seq = frame number, header.stamp = device
   timestamp; info/camera_info is a sensor_msgs/CameraInfo (once) whose distortion_model is librealsense's name;
   the sensor's Depth_Units option is on option/Depth_Units/value.
 Depth is z-depth in depth units (0 = no return); it becomes radial range through the undistorted rays. The
@@ -25,13 +25,13 @@ from typing import Any
 
 import numpy as np
 
-from drivers import ros1_wire
-from drivers.bag_scan import BagError, DamagedMessage, RawMessage, Topic
-from drivers.bag_source import BagSource, depth_metres
-from drivers.frame import DeviceInfo, Frame
-from drivers.intrinsics import Intrinsics
-from drivers.ros_camera_info import camera_info_intrinsics, lens_intrinsics
-from drivers.ros_images import AMPLITUDE_ENCODINGS, IMAGE_TYPES, RANGE_ENCODINGS, plane
+from tofd.drivers.bags import ros1_wire
+from tofd.drivers.bags.camera_info import camera_info_intrinsics, lens_intrinsics
+from tofd.drivers.bags.images import AMPLITUDE_ENCODINGS, IMAGE_TYPES, RANGE_ENCODINGS, plane
+from tofd.drivers.bags.scan import BagError, DamagedMessage, RawMessage, Topic
+from tofd.drivers.bags.source import BagSource, depth_metres
+from tofd.drivers.frame import DeviceInfo, Frame
+from tofd.drivers.intrinsics import Intrinsics
 
 STREAM_TOPIC = re.compile(r"^(/device_\d+/sensor_\d+/)(Depth|Infrared)_(\d+)/image/data(/compressed\w*)?$")
 """A stream's image topic: sensor prefix, stream name, index, transport."""

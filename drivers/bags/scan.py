@@ -6,7 +6,7 @@ cannot open it, the records are read in file order instead: ROS 1 records one by
 bz2 or LZ4), the sqlite3 `messages` table row by row, MCAP messages in stream order. Reading stops at the first
 record that cannot be read and `damage` says where and why. Message definitions come from the bag where it
 has them (ROS 1 always; ROS 2 where recorded), else the latest ROS 2 definitions, registered leniently: a
-vendor's definition that contradicts its bytes (Orbbec's Image) is read by drivers.ros1_wire instead.
+vendor's definition that contradicts its bytes (Orbbec's Image) is read by tofd.drivers.bags.ros1_wire instead.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from drivers.source import DriverError
+from tofd.drivers.source import DriverError
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"

@@ -16,11 +16,11 @@ from typing import Any, cast
 
 import numpy as np
 
-from drivers.bag_scan import BagError
-from drivers.intrinsics import COEFFICIENT_COUNTS, DistortionModel, Intrinsics
+from tofd.drivers.bags.scan import BagError
+from tofd.drivers.intrinsics import COEFFICIENT_COUNTS, DistortionModel, Intrinsics
 
 ROS_LENS_MODELS = {name: n for name, n in COEFFICIENT_COUNTS.items() if n}
-"""ROS distortion_model -> number of coefficients (drivers.intrinsics' models but the pinhole)."""
+"""ROS distortion_model -> number of coefficients (tofd.drivers.intrinsics' models but the pinhole)."""
 VENDOR_LENS_MODELS: dict[str, str | None] = {
     "Brown Conrady": "plumb_bob",  # librealsense RS2_DISTORTION_BROWN_CONRADY
     "Kannala Brandt4": "equidistant",  # RS2_DISTORTION_KANNALA_BRANDT4 (T265)

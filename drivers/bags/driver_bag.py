@@ -1,8 +1,8 @@
 """ROS bags of camera drivers as a frame source: a range and an amplitude image topic and a CameraInfo topic,
 paired by header stamp, become Frames. Reads ROS 1 .bag files and ROS 2 bags (a directory with metadata.yaml,
-or a bare .db3 or .mcap storage file) through the `rosbags` package (drivers.bag_scan).
+or a bare .db3 or .mcap storage file) through the `rosbags` package (tofd.drivers.bags.scan).
 
-The topics are those of the driver the bag's topics show (drivers.driver_layouts: swissranger_camera,
+The topics are those of the driver the bag's topics show (tofd.drivers.bags.driver_layouts: swissranger_camera,
 orbbec_camera, azure_kinect_ros_driver, realsense2_camera, royale), each overridable by RangeOptions. The
 SwissRanger ROS driver publishes distance/image_raw16 (mono16 in device units: raw / 65535 x c / (2 f_mod),
 0xFFFF = no return), intensity/image_raw16 (mono16) and camera_info, all three with the same header stamp; its
@@ -13,7 +13,7 @@ gray-value image (mono8, mono16 or 32FC1), raw or through image_transport's comp
 Range: 32FC1 in metres as it is; 16-bit in device units (SwissRanger) or millimetres, per RangeOptions.range_unit
 (default: the driver's). Radial range (along each pixel's ray, as tofd and the SwissRanger measure) or z-depth,
 converted with the CameraInfo's undistorted unit rays: radial = z / ray_z. Amplitude: as float32 in the
-image's own units. Intrinsics: CameraInfo's K, size and lens (drivers.ros_camera_info: plumb_bob,
+image's own units. Intrinsics: CameraInfo's K, size and lens (tofd.drivers.bags.camera_info: plumb_bob,
 rational_polynomial, equidistant). Any image size works: the intrinsics decide. SwissRanger device units at an
 SR3000 modulation frequency make an SR3000 frame (Registers with that MOD_FREQ); every other bag's frames carry
 no registers but a SensorInfo (depth unit, what the amplitude is, the driver, topics and options as settings).
@@ -29,9 +29,9 @@ from typing import Any, Literal
 
 import numpy as np
 
-from drivers.bag_scan import BagError, DamagedMessage, RawMessage
-from drivers.bag_source import BagSource, depth_metres
-from drivers.driver_layouts import (
+from tofd.drivers import sr3000
+from tofd.drivers.bags.camera_info import camera_info_intrinsics
+from tofd.drivers.bags.driver_layouts import (
     AMPLITUDE_KINDS,
     CAMERA_INFO_TYPE,
     Layout,
@@ -39,11 +39,11 @@ from drivers.driver_layouts import (
     detect_layout,
     no_layout_error,
 )
-from drivers.frame import DeviceInfo, Frame, Registers
-from drivers.intrinsics import Intrinsics
-from drivers.ros_camera_info import camera_info_intrinsics
-from drivers.ros_images import AMPLITUDE_ENCODINGS, IMAGE_TYPE, IMAGE_TYPES, RANGE_ENCODINGS, plane
-from drivers.usb import protocol
+from tofd.drivers.bags.images import AMPLITUDE_ENCODINGS, IMAGE_TYPE, IMAGE_TYPES, RANGE_ENCODINGS, plane
+from tofd.drivers.bags.scan import BagError, DamagedMessage, RawMessage
+from tofd.drivers.bags.source import BagSource, depth_metres
+from tofd.drivers.frame import DeviceInfo, Frame, Registers
+from tofd.drivers.intrinsics import Intrinsics
 
 __all__ = ["AMPLITUDE_ENCODINGS", "CAMERA_INFO_TYPE", "IMAGE_TYPE", "RANGE_ENCODINGS", "BagError", "RangeOptions",
            "RosbagSource"]
@@ -60,7 +60,7 @@ messages of one frame closely, so this only bounds memory)."""
 @dataclass(frozen=True, slots=True)
 class RangeOptions:
     """Which topics hold a frame and how its range is encoded; None = what the bag's driver publishes
-    (drivers.driver_layouts)."""
+    (tofd.drivers.bags.driver_layouts)."""
 
     range_topic: str | None = None
     amplitude_topic: str | None = None
@@ -98,7 +98,7 @@ class ResolvedOptions:
 def range_plane(image: np.ndarray, options: ResolvedOptions, intrinsics: Intrinsics) -> np.ndarray:
     """(H, W) float32 radial range in metres (NaN where no return) from a range image's array."""
     if image.dtype.kind != "f" and options.range_unit == "device":
-        metres = protocol.raw_to_range_m(image, round(options.mod_freq_mhz * 1000))
+        metres = sr3000.raw_to_range_m(image, round(options.mod_freq_mhz * 1000))
     else:
         metres = depth_metres(image, 1e-3)
     return intrinsics.radial_from_z(metres).astype(np.float32) if options.depth == "z" else metres
@@ -126,13 +126,13 @@ class RosbagSource(BagSource):
             raise
         self.range_messages = self.message_count(self.options.topics["range"])
         khz = round(options.mod_freq_mhz * 1000)
-        index = protocol.mod_freq_index(khz)
+        index = sr3000.mod_freq_index(khz)
         device_units = self.options.range_unit == "device"
         self._registers = Registers(mod_freq_index=index) if device_units and index is not None else None
         """An SR3000 (SwissRanger device units at one of its frequencies): its MOD_FREQ register, else None."""
         self.amplitude_kind = AMPLITUDE_KINDS.get(self.options.amplitude, "amplitude")
-        self.unambiguous_range_m = protocol.non_ambiguity_range_m(khz) if device_units else None
-        self._metres_per_unit, self._invalid = ((self.unambiguous_range_m / 65535, protocol.RAW_INVALID)
+        self.unambiguous_range_m = sr3000.non_ambiguity_range_m(khz) if device_units else None
+        self._metres_per_unit, self._invalid = ((self.unambiguous_range_m / 65535, sr3000.RAW_INVALID)
                                                 if self.unambiguous_range_m else (1e-3, 0))
         self.settings = {"driver": self.options.driver, "topics": self.options.topics,
                          "range_unit": self.options.range_unit, "depth": self.options.depth,

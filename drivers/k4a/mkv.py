@@ -6,7 +6,7 @@ by the recorder), blocks timed in microseconds from the K4A_START_OFFSET_NS tag,
 Each capture (a DEPTH and an IR block of one timestamp) becomes a Frame:
 
 - range_m: the z-depth (millimetres, 0 = no return) divided by the z of each pixel's ray of the depth mode's lens
-  (drivers.lens_k4a), in metres; NaN for 0 and for pixels outside the lens's metric radius;
+  (tofd.drivers.k4a.lens), in metres; NaN for 0 and for pixels outside the lens's metric radius;
 - amplitude: the IR image (active IR brightness in sensor units; passive IR in PASSIVE_IR recordings);
 - timestamp_us: the device timestamp (block time + K4A_START_OFFSET_NS); the device has no frame counter, so the
   counter is the frame's index in time, round((t - t_first) / frame period), with the period the median spacing
@@ -34,10 +34,10 @@ from typing import Any
 
 import numpy as np
 
-from drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame, SensorInfo
-from drivers.intrinsics import Intrinsics
-from drivers.lens_k4a import depth_lens
-from drivers.source import DriverError, FrameSource
+from tofd.drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame, SensorInfo
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.k4a.lens import depth_lens
+from tofd.drivers.source import DriverError, FrameSource
 
 log = logging.getLogger(__name__)
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from drivers.bag_scan import BagError, Topic
-from drivers.frame import AmplitudeKind
-from drivers.ros_images import IMAGE_TYPES
+from tofd.drivers.bags.images import IMAGE_TYPES
+from tofd.drivers.bags.scan import BagError, Topic
+from tofd.drivers.frame import AmplitudeKind
 
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 
@@ -61,7 +61,7 @@ the same relative names and encodings, so which of the two a renamed bag is take
 AMPLITUDE_KINDS: dict[str, AmplitudeKind] = {"amplitude": "amplitude", "infrared": "ir",
                                              "gray value (active brightness)": "active_brightness",
                                              "intensity": "active_brightness"}
-"""What each layout's amplitude image is, as drivers.frame.SensorInfo names it (named topics: "amplitude")."""
+"""What each layout's amplitude image is, as tofd.drivers.frame.SensorInfo names it (named topics: "amplitude")."""
 
 
 def detect_layout(topics: dict[str, Topic]) -> tuple[Layout, dict[str, str | None]] | None:

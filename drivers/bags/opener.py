@@ -1,5 +1,5 @@
 """Opens any ROS bag tofd takes as the frame source its content calls for: a RealSense SDK recording, an Orbbec
-SDK v2 recording, or a camera driver's bag (drivers.rosbag, topics from drivers.driver_layouts or the options).
+SDK v2 recording, or a camera driver's bag (bags.driver_bag, topics from bags.driver_layouts or the options).
 
 The vendor recordings are recognised by their topics (RealSense: /file_version and /device_<d>/sensor_<s>/Depth_*;
 Orbbec: /cam/sensor_3/frameType_*), so a renamed file is read all the same.
@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from drivers.bag_scan import BagError, BagReader
-from drivers.bag_source import BagSource
-from drivers.orbbec_bag import OrbbecSource, is_orbbec
-from drivers.realsense_bag import RealSenseSource, is_realsense
-from drivers.rosbag import RangeOptions, RosbagSource
+from tofd.drivers.bags.driver_bag import RangeOptions, RosbagSource
+from tofd.drivers.bags.orbbec import OrbbecSource, is_orbbec
+from tofd.drivers.bags.realsense import RealSenseSource, is_realsense
+from tofd.drivers.bags.scan import BagError, BagReader
+from tofd.drivers.bags.source import BagSource
 
 
 def bag_kind(path: str | Path) -> str:

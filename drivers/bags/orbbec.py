@@ -4,7 +4,7 @@ A ROS 1 bag (chunks uncompressed or LZ4) written by the SDK's own rosbag writer:
 - /cam/sensor_<OBSensorType>/frameType_<OBFrameType>: sensor_msgs/Image whose bytes continue after `data` with
   float32 depth_units, uint64 number, timestamp_usec, timestamp_systemusec, timestamp_globalusec, uint8[] metadata
   and uint32 metadatasize; the definition stored in the bag omits depth_units, so they are read by layout
-  (drivers.ros1_wire). Depth: sensor 3 (Z16 / Y16), infrared: sensor 1 (or the left IR, 6).
+  (tofd.drivers.bags.ros1_wire). Depth: sensor 3 (Z16 / Y16), infrared: sensor 1 (or the left IR, 6).
 - /cam/streamProfileType_<OBStreamType>: custom_msg/OBStreamProfileInfo, written when recording stops: size,
   fps, intrinsics [fx, fy, cx, cy], distortion [k1..k6, p1, p2] and its OBCameraDistortionModel.
 - /cam/deviceInfo (custom_msg/OBDeviceInfo: name, serial, firmware) and /cam/property (custom_msg/OBProperty,
@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers import ros1_wire
-from drivers.bag_scan import BagError, DamagedMessage, RawMessage, Topic
-from drivers.bag_source import BagSource, depth_metres
-from drivers.frame import DeviceInfo, Frame
-from drivers.intrinsics import Intrinsics
-from drivers.ros_camera_info import orbbec_lens_intrinsics
-from drivers.ros_images import AMPLITUDE_ENCODINGS, RANGE_ENCODINGS, image_plane
+from tofd.drivers.bags import ros1_wire
+from tofd.drivers.bags.camera_info import orbbec_lens_intrinsics
+from tofd.drivers.bags.images import AMPLITUDE_ENCODINGS, RANGE_ENCODINGS, image_plane
+from tofd.drivers.bags.scan import BagError, DamagedMessage, RawMessage, Topic
+from tofd.drivers.bags.source import BagSource, depth_metres
+from tofd.drivers.frame import DeviceInfo, Frame
+from tofd.drivers.intrinsics import Intrinsics
 
 FRAME_TOPIC = re.compile(r"^/cam/sensor_(\d+)/frameType_(\d+)$")
 DEPTH_SENSOR = 3  # OB_SENSOR_DEPTH

@@ -1,0 +1,1 @@
+"""Azure Kinect and Orbbec Femto: Matroska recordings and the lens model."""
