@@ -5,6 +5,7 @@ and k4a_calibration_2d_to_3d)."""
 from __future__ import annotations
 
 import functools
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -182,6 +183,55 @@ def test_a_damaged_recording_gives_its_intact_captures_and_ledgers_the_rest(k4a,
             np.testing.assert_allclose(f.range_m * depth_lens(RAW, mode).intrinsics.unit_rays()[..., 2],
                                        (900 + k) / 1000, rtol=1e-6)
     assert sum(1 for f in frames if np.all(f.amplitude == 100 + f.frame_counter)) >= n - len(lost) - 2
+
+
+def test_imu_and_colour_tracks_leave_the_recording_intact(k4a, tmp_path):
+    """k4arecorder's IMU track (1.6 kHz, running on past the last capture) and colour captures before, between
+    and after the depth captures: tofd reads every depth capture Microsoft's playback reads, at the same device
+    times; `tofd info` finds no damage, `tofd replay` drops nothing, `tofd batch` over the folder succeeds. The
+    same file cut short is still truncated."""
+    mode = "NFOV_2X2BINNED"
+    h, w = mode_size(mode)
+    n = 12
+    stamps = [5_000_000 + PERIOD_US * k for k in range(n)]
+    depth = [np.full((h, w), 900 + k, np.uint16) for k in range(n)]
+    ir = [np.full((h, w), 100 + k, np.uint16) for k in range(n)]
+    colour = [stamps[0] - 20_000, stamps[3], *(t + 11_000 for t in stamps), stamps[-1] + 45_000, stamps[-1] + 90_000]
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    paths = {name: k4a.write_recording(folder / f"{name}.mkv", mode, depth, ir, stamps, calibration=RAW, serial=SERIAL,
+                                       **kw)
+             for name, kw in (("imu", {"imu": True}), ("colour", {"colour_us": colour}),
+                              ("both", {"imu": True, "colour_us": colour}))}
+    for name, path in paths.items():
+        assert k4a.playback_depth_times(path) == stamps, name
+        source = K4aRecordingSource(path)
+        frames = list(source)
+        assert [f.timestamp_us for f in frames] == stamps and [f.frame_counter for f in frames] == list(range(n))
+        assert source.take_rejected() == [] and source.stopped_reason == "end", (name, source.stop_detail)
+        assert [int(f.amplitude[0, 0]) for f in frames] == [100 + k for k in range(n)]
+    proc = tofd("info", "--json", paths["both"])
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads(proc.stdout)
+    assert info["frames"] == n and info["damage"] == {"rejected": {}, "stopped": None}, info["damage"]
+    proc = tofd("replay", paths["both"], "--out", tmp_path / "out", "--rerun", "none")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "out" / "both.summary.json").read_text())
+    assert (summary["frames_in"], summary["frames_out"], summary["frames_dropped"]) == (n, n, 0), summary["drops"]
+    proc = tofd("batch", folder, "--out", tmp_path / "batch", "--workers", "1", "--no-evaluation")
+    assert proc.returncode == 0, proc.stderr
+    batch = json.loads((tmp_path / "batch" / "_summary.json").read_text())
+    assert batch["frames_in"] == batch["frames_out"] == 3 * n and batch["frames_dropped"] == 0
+    # the whole file's IMU blocks reach its segment duration; cut short, it is truncated as before
+    data = paths["both"].read_bytes()
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    source = K4aRecordingSource(cut)
+    got = [f.frame_counter for f in source]
+    assert 3 <= len(got) < n and source.stopped_reason == "truncated"
+    lost = [r.frame_counter for r in source.take_rejected()]
+    # counted up to the segment's end: a cut file cannot say that its depth track ended before the IMU's
+    assert lost == list(range(len(got), lost[-1] + 1)) and lost[-1] >= n - 1
 
 
 def test_unreadable_recordings_are_one_line_and_exit_2(k4a, tmp_path):

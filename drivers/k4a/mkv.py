@@ -11,6 +11,8 @@ Each capture (a DEPTH and an IR block of one timestamp) becomes a Frame:
 - timestamp_us: the device timestamp (block time + K4A_START_OFFSET_NS); the device has no frame counter, so the
   counter is the frame's index in time, round((t - t_first) / frame period), with the period the median spacing
   of the first timestamps: dropped captures leave gaps, which are rejected ("damaged: ...") in their place;
+- other tracks (COLOR, IMU: k4arecorder records the IMU at 1.6 kHz by default) are read past, not decoded; they
+  only show how far the file goes, since they may end after the last depth capture;
 - host times: the recording's creation time (Matroska DateUTC) plus the time since the first frame;
 - device: the serial number tag (else the calibration's SerialId), the depth firmware tag, model "Azure Kinect"
   or "Orbbec Femto" (from the calibration's DeviceName);
@@ -155,6 +157,8 @@ class K4aRecordingSource(FrameSource):
         except ValueError:
             self._wall0_s = 0.0
         self._last_us: int | None = None
+        self._read_until_us: int | None = None
+        """The latest block end read on any track (DEPTH, IR, COLOR, IMU): the file is whole if it reaches _last_us."""
         self._track_index = {tracks[DEPTH_TRACK].index: DEPTH_TRACK, tracks[IR_TRACK].index: IR_TRACK}
         self._image_bytes = w * h * 2
 
@@ -175,14 +179,18 @@ class K4aRecordingSource(FrameSource):
         with container:
             # Matroska's segment duration: the last block's time, which the recorder writes when it closes the file
             self._last_us = None if container.duration is None else container.duration + self._start_offset_ns // 1000
-            streams = [s for s in container.streams.video if s.index in self._track_index]
+            self._read_until_us = None
             try:
-                for packet in container.demux(streams):
+                for packet in container.demux():
                     if self.closed:
                         return
                     if packet.pts is None or packet.size == 0:
                         continue
                     t_us = int(round(float(packet.pts * packet.time_base) * 1e6)) + self._start_offset_ns // 1000
+                    end_us = t_us + int(round(float((packet.duration or 0) * packet.time_base) * 1e6))
+                    self._read_until_us = max(end_us, self._read_until_us or end_us)  # an IMU block spans samples
+                    if packet.stream.index not in self._track_index:  # colour, IMU: only how far the file goes
+                        continue
                     for done in sorted(t for t in pending if t < t_us):
                         yield _Capture(done, pending[done].get(DEPTH_TRACK), pending[done].pop(IR_TRACK, None))
                         del pending[done]
@@ -254,9 +262,12 @@ class K4aRecordingSource(FrameSource):
                         self.last_good_counter, self.stopped_reason, self.stop_detail)
 
     def _reject_tail(self, last: int | None, t0_us: int) -> None:
-        """When the segment duration says the recording went on past the last capture read (a truncated or
-        damaged end), reject the captures lost there and mark the recording truncated."""
+        """When the segment duration says the recording went on past the last block read on any track (a truncated
+        or damaged end), reject the captures lost after the last one read and mark the recording truncated. (The
+        colour and IMU tracks may go on past the last depth capture of a whole file.)"""
         if self._last_us is None or last is None or not self.frame_period_us:
+            return
+        if self._read_until_us is not None and self._read_until_us >= self._last_us:
             return
         final = round((self._last_us - t0_us) / self.frame_period_us)
         if not last < final <= last + MAX_LOST_FRAMES:
