@@ -15,12 +15,15 @@ import pytest
 
 from tests.k4a_helpers import CALIBRATION_JSON, K4A, k4a_libraries
 from tests.rrd_helpers import read_entities
+from tofd.algorithm.segmentation import segment
+from tofd.config import SegmentationConfig
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.k4a.lens import DEPTH_MODES, depth_lens
 from tofd.drivers.k4a.mkv import K4aRecordingError, K4aRecordingSource
 from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import iter_frames
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
+from tofd_testing.wide_fov import sphere_before_wall
 
 ROOT = Path(__file__).resolve().parents[1]
 RAW = CALIBRATION_JSON.read_bytes()
@@ -232,6 +235,25 @@ def test_imu_and_colour_tracks_leave_the_recording_intact(k4a, tmp_path):
     lost = [r.frame_counter for r in source.take_rejected()]
     # counted up to the segment's end: a cut file cannot say that its depth track ended before the IMU's
     assert lost == list(range(len(got), lost[-1] + 1)) and lost[-1] >= n - 1
+
+
+def test_wfov_recording_segments_the_near_sphere_in_every_frame(k4a, tmp_path):
+    """A WFOV_2X2BINNED recording by libk4arecord (sphere 20 degrees off axis at 0.85-0.95 m, wall at 1.6 m, the
+    lens's dark corners as the device writes them, z-depth in millimetres): tofd's foreground of every frame it
+    reads is on the sphere."""
+    mode = "WFOV_2X2BINNED"
+    lens = depth_lens(RAW, mode)
+    ray_z = lens.intrinsics.unit_rays()[..., 2]
+    scenes = [sphere_before_wall(lens.intrinsics, float(d), 90.0 * (k % 4), lens.valid_pixels())
+              for k, d in enumerate(np.linspace(0.85, 0.95, 30))]
+    depth = [np.nan_to_num(np.rint(s.range_m * ray_z * 1000), nan=0).astype(np.uint16) for s in scenes]
+    ir = [np.clip(s.amplitude, 0, 65535).astype(np.uint16) for s in scenes]
+    path = record(k4a, tmp_path / "wfov.mkv", mode, depth, ir, [1_000_000 + PERIOD_US * k for k in range(30)])
+    frames = list(K4aRecordingSource(path))
+    assert len(frames) == 30
+    for frame, scene in zip(frames, scenes, strict=True):
+        mask = segment(frame.range_m, frame.amplitude, SegmentationConfig(), frame.intrinsics)
+        assert mask.sum() > 0.2 * scene.sphere.sum() and not (mask & ~scene.sphere).any(), frame.frame_counter
 
 
 def test_unreadable_recordings_are_one_line_and_exit_2(k4a, tmp_path):

@@ -9,6 +9,7 @@ from tofd.config import ConfigError, SegmentationConfig, config_from_dict
 from tofd.drivers.emulator.render import Pose, load_face, render_face
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab import shapes as synthetic
+from tofd_testing.wide_fov import realsense_like_87deg, sphere_before_wall
 
 INTR = Intrinsics()
 
@@ -205,3 +206,22 @@ def test_cut_runs_along_the_fitted_face_plane(tilt):
     assert np.array_equal(camera_z.rotation, np.eye(3))
     if tilt != (0.0, 0.0):  # the cut along z is another slab: a tilted face's near edge, not its nose
         assert (camera_z.mask ^ fg.mask).sum() > 0.2 * fg.mask.sum()
+
+
+@pytest.mark.parametrize(("mode", "frames"), [("WFOV_2X2BINNED", 30), ("WFOV_UNBINNED", 20), ("realsense87", 30)])
+def test_the_near_sphere_is_the_foreground_on_wide_fields_of_view(mode, frames):
+    """A sphere 20 degrees off axis at 0.85-0.95 m before a wall at 1.6 m, through the Azure Kinect's wide lenses
+    (their dark corners outside the lens included) and an 87-degree RealSense-like lens: in every frame the
+    foreground is on the sphere and nowhere else."""
+    if mode == "realsense87":
+        intrinsics, lens_valid = realsense_like_87deg(), None
+    else:
+        from tests.k4a_helpers import CALIBRATION_JSON
+        from tofd.drivers.k4a.lens import depth_lens
+
+        lens = depth_lens(CALIBRATION_JSON.read_bytes(), mode)
+        intrinsics, lens_valid = lens.intrinsics, lens.valid_pixels()
+    for k, distance in enumerate(np.linspace(0.85, 0.95, frames)):
+        scene = sphere_before_wall(intrinsics, float(distance), 90.0 * (k % 4), lens_valid)
+        mask = segment(scene.range_m, scene.amplitude, SegmentationConfig(), intrinsics)
+        assert mask.sum() > 0.2 * scene.sphere.sum() and not (mask & ~scene.sphere).any(), (mode, k, distance)

@@ -1,6 +1,7 @@
 """Foreground segmentation: an adaptive amplitude threshold, then a range cut along an iso-depth line of the head.
 
-1. Amplitude: Otsu's threshold on log amplitude (floored at 1e-4 of the maximum); in log space a near object and
+1. Amplitude: Otsu's threshold on the log amplitude of the pixels with a range (floored at 1e-4 of their maximum;
+   the dark pixels outside a wide lens's image circle would split the histogram); in log space a near object and
    a far wall are two compact classes, since amplitude falls as 1/r^2. Foreground = above it and `valid_pixels`.
 2. Depth: the paper's range threshold at "the top 20th percentile", read as a cut a fixed depth behind the
    nearest point, so that the background clamped to the cut joins the surface smoothly all along the border:
@@ -71,14 +72,13 @@ def fill_holes(mask: np.ndarray) -> np.ndarray:
 
 
 def amplitude_foreground(amplitude: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Step 1: valid pixels above Otsu's threshold on log amplitude."""
-    finite_amp = np.isfinite(amplitude)
-    peak = np.max(amplitude, where=finite_amp, initial=0.0)
+    """Step 1: valid pixels above Otsu's threshold on the log amplitude of the valid pixels (a pixel without a
+    range, such as the dark corners outside a wide lens's image circle, never splits the histogram)."""
+    peak = np.max(amplitude, where=valid, initial=0.0)
     if not peak > 0:  # no return anywhere (all zero, negative or non-finite): nothing is foreground
         return np.zeros(amplitude.shape, bool)
-    log_amp = np.log(np.maximum(amplitude, LOG_FLOOR * peak, where=finite_amp,
-                                out=np.full(amplitude.shape, np.nan)))
-    return valid & (log_amp > otsu_threshold(log_amp[finite_amp]))
+    log_amp = np.log(np.maximum(amplitude, LOG_FLOOR * peak, where=valid, out=np.full(amplitude.shape, np.nan)))
+    return valid & (log_amp > otsu_threshold(log_amp[valid]))
 
 
 def filtered(depth_m: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
