@@ -11,7 +11,7 @@ from typing import Literal
 import numpy as np
 
 from tofd.drivers.intrinsics import Intrinsics
-from tofd.drivers.sr3000 import MOD_FREQS_MHZ
+from tofd.drivers.sr3000 import MOD_FREQS_MHZ, mod_freq_khz, range_unit_m
 
 COUNTER_LIMIT = 1 << 32
 """Frame counters are 32-bit on the device: 0 <= counter < COUNTER_LIMIT."""
@@ -36,6 +36,11 @@ class Registers:
     @property
     def mod_freq_hz(self) -> float:
         return MOD_FREQS_MHZ[self.mod_freq_index] * 1e6
+
+    @property
+    def depth_unit_m(self) -> float:
+        """Metres per raw distance unit of the range image (its 16 bits span the non-ambiguity range)."""
+        return range_unit_m(mod_freq_khz(self.mod_freq_index))
 
 
 DEFAULT_REGISTER_VALUES = Registers()

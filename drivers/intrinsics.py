@@ -21,8 +21,12 @@ SR3000_FOV_X_DEG = 47.5
 MAX_SIDE_PX = 8192
 
 DistortionModel = Literal["none", "plumb_bob", "rational_polynomial", "equidistant"]
-COEFFICIENT_COUNTS: dict[str, int] = {"none": 0, "plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
-"""Number of distortion coefficients (CameraInfo's D) of each distortion model."""
+COEFFICIENT_NAMES: dict[str, tuple[str, ...]] = {
+    "none": (), "plumb_bob": ("k1", "k2", "p1", "p2", "k3"),
+    "rational_polynomial": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"), "equidistant": ("k1", "k2", "k3", "k4")}
+"""The distortion coefficients (CameraInfo's D, in its order) of each distortion model."""
+COEFFICIENT_COUNTS: dict[str, int] = {model: len(names) for model, names in COEFFICIENT_NAMES.items()}
+"""Number of distortion coefficients of each distortion model."""
 
 UNDISTORT_MAX_ITERATIONS = 30
 UNDISTORT_TOLERANCE = 1e-12
@@ -126,6 +130,10 @@ class Intrinsics:
             x, y = _distort_radial_tangential(points[..., 0] / z, points[..., 1] / z, self._rational_coefficients())
             return np.stack([self.fx * x + self.cx, self.fy * y + self.cy], axis=-1)
         return np.stack([self.fx * points[..., 0] / z + self.cx, self.fy * points[..., 1] / z + self.cy], axis=-1)
+
+    def coefficients(self) -> dict[str, float]:
+        """The distortion coefficients by name (k1, k2, p1, p2, ...; empty for "none")."""
+        return dict(zip(COEFFICIENT_NAMES[self.distortion_model], self.distortion, strict=True))
 
     def _rational_coefficients(self) -> tuple[float, ...]:
         """(k1, k2, p1, p2, k3, k4, k5, k6) of a plumb_bob or rational_polynomial lens."""

@@ -36,9 +36,14 @@ def non_ambiguity_range_m(freq_khz: int) -> float:
     return SPEED_OF_LIGHT_M_S / (2.0 * freq_khz * 1e3)
 
 
+def range_unit_m(freq_khz: int) -> float:
+    """Metres per raw distance unit: the 16-bit distance spans the non-ambiguity range."""
+    return non_ambiguity_range_m(freq_khz) / 65535.0
+
+
 def raw_to_range_m(raw: np.ndarray, freq_khz: int, out: np.ndarray | None = None) -> np.ndarray:
     """uint16 distance -> float32 metres = raw / 65535 * c / (2 f_mod); raw 0xFFFF -> NaN."""
-    scale = np.float32(non_ambiguity_range_m(freq_khz) / 65535.0)
+    scale = np.float32(range_unit_m(freq_khz))
     out = np.multiply(raw, scale, out=out, dtype=np.float32)
     out[raw == RAW_INVALID] = np.nan
     return out

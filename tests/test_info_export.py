@@ -42,6 +42,11 @@ def test_info_describes_the_recording():
     lines = dict(line.split(":", 1) for line in text.splitlines())
     assert lines["frames"].strip() == f"{len(frames)} (frame counters 0 to {len(frames) - 1})"
     assert lines["damage"].strip() == "none found"
+    # the SR3000's lens is a pinhole; its raw distance unit spans c / (2 f_mod) in 16 bits
+    unit = 299_792_458.0 / (2 * info.registers.mod_freq_hz) / 65535
+    assert doc["lens"] == {"model": "none", "coefficients": {}} and doc["depth_unit_m"] == pytest.approx(unit)
+    assert lines["lens"].strip() == "pinhole (no distortion)"
+    assert lines["depth unit"].strip() == f"{unit:.6g} m per raw value"
 
 
 def test_info_reports_the_damage_of_a_cut_recording_and_rejects_other_files(tmp_path):
@@ -64,6 +69,8 @@ def test_info_reads_a_ros2_bag(tmp_path):
     doc = json.loads(tofd("info", bag, "--json").stdout)
     assert doc["format"] == "ROS 2 bag" and doc["details"] == {"storage": "mcap"}
     assert doc["frames"] == 4 and doc["intrinsics"]["width"] == 176
+    assert doc["lens"] == {"model": "none", "coefficients": {}}
+    assert doc["depth_unit_m"] == pytest.approx(frames[0].registers.depth_unit_m)  # the driver's raw distances
     run = tofd("info", bag, "--range-topic", "/no/such/topic")  # the bag options, as replay and import take them
     assert run.returncode == 2 and "/no/such/topic" in run.stderr and run.stderr.count("\n") == 1
 

@@ -217,6 +217,14 @@ def test_imu_and_colour_tracks_leave_the_recording_intact(k4a, tmp_path):
     assert proc.returncode == 0, proc.stderr
     info = json.loads(proc.stdout)
     assert info["frames"] == n and info["damage"] == {"rejected": {}, "stopped": None}, info["damage"]
+    lens = depth_lens(RAW, mode).intrinsics  # the lens and the depth unit, as `tofd info` shows them
+    assert info["lens"] == {"model": "rational_polynomial", "coefficients": dict(
+        zip(("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"), lens.distortion, strict=True))}
+    assert info["depth_unit_m"] == 1e-3
+    text = dict(line.split(":", 1) for line in tofd("info", paths["both"]).stdout.splitlines())
+    assert text["lens"].strip().startswith("rational_polynomial (Brown-Conrady") and \
+        f"k4 {lens.distortion[5]:.6g}," in text["lens"]
+    assert text["depth unit"].strip() == "0.001 m per raw value" and text["damage"].strip() == "none found"
     proc = tofd("replay", paths["both"], "--out", tmp_path / "out", "--rerun", "none")
     assert proc.returncode == 0, proc.stderr
     summary = json.loads((tmp_path / "out" / "both.summary.json").read_text())

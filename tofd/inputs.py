@@ -15,7 +15,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from tofd.drivers.frame import DeviceInfo, Frame
+from tofd.drivers.frame import DeviceInfo, Frame, Registers, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.source import FrameSource
 
@@ -34,7 +34,7 @@ class InputDescription:
 
 @dataclass(slots=True)
 class InputSummary:
-    """An input read to its end: frame count, device-clock span, camera, intrinsics, damage."""
+    """An input read to its end: frame count, device-clock span, camera, intrinsics and lens, depth unit, damage."""
 
     path: Path
     format: InputDescription
@@ -45,6 +45,8 @@ class InputSummary:
     last_us: int | None = None
     device: DeviceInfo | None = None
     intrinsics: Intrinsics | None = None
+    sensor: SensorInfo | None = None  # a camera other than the SR3000: its signal and settings
+    registers: Registers | None = None  # the SR3000's register settings
     rejected: Counter[str] = field(default_factory=Counter)  # frames the source did not deliver, by reason class
     counters: dict[str, int] = field(default_factory=dict)  # the source's fault counters
     stopped: str = ""  # why reading stopped early (a damaged or truncated file), "" when it read to the end
@@ -65,7 +67,16 @@ class InputSummary:
         if self.first_counter is None:
             self.first_counter, self.first_us = frame.frame_counter, frame.timestamp_us
             self.device, self.intrinsics = frame.device, frame.intrinsics
+            self.sensor, self.registers = frame.sensor, frame.registers
         self.last_counter, self.last_us = frame.frame_counter, frame.timestamp_us
+
+    @property
+    def depth_unit_m(self) -> float | None:
+        """Metres per raw depth value in the file (1.0: float metres; the SR3000's raw distance unit at its
+        modulation frequency); None when the frames say neither."""
+        if self.sensor is not None:
+            return self.sensor.depth_unit_m
+        return None if self.registers is None else self.registers.depth_unit_m
 
     @property
     def damaged(self) -> bool:
@@ -82,6 +93,9 @@ class InputSummary:
                                                             "firmware": self.device.firmware,
                                                             "backend": self.device.backend},
                 "intrinsics": None if self.intrinsics is None else self.intrinsics.to_dict(),
+                "lens": None if self.intrinsics is None else {"model": self.intrinsics.distortion_model,
+                                                              "coefficients": self.intrinsics.coefficients()},
+                "depth_unit_m": self.depth_unit_m,
                 "damage": {"rejected": dict(self.rejected), "stopped": self.stopped or None}}
 
 

@@ -1,7 +1,8 @@
 """Describe a recording or ROS bag without replaying it (like `mcap info` / `ros2 bag info`).
 
 Reads FILE to its end and prints its format and version, frames, duration and rate (device clock), camera,
-intrinsics (pixels; (0, 0) is the centre of the top-left pixel, as in ROS CameraInfo) and the damage found
+intrinsics (pixels; (0, 0) is the centre of the top-left pixel, as in ROS CameraInfo), the lens model and its
+coefficients, the depth unit (metres per raw depth value in the file) and the damage found
 (frames the reader could not deliver, and where a truncated or corrupt file ends). --json prints the same as JSON.
 """
 
@@ -13,6 +14,11 @@ import math
 from pathlib import Path
 
 from tofd import arguments
+
+LENS_MODELS = {"none": "pinhole (no distortion)", "plumb_bob": "plumb_bob (Brown-Conrady k1, k2, p1, p2, k3)",
+               "rational_polynomial": "rational_polynomial (Brown-Conrady with rational k4-k6)",
+               "equidistant": "equidistant (fisheye)"}
+"""How `tofd info` names each distortion model."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +43,11 @@ def describe(summary) -> list[str]:  # noqa: ANN001 (tofd.inputs.InputSummary, i
         i = s.intrinsics
         lines.append(("intrinsics", f"{i.width}x{i.height} px, fx {i.fx:.3f}, fy {i.fy:.3f}, cx {i.cx:.3f}, "
                                     f"cy {i.cy:.3f} (pixels; (0, 0) = centre of the top-left pixel)"))
+        lens = ", ".join(f"{name} {value:.6g}" for name, value in i.coefficients().items())
+        lines.append(("lens", LENS_MODELS.get(i.distortion_model, i.distortion_model) + (f": {lens}" if lens else "")))
+    if s.depth_unit_m is not None:
+        lines.append(("depth unit", f"{s.depth_unit_m:.6g} m per raw value"
+                                    + (" (float metres)" if s.depth_unit_m == 1.0 else "")))
     damage = [f"{n} frame(s) {reason}" for reason, n in sorted(s.rejected.items())]
     damage += [f"reading stopped early, {s.stopped}"] if s.stopped else []
     lines.append(("damage", "; ".join(damage) or "none found"))
