@@ -6,6 +6,7 @@ equidistant), and `tofd replay` puts a sphere seen in the distorted corner back 
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -91,6 +92,29 @@ def test_replay_of_an_orbbec_driver_bag_puts_the_foreground_on_the_sphere(tmp_pa
     for points in foreground:
         assert_on_sphere(points, Scene(), int(sphere.sum()))
     assert pinhole_errors(K4A_LIKE, Scene()) > 10e-3  # ignoring the lens would put it centimetres off
+
+
+def test_image_transport_topics_stand_for_their_image(tmp_path):
+    """A driver's depth recorded through image_transport's compressedDepth plugin (`<depth image>/compressedDepth`,
+    the raw topic absent): the driver and its other topics are found with --range-topic naming it, or with no
+    topic option at all."""
+    messages = driver_messages("mcap", "orbbec_camera", K4A_LIKE, Scene(), "compressed", namespace="/cam1")
+    messages = [(topic + "/compressedDepth" if topic.endswith("/depth/image_raw") else topic, msg)
+                for topic, msg in messages]
+    bag = write_bag(bag_path(tmp_path, "mcap"), "mcap", messages)
+    z, _, _ = render(K4A_LIKE, Scene())
+    for args in (["--range-topic", "/cam1/depth/image_raw/compressedDepth"], []):
+        proc = tofd("info", str(bag), "--json", *args)
+        assert proc.returncode == 0, proc.stderr
+        assert json.loads(proc.stdout)["frames"] == N_FRAMES
+    with RosbagSource(bag, RangeOptions(range_topic="/cam1/depth/image_raw/compressedDepth")) as source:
+        frames = list(source)
+        assert source.options.driver == "orbbec_camera"
+        assert source.options.topics == {"range": "/cam1/depth/image_raw/compressedDepth",
+                                         "amplitude": "/cam1/ir/image_raw", "camera_info": "/cam1/depth/camera_info"}
+    got = frames[-1].range_m
+    assert len(frames) == N_FRAMES and np.array_equal(np.isnan(got), np.isnan(z))
+    assert np.nanmax(np.abs(got - K4A_LIKE.radial_from_z(z))) <= 0.5e-3 / np.nanmin(K4A_LIKE.unit_rays()[..., 2])
 
 
 def test_options_override_what_the_driver_layout_says(tmp_path):

@@ -2,7 +2,8 @@
 
 Each layout names a driver's default range, amplitude and CameraInfo topics and how its range is encoded. A bag
 is matched by its topics: the exact default names first, then the same names under another namespace (ROS 2
-drivers are often launched with one), so `tofd import`/`replay` need no topic options for these drivers.
+drivers are often launched with one), so `tofd import`/`replay` need no topic options for these drivers. An image
+recorded through image_transport (`<image>/compressedDepth`, `<image>/compressed`) counts as that image.
 """
 
 from __future__ import annotations
@@ -64,19 +65,40 @@ AMPLITUDE_KINDS: dict[str, AmplitudeKind] = {"amplitude": "amplitude", "infrared
 """What each layout's amplitude image is, as tofd.drivers.frame.SensorInfo names it (named topics: "amplitude")."""
 
 
+TRANSPORTS = ("", "/compressedDepth", "/compressed")
+"""image_transport's topics of an image topic: the raw one, then its compressedDepth and compressed plugins'."""
+
+
+def image_topic(base: str, topics: dict[str, Topic]) -> str | None:
+    """The bag's topic carrying image topic `base`: itself, else its compressedDepth or compressed subtopic (the
+    first of these the bag holds as an image), or None."""
+    return next((base + t for t in TRANSPORTS if base + t in topics and topics[base + t].msgtype in IMAGE_TYPES),
+                None)
+
+
 def detect_layout(topics: dict[str, Topic]) -> tuple[Layout, dict[str, str | None]] | None:
     """The first layout whose range image the bag holds under the driver's namespace, else the first under
-    exactly one other namespace, with the bag's topic of each role (None: not in the bag); or None."""
+    exactly one other namespace, with the bag's topic of each role (None: not in the bag); or None. An image
+    may be on image_transport's compressedDepth or compressed subtopic instead of its own."""
     for exact in (True, False):
         for layout in LAYOUTS:
-            default = f"{layout.namespace}/{layout.range_topic}"
-            candidates = [default] if default in topics else [] if exact else [
-                t for t in topics if t.endswith("/" + layout.range_topic)]
-            if len(candidates) != 1 or topics[candidates[0]].msgtype not in IMAGE_TYPES:
+            if exact:
+                namespaces = {layout.namespace} if image_topic(f"{layout.namespace}/{layout.range_topic}",
+                                                               topics) else set()
+            else:
+                namespaces = {t[:-len(f"/{layout.range_topic}{transport}")] for t in topics
+                              for transport in TRANSPORTS if t.endswith(f"/{layout.range_topic}{transport}")
+                              and topics[t].msgtype in IMAGE_TYPES}
+            if len(namespaces) != 1:
                 continue
-            namespace = candidates[0][:-len("/" + layout.range_topic)]
-            names = {role: f"{namespace}/{rel}" if rel is not None and f"{namespace}/{rel}" in topics else None
-                     for role, rel in layout.relative_topics.items()}
+            namespace = namespaces.pop()
+            names: dict[str, str | None] = {}
+            for role, rel in layout.relative_topics.items():
+                name = None if rel is None else f"{namespace}/{rel}"
+                if name is None or role != "camera_info":
+                    names[role] = None if name is None else image_topic(name, topics)
+                else:
+                    names[role] = name if name in topics else None
             info = names["camera_info"]
             if info is None or topics[info].msgtype == CAMERA_INFO_TYPE:
                 return layout, names
