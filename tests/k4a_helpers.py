@@ -1,7 +1,7 @@
 """Microsoft's Azure Kinect libraries (libk4a, libk4arecord from the pyk4a-bundle wheel) through ctypes, for tests:
 recordings written by the SDK's own recorder and the SDK's calibration as the reference for tofd's lens model.
 
-tofd never imports this module or pyk4a-bundle; `k4a_libraries()` skips the calling test when the wheel or its
+tofd never imports this module or the pyk4a module; `k4a_libraries()` skips the calling test when the wheel or its
 libraries are missing (pyk4a-bundle ships Linux x86-64 and Windows builds only).
 """
 
@@ -9,35 +9,22 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import glob
-import importlib.util
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tofd.drivers.k4a import sdk
+
 CALIBRATION_JSON = Path(__file__).parent / "data" / "k4a_calibration.json"
 """Factory calibration of a real Azure Kinect (serial 001514394512), as pyk4a's test assets ship it."""
 
-DEPTH_MODES = {"NFOV_2X2BINNED": 1, "NFOV_UNBINNED": 2, "WFOV_2X2BINNED": 3, "WFOV_UNBINNED": 4}
-"""k4a_depth_mode_t values of the depth modes with a depth image."""
-IMAGE_FORMAT_COLOR_MJPG, IMAGE_FORMAT_DEPTH16, IMAGE_FORMAT_IR16 = 0, 4, 5
+DEPTH_MODES = sdk.DEPTH_MODE_VALUES
 COLOR_RESOLUTION_720P = 1
-FPS = {5: 0, 15: 1, 30: 2}
+FPS = sdk.FPS_VALUES
 IMU_RATE_HZ = 1600
 """The Azure Kinect's accelerometer / gyroscope sample rate (k4arecorder records the IMU by default)."""
 CALIBRATION_TYPE_DEPTH = 0
-
-
-class DeviceConfiguration(ctypes.Structure):
-    """k4a_device_configuration_t."""
-
-    _fields_ = [("color_format", ctypes.c_int), ("color_resolution", ctypes.c_int), ("depth_mode", ctypes.c_int),
-                ("camera_fps", ctypes.c_int), ("synchronized_images_only", ctypes.c_bool),
-                ("depth_delay_off_color_usec", ctypes.c_int32), ("wired_sync_mode", ctypes.c_int),
-                ("subordinate_delay_off_master_usec", ctypes.c_uint32),
-                ("disable_streaming_indicator", ctypes.c_bool)]
 
 
 class Extrinsics(ctypes.Structure):
@@ -72,37 +59,30 @@ RELEASE_CB = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p)
 
 
 class K4A:
-    """The loaded libk4a and libk4arecord with the prototypes of the functions the tests call."""
+    """The loaded libk4a and libk4arecord (tofd.drivers.k4a.sdk) with the prototypes of the recorder's functions and
+    the others the tests call."""
 
-    def __init__(self, k4a: ctypes.CDLL, record: ctypes.CDLL) -> None:
-        self.k4a, self.record = k4a, record
+    def __init__(self, libraries: sdk.Libraries) -> None:
+        self.k4a, self.record = k4a, record = libraries.k4a, libraries.record
         vp, c = ctypes.c_void_p, ctypes
         for lib, name, args, res in (
-            (record, "k4a_record_create", [c.c_char_p, vp, DeviceConfiguration, c.POINTER(vp)], c.c_int),
+            (record, "k4a_record_create", [c.c_char_p, vp, sdk.DeviceConfiguration, c.POINTER(vp)], c.c_int),
             (record, "k4a_record_add_tag", [vp, c.c_char_p, c.c_char_p], c.c_int),
             (record, "k4a_record_add_attachment", [vp, c.c_char_p, c.c_char_p, c.c_size_t], c.c_int),
             (record, "k4a_record_add_imu_track", [vp], c.c_int),
             (record, "k4a_record_write_header", [vp], c.c_int),
             (record, "k4a_record_write_imu_sample", [vp, ImuSample], c.c_int),
-            (record, "k4a_playback_open", [c.c_char_p, c.POINTER(vp)], c.c_int),
-            (record, "k4a_playback_get_next_capture", [vp, c.POINTER(vp)], c.c_int),
-            (record, "k4a_playback_close", [vp], None),
-            (k4a, "k4a_capture_get_depth_image", [vp], vp),
-            (k4a, "k4a_image_get_device_timestamp_usec", [vp], c.c_uint64),
             (record, "k4a_record_write_capture", [vp, vp], c.c_int),
             (record, "k4a_record_flush", [vp], c.c_int),
             (record, "k4a_record_close", [vp], None),
             (k4a, "k4a_capture_create", [c.POINTER(vp)], c.c_int),
-            (k4a, "k4a_capture_release", [vp], None),
             (k4a, "k4a_capture_set_depth_image", [vp, vp], None),
             (k4a, "k4a_capture_set_ir_image", [vp, vp], None),
             (k4a, "k4a_capture_set_color_image", [vp, vp], None),
             (k4a, "k4a_image_create_from_buffer", [c.c_int, c.c_int, c.c_int, c.c_int, vp, c.c_size_t, RELEASE_CB,
                                                    vp, c.POINTER(vp)], c.c_int),
             (k4a, "k4a_image_create", [c.c_int, c.c_int, c.c_int, c.c_int, c.POINTER(vp)], c.c_int),
-            (k4a, "k4a_image_get_buffer", [vp], c.POINTER(c.c_uint8)),
             (k4a, "k4a_image_set_device_timestamp_usec", [vp, c.c_uint64], None),
-            (k4a, "k4a_image_release", [vp], None),
             (k4a, "k4a_calibration_get_from_raw", [c.c_char_p, c.c_size_t, c.c_int, c.c_int,
                                                    c.POINTER(Calibration)], c.c_int),
             (k4a, "k4a_calibration_2d_to_3d", [c.POINTER(Calibration), c.POINTER(c.c_float * 2), c.c_float, c.c_int,
@@ -145,7 +125,7 @@ class K4A:
         data = ctypes.create_string_buffer(JPEG_STUB)
         keep.append(data)  # the recorder holds the image until its cluster is written
         image = ctypes.c_void_p()
-        assert self.k4a.k4a_image_create_from_buffer(IMAGE_FORMAT_COLOR_MJPG, 1280, 720, 0, ctypes.addressof(data),
+        assert self.k4a.k4a_image_create_from_buffer(sdk.IMAGE_FORMAT_COLOR_MJPG, 1280, 720, 0, ctypes.addressof(data),
                                                      len(JPEG_STUB), _NO_RELEASE, None, ctypes.byref(image)) == 0
         self.k4a.k4a_image_set_device_timestamp_usec(image, timestamp_us)
         return image
@@ -159,7 +139,7 @@ class K4A:
         frame period after the last, as the device's IMU runs on until the recorder stops; `colour_us`: MJPG colour
         images at these device times (in the depth capture of the same time, else a colour-only capture), as
         k4arecorder writes a colour camera's."""
-        config = DeviceConfiguration(color_format=IMAGE_FORMAT_COLOR_MJPG if colour_us else 0,
+        config = sdk.DeviceConfiguration(color_format=sdk.IMAGE_FORMAT_COLOR_MJPG if colour_us else 0,
                                      color_resolution=COLOR_RESOLUTION_720P if colour_us else 0,
                                      depth_mode=DEPTH_MODES[depth_mode], camera_fps=FPS[fps], wired_sync_mode=0)
         handle = ctypes.c_void_p()
@@ -195,8 +175,8 @@ class K4A:
                 assert self.k4a.k4a_capture_create(ctypes.byref(capture)) == 0
                 images = []
                 if t in planes:
-                    images = [self._image(IMAGE_FORMAT_DEPTH16, planes[t][0], t),
-                              self._image(IMAGE_FORMAT_IR16, planes[t][1], t)]
+                    images = [self._image(sdk.IMAGE_FORMAT_DEPTH16, planes[t][0], t),
+                              self._image(sdk.IMAGE_FORMAT_IR16, planes[t][1], t)]
                     self.k4a.k4a_capture_set_depth_image(capture, images[0])
                     self.k4a.k4a_capture_set_ir_image(capture, images[1])
                 if t in colour_us:
@@ -237,19 +217,8 @@ _NO_RELEASE = RELEASE_CB(lambda buffer, context: None)
 
 @functools.cache
 def _load() -> K4A | str:
-    spec = importlib.util.find_spec("pyk4a")
-    if spec is None or not spec.submodule_search_locations:
-        return "pyk4a-bundle is not installed (pip install -e '.[test]')"
-    libs = Path(next(iter(spec.submodule_search_locations))).parent / "pyk4a_bundle.libs"
-    k4a = sorted(glob.glob(str(libs / "libk4a-*.so*")))
-    record = sorted(glob.glob(str(libs / "libk4arecord-*.so*")))
-    if not k4a or not record:
-        return f"no libk4a / libk4arecord in {libs} (pyk4a-bundle ships them for Linux x86-64 only)"
-    try:
-        mode = os.RTLD_GLOBAL  # libk4arecord resolves libk4a's symbols
-        return K4A(ctypes.CDLL(k4a[0], mode=mode), ctypes.CDLL(record[0], mode=mode))
-    except OSError as exc:
-        return f"libk4a / libk4arecord do not load: {exc}"
+    loaded = sdk.load()
+    return loaded if isinstance(loaded, str) else K4A(loaded)
 
 
 def k4a_libraries() -> K4A:

@@ -65,7 +65,7 @@ class _Capture:
     ir: bytes | None
 
 
-def _device_model(calibration: dict) -> str:
+def device_model(calibration: dict) -> str:
     name = str(calibration.get("CalibrationInformation", {}).get("Metadata", {}).get("DeviceName", ""))
     return "Orbbec Femto" if "femto" in name.lower() or "orbbec" in name.lower() else "Azure Kinect"
 
@@ -146,7 +146,7 @@ class K4aRecordingSource(FrameSource):
         serial = tags.get("K4A_DEVICE_SERIAL_NUMBER") or str(
             calibration.get("CalibrationInformation", {}).get("Metadata", {}).get("SerialId", ""))
         self.device = DeviceInfo(serial=serial, firmware=tags.get("K4A_DEPTH_FIRMWARE_VERSION", ""),
-                                 backend="k4a-mkv", model=_device_model(calibration))
+                                 backend="k4a-mkv", model=device_model(calibration))
         self.settings = {k: str(v) for k, v in (tags | depth_tags).items() if k.startswith("K4A_")}
         """The recording's K4A_* tags (container and DEPTH track): the device's settings as recorded."""
         self.sensor: SensorInfo | None = None
