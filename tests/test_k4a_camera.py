@@ -5,6 +5,9 @@ through the live conversion; `tofd run --camera k4a --playback FILE` end to end.
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -17,6 +20,8 @@ from tests.test_k4a import RAW, SERIAL, mode_size, render_scene, tofd
 from tofd.drivers.cameras import CameraRequest, StreamMode, backend
 from tofd.drivers.k4a.lens import depth_lens
 from tofd.drivers.k4a.mkv import K4aRecordingSource
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
 from tofd.drivers.source import DriverError
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 
@@ -108,6 +113,27 @@ def test_tofd_run_on_a_playback_puts_the_foreground_on_the_sphere(k4a, tmp_path)
     for points in clouds:
         off = np.abs(np.linalg.norm(points - centre, axis=1) - RADIUS)
         assert np.median(off) < 0.002 and np.percentile(off, 90) < 0.005, (np.median(off), np.percentile(off, 90))
+
+
+def test_tofd_record_keeps_the_devices_lens_and_a_missing_sdk_names_the_extra(k4a, tmp_path):
+    path, _, stamps = sphere_recording(k4a, tmp_path / "s.mkv", "NFOV_2X2BINNED", 5, fps=15)
+    out = tmp_path / "rec.mcap"
+    proc = tofd("record", "--camera", "k4a", "--playback", path, "--frames", 5, out)
+    assert proc.returncode == 0, proc.stderr
+    info = read_recording_info(out)
+    assert info.intrinsics == depth_lens(RAW, "NFOV_2X2BINNED").intrinsics and info.registers is None
+    assert (info.device.backend, info.device.serial) == ("k4a", SERIAL) and info.sensor.depth_unit_m == 1e-3
+    assert [f.timestamp_us for f in iter_frames(out)] == stamps
+    # a pyk4a package without pyk4a-bundle's libraries beside it (another build of pyk4a): one line, exit 2
+    fake = tmp_path / "site" / "pyk4a"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("")
+    env = {**os.environ, "PYTHONPATH": str(fake.parent)}
+    proc = subprocess.run([sys.executable, "-m", "tofd", "run", "--camera", "k4a", "--frames", "1"],
+                          capture_output=True, text=True, timeout=300, env=env)
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and len(err.splitlines()) == 1 and "pip install 'tofd[k4a]'" in err, err
+    assert "no libk4a / libk4arecord" in err
 
 
 @pytest.mark.device
