@@ -209,9 +209,10 @@ def test_cut_runs_along_the_fitted_face_plane(tilt):
 
 
 @pytest.mark.parametrize(("mode", "frames"), [("WFOV_2X2BINNED", 30), ("WFOV_UNBINNED", 20), ("realsense87", 30)])
-def test_the_near_sphere_is_the_foreground_on_wide_fields_of_view(mode, frames):
-    """A sphere 20 degrees off axis at 0.85-0.95 m before a wall at 1.6 m, through the Azure Kinect's wide lenses
-    (their dark corners outside the lens included) and an 87-degree RealSense-like lens: in every frame the
+@pytest.mark.parametrize("off_axis_deg", [20.0, 40.0])
+def test_the_near_sphere_is_the_foreground_on_wide_fields_of_view(mode, frames, off_axis_deg):
+    """A sphere 20 (and 40) degrees off axis at 0.85-0.95 m before a wall at 1.6 m, through the Azure Kinect's wide
+    lenses (their dark corners outside the lens included) and an 87-degree RealSense-like lens: in every frame the
     foreground is on the sphere and nowhere else."""
     if mode == "realsense87":
         intrinsics, lens_valid = realsense_like_87deg(), None
@@ -222,6 +223,7 @@ def test_the_near_sphere_is_the_foreground_on_wide_fields_of_view(mode, frames):
         lens = depth_lens(CALIBRATION_JSON.read_bytes(), mode)
         intrinsics, lens_valid = lens.intrinsics, lens.valid_pixels()
     for k, distance in enumerate(np.linspace(0.85, 0.95, frames)):
-        scene = sphere_before_wall(intrinsics, float(distance), 90.0 * (k % 4), lens_valid)
+        scene = sphere_before_wall(intrinsics, float(distance), 90.0 * (k % 4) + 45.0 * (k % 2), lens_valid,
+                                   off_axis_deg)
         mask = segment(scene.range_m, scene.amplitude, SegmentationConfig(), intrinsics)
         assert mask.sum() > 0.2 * scene.sphere.sum() and not (mask & ~scene.sphere).any(), (mode, k, distance)

@@ -11,6 +11,8 @@
    - with `plane_iterations` > 0 depth is measured along the face's viewing direction (minus the normal of a
      plane fitted by SVD to the face front within `plane_depth_m`), so a nodding head keeps its nose tip inside
      the cut; both range feature paths filter the surface in this frame (`Foreground.rotation`);
+   - a pixel more than `head_height_m` behind the nearest one in camera depth (a wall off to the side of a wide
+     field of view, which a tilted face frame brings nearer) is never the reference nor the nearest pixel;
    - keep pixels whose filtered depth <= reference + `depth_margin_m`.
 3. Clean-up: opening and closing with a `morphology_px` ellipse, holes filled, pixels whose own depth is invalid
    or beyond the cut dropped again (flying pixels), and with `nearest_component` only the 8-connected region
@@ -87,21 +89,24 @@ def filtered(depth_m: np.ndarray, valid: np.ndarray, size: int) -> np.ndarray:
     return cv2.medianBlur(r, size) if size > 1 else r
 
 
-def head_band(mask: np.ndarray, smooth: np.ndarray, cfg: SegmentationConfig, fy: float) -> np.ndarray:
-    """The step-1 pixels at most `head_height_m` below the top of the body (all of `mask` if that is 0).
+def head_band(mask: np.ndarray, smooth: np.ndarray, cfg: SegmentationConfig,
+              fy: float) -> tuple[np.ndarray, np.ndarray]:
+    """The step-1 pixels at most `head_height_m` below the top of the body, and the body's pixels among them
+    (both all of `mask` if that is 0).
 
     Body: step-1 pixels whose filtered depth is within `head_height_m` of the nearest one (not a far object
     that passed the amplitude step). Rows are converted to metres at the nearest depth (z / fy per row).
     """
     if cfg.head_height_m <= 0:
-        return mask
+        return mask, mask
     nearest = float(np.percentile(smooth[mask], cfg.range_percentile))
-    rows = np.flatnonzero((mask & (smooth <= nearest + cfg.head_height_m)).any(axis=1))
+    body = mask & (smooth <= nearest + cfg.head_height_m)
+    rows = np.flatnonzero(body.any(axis=1))
     if len(rows) == 0:
-        return mask
+        return mask, mask
     last_row = rows[0] + cfg.head_height_m * fy / nearest
     band = mask & (np.arange(mask.shape[0])[:, None] <= last_row)
-    return band if band.any() else mask
+    return (band, band & body) if band.any() else (mask, body)
 
 
 @dataclass(frozen=True, slots=True)
@@ -255,7 +260,7 @@ def _segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig
     mask &= smooth < FAR_M
     if not mask.any():
         return mask, rotation, np.inf
-    head = head_band(mask, smooth, cfg, intrinsics.fy)
+    head, body = head_band(mask, smooth, cfg, intrinsics.fy)
     if cfg.plane_iterations > 0:
         direction = face_direction(rays[head] * (smooth[head] / ray_z[head])[:, None], cfg)
         rotation = rotation_to_z(direction)
@@ -264,6 +269,8 @@ def _segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig
         with np.errstate(invalid="ignore"):
             depth = range_m * along
     reference = float(np.percentile(smooth[head], cfg.range_percentile))
+    if (smooth[head & ~body] < reference).any():  # along a tilted face frame, a far wall off to the side came nearer
+        reference = float(np.percentile(smooth[body], cfg.range_percentile))
     cut = reference + cfg.depth_margin_m
     mask &= smooth <= cut
     if cfg.morphology_px > 1:
@@ -273,6 +280,6 @@ def _segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig
     with np.errstate(invalid="ignore"):
         mask = fill_holes(mask) & valid & (depth <= cut)
     if cfg.nearest_component and (mask & head).any():
-        nearest = int(np.argmin(np.where(mask & head, smooth, np.inf)))
+        nearest = int(np.argmin(np.where(mask & (body if (mask & body).any() else head), smooth, np.inf)))
         mask = component_at(mask, *divmod(nearest, mask.shape[1]))
     return mask, rotation, cut
