@@ -115,6 +115,24 @@ def test_tofd_run_on_a_playback_puts_the_foreground_on_the_sphere(k4a, tmp_path)
         assert np.median(off) < 0.002 and np.percentile(off, 90) < 0.005, (np.median(off), np.percentile(off, 90))
 
 
+def test_a_recording_that_stops_sending_stalls_and_leaves_a_gap(k4a, tmp_path):
+    """Captures 2.5 s apart in the middle of a recording: the played device sends nothing meanwhile, so the shared
+    loop times out, reports one stall, and the next frame's counter jumps by the frames the device did not send."""
+    mode = "NFOV_2X2BINNED"
+    h, w = mode_size(mode)
+    plane = np.full((h, w), 1000, np.uint16)
+    period = 1_000_000 // 30
+    stamps = [1_000_000 + period * k for k in range(3)] + [3_600_000 + period * k for k in range(2)]
+    path = k4a.write_recording(tmp_path / "gap.mkv", mode, [plane] * 5, [plane] * 5, stamps, calibration=RAW,
+                               serial=SERIAL, imu=True)
+    camera = backend("k4a").open(CameraRequest(kind="k4a", playback=path, read_timeout_s=0.2, stall_report_s=1.0))
+    with camera:
+        frames = list(camera)
+    gap = round((stamps[3] - stamps[0]) / period)
+    assert [f.frame_counter for f in frames] == [0, 1, 2, gap, gap + 1]
+    assert camera.counters["stall"] == 1 and camera.counters["timeout"] >= 5, dict(camera.counters)
+
+
 def test_tofd_record_keeps_the_devices_lens_and_a_missing_sdk_names_the_extra(k4a, tmp_path):
     path, _, stamps = sphere_recording(k4a, tmp_path / "s.mkv", "NFOV_2X2BINNED", 5, fps=15)
     out = tmp_path / "rec.mcap"
