@@ -9,6 +9,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from tofd.drivers.frame import Frame
+from tofd.drivers.intrinsics import Intrinsics
 
 
 class DriverError(RuntimeError):
@@ -34,6 +35,7 @@ class FrameSource(ABC):
     """
 
     def __init__(self) -> None:
+        self.intrinsics: Intrinsics | None = None  # the frames' calibration, once the source knows it
         self.counters: Counter[str] = Counter()
         self._closed = threading.Event()
         self._rejected: deque[Rejected] = deque()

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
+from pathlib import Path
 from typing import TYPE_CHECKING
 
-from tofd.config import check_serial
+from tofd.config import CameraConfig, check_serial
+from tofd.drivers.cameras import CAMERA_KINDS
+from tofd.errors import UsageError
 
 if TYPE_CHECKING:
     from tofd.drivers.bags.driver_bag import RangeOptions
@@ -37,11 +41,45 @@ def positive_float(text: str) -> float:
 
 
 def serial(text: str) -> str:
-    """A camera serial: 8 hex digits (the config's rule, tofd.config.check_serial)."""
+    """A camera serial number of any kind (the config's rule, tofd.config.check_serial; an SR3000's 8 hex digits
+    are checked with the camera kind, when the config is complete)."""
     try:
-        return check_serial(text)
+        return check_serial(text, kind="any")
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc).removeprefix("serial: ")) from None
+
+
+def add_camera_arguments(parser: argparse.ArgumentParser) -> None:
+    """--camera, --serial and --playback: which camera `run` and `record` attach to (overriding [camera])."""
+    parser.add_argument("--camera", choices=CAMERA_KINDS, default=None, metavar="KIND",
+                        help=f"camera kind: {', '.join(CAMERA_KINDS)} (overrides [camera] kind; default sr3000)")
+    parser.add_argument("--serial", type=serial, default=None,
+                        help="the camera's serial number (SR3000: 8 hex digits; overrides [camera] serial)")
+    parser.add_argument("--playback", type=Path, default=None, metavar="FILE",
+                        help="an SDK camera's recording, played by the vendor's SDK as its device in real time "
+                             "(overrides [camera] playback)")
+
+
+def camera_config(camera: CameraConfig, args: argparse.Namespace) -> CameraConfig:
+    """[camera] with --camera, --serial and --playback applied, validated as a whole (UsageError names the
+    option: e.g. an SR3000 serial that is not 8 hex digits)."""
+    changes: dict[str, object] = {}
+    if args.camera is not None:
+        changes["kind"] = args.camera
+    if args.serial is not None:
+        changes["serial"] = args.serial
+    if args.playback is not None:
+        if not args.playback.is_file():
+            raise UsageError(f"--playback: {args.playback} is not a file")
+        changes["playback"] = str(args.playback)
+    camera = dataclasses.replace(camera, **changes)  # type: ignore[arg-type]
+    try:
+        camera.validate()
+    except ValueError as exc:
+        key = str(exc).partition(":")[0]
+        option = {"kind": "--camera", "serial": "--serial", "playback": "--playback"}.get(key)
+        raise UsageError(f"{option or 'camera.' + key}:{str(exc).partition(':')[2]}") from None
+    return camera
 
 
 def add_bag_arguments(parser: argparse.ArgumentParser) -> None:

@@ -16,8 +16,9 @@ from importlib import resources
 from pathlib import Path
 
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
+from tofd.drivers.cameras import CAMERA_KINDS, CameraRequest, StreamMode
 from tofd.drivers.frame import DEFAULT_REGISTER_VALUES
-from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.intrinsics import MAX_SIDE_PX, Intrinsics
 from tofd.drivers.recording.bounds import intrinsics_problem
 from tofd.errors import ConfigError
 
@@ -39,6 +40,10 @@ MAX_QUEUE = 1024  # frames: the longest queue (a frame in flight is ~0.1-10 MB)
 MAX_TASKS_PER_WORKER = 16  # frames in flight per worker (each needs a shared-memory slot)
 WORKERS_PER_CORE = 4  # pipeline.workers is at most this times the machine's cores
 MAX_STATS_WINDOW = 100_000  # frames in the rolling timing window
+MAX_SERIAL_CHARS = 64  # characters of a vendor's camera serial number
+MAX_FPS = 1000  # frames per second no depth camera exceeds
+MAX_EXPOSURE_US = 1_000_000  # microseconds: a second, longer than any depth camera's exposure
+MAX_LASER_POWER = 1e4  # the largest emitter power in any vendor's unit (RealSense: mW, up to 360)
 NO_MODEL_PATH = ""  # detector.model_path that chooses to run without nose detection
 
 
@@ -58,34 +63,66 @@ def check_count(key: str, value: int, most: int) -> None:
         raise ValueError(f"{key}: {value} is not in 1..{most}")
 
 
-def check_serial(serial: str) -> str:
-    """`serial` if it is 8 hex digits or "" (the first camera found); ValueError names it otherwise."""
-    if serial and (len(serial) != 8 or any(c not in "0123456789abcdefABCDEF" for c in serial)):
-        raise ValueError(f"serial: {serial!r} is not 8 hex digits (or \"\" for the first camera)")
+def check_serial(serial: str, kind: str = "sr3000") -> str:
+    """`serial` if it is a serial number of a `kind` camera or "" (the first camera); ValueError names it otherwise.
+
+    An SR3000's serial is 8 hex digits; the vendors' serials (RealSense, Orbbec, Azure Kinect; kind "any" for a
+    serial whose camera kind is not known yet) are printable ASCII without spaces, at most MAX_SERIAL_CHARS long.
+    """
+    if kind == "sr3000":
+        if serial and (len(serial) != 8 or any(c not in "0123456789abcdefABCDEF" for c in serial)):
+            raise ValueError(f"serial: {serial!r} is not 8 hex digits (or \"\" for the first camera)")
+    elif len(serial) > MAX_SERIAL_CHARS or not all(c.isascii() and c.isprintable() and c != " " for c in serial):
+        raise ValueError(f"serial: {serial!r} is not a camera serial number (printable ASCII without spaces, at "
+                         f"most {MAX_SERIAL_CHARS} characters; \"\" for the first camera)")
     return serial
 
 
 @dataclass(frozen=True, slots=True)
 class CameraConfig:
-    """Which camera to attach to, the registers to apply, and how to ride out faults (tofd.drivers.usb.camera).
+    """Which camera to attach to, in which stream mode and with which settings, and how to ride out faults.
 
-    Field names match tofd.drivers.usb.camera.UsbCamera's keywords: UsbCamera(**dataclasses.asdict(cfg)).
+    kind "sr3000" is the SR3000-style USB camera (tofd.drivers.usb.camera, its registers int_time_code and
+    mod_freq_index); "realsense", "orbbec" and "k4a" are opened through their vendors' SDKs
+    (tofd.drivers.cameras), in the stream mode width x height @ fps and depth_mode (0 / "": the device's default).
     """
 
-    serial: str = ""  # 8 hex digits; empty = first camera found
-    int_time_code: int = DEFAULT_REGISTER_VALUES.int_time_code  # INT_TIME register: (code + 1) * 0.2 ms
-    mod_freq_index: int = DEFAULT_REGISTER_VALUES.mod_freq_index  # MOD_FREQ register: index into MOD_FREQS_MHZ
-    read_timeout_s: float = 0.5  # seconds: timeout of one bulk frame read (then retried)
+    kind: str = "sr3000"  # one of tofd.drivers.cameras.CAMERA_KINDS
+    serial: str = ""  # the camera's serial number (SR3000: 8 hex digits); empty = first camera found
+    int_time_code: int = DEFAULT_REGISTER_VALUES.int_time_code  # SR3000 INT_TIME register: (code + 1) * 0.2 ms
+    mod_freq_index: int = DEFAULT_REGISTER_VALUES.mod_freq_index  # SR3000 MOD_FREQ register: index into MOD_FREQS_MHZ
+    width: int = 0  # SDK cameras: depth image columns (0 = the device's default)
+    height: int = 0  # SDK cameras: depth image rows (0 = the device's default)
+    fps: int = 0  # SDK cameras: frames per second (0 = the device's default)
+    depth_mode: str = ""  # SDK cameras: the vendor's depth mode name, e.g. Azure Kinect "NFOV_UNBINNED"
+    exposure_us: int = 0  # SDK cameras: manual exposure in microseconds (0 = the device's automatic exposure)
+    laser_power: float = -1.0  # SDK cameras: emitter / laser power in the vendor's unit (-1 = the device's default)
+    playback: str = ""  # SDK cameras: a recording the vendor's SDK plays as its device, in real time ("" = none)
+    read_timeout_s: float = 0.5  # seconds: timeout of one frame read (then retried)
     stall_report_s: float = 2.0  # seconds without a frame before a stall is reported
     reconnect_initial_s: float = 0.1  # seconds: first wait before reopening an unplugged camera
     reconnect_max_s: float = 5.0  # seconds: the wait doubles after each failed attempt up to this
 
     def validate(self) -> None:
-        check_serial(self.serial)
+        if self.kind not in CAMERA_KINDS:
+            raise ValueError(f"kind: {self.kind!r} is not one of {', '.join(CAMERA_KINDS)}")
+        check_serial(self.serial, self.kind)
         if not 0 <= self.int_time_code <= 255:
             raise ValueError(f"int_time_code: {self.int_time_code} is not in 0..255")
         if not 0 <= self.mod_freq_index <= 4:
             raise ValueError(f"mod_freq_index: {self.mod_freq_index} is not in 0..4")
+        for key, top in (("width", MAX_SIDE_PX), ("height", MAX_SIDE_PX), ("fps", MAX_FPS),
+                         ("exposure_us", MAX_EXPOSURE_US)):
+            if not 0 <= getattr(self, key) <= top:
+                raise ValueError(f"{key}: {getattr(self, key)} is not in 0..{top} (0: the device's default)")
+        if not (self.laser_power == -1 or 0 <= self.laser_power <= MAX_LASER_POWER):
+            raise ValueError(f"laser_power: {self.laser_power} is not -1 (the device's default) or in "
+                             f"0..{MAX_LASER_POWER:g}")
+        if self.kind == "sr3000":
+            for key in ("width", "height", "fps", "exposure_us", "depth_mode", "playback"):
+                if getattr(self, key):
+                    raise ValueError(f"{key}: the SR3000 camera has a fixed mode and no playback; {key} is for the "
+                                     "SDK cameras (kind = realsense, orbbec or k4a)")
         if not 0.001 <= self.read_timeout_s <= 60:
             raise ValueError(f"read_timeout_s: {self.read_timeout_s} is not in [0.001, 60] seconds")
         check_seconds("stall_report_s", self.stall_report_s)
@@ -93,6 +130,20 @@ class CameraConfig:
         if not 0 < self.reconnect_initial_s <= self.reconnect_max_s:
             raise ValueError(f"reconnect_initial_s: {self.reconnect_initial_s} must be > 0 and <= "
                              f"reconnect_max_s ({self.reconnect_max_s})")
+
+    def request(self) -> CameraRequest:
+        """The SDK camera this section asks for (kind other than sr3000)."""
+        settings: dict[str, float] = {}
+        if self.exposure_us:
+            settings["exposure_us"] = self.exposure_us
+        if self.laser_power >= 0:
+            settings["laser_power"] = self.laser_power
+        return CameraRequest(kind=self.kind, serial=self.serial,
+                             mode=StreamMode(self.width or None, self.height or None, self.fps or None,
+                                             self.depth_mode or None),
+                             playback=Path(self.playback) if self.playback else None, settings=settings,
+                             read_timeout_s=self.read_timeout_s, stall_report_s=self.stall_report_s,
+                             reconnect_initial_s=self.reconnect_initial_s, reconnect_max_s=self.reconnect_max_s)
 
 
 @dataclass(frozen=True, slots=True)

@@ -41,7 +41,8 @@ from tofd.drivers.bags.driver_layouts import (
 )
 from tofd.drivers.bags.images import AMPLITUDE_ENCODINGS, IMAGE_TYPE, IMAGE_TYPES, RANGE_ENCODINGS, plane
 from tofd.drivers.bags.scan import BagError, DamagedMessage, RawMessage
-from tofd.drivers.bags.source import BagSource, depth_metres
+from tofd.drivers.bags.source import BagSource
+from tofd.drivers.depth import depth_metres
 from tofd.drivers.frame import DeviceInfo, Frame, Registers
 from tofd.drivers.intrinsics import Intrinsics
 

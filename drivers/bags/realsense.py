@@ -29,7 +29,8 @@ from tofd.drivers.bags import ros1_wire
 from tofd.drivers.bags.camera_info import camera_info_intrinsics, lens_intrinsics
 from tofd.drivers.bags.images import AMPLITUDE_ENCODINGS, IMAGE_TYPES, RANGE_ENCODINGS, plane
 from tofd.drivers.bags.scan import BagError, DamagedMessage, RawMessage, Topic
-from tofd.drivers.bags.source import BagSource, depth_metres
+from tofd.drivers.bags.source import BagSource
+from tofd.drivers.depth import depth_metres
 from tofd.drivers.frame import DeviceInfo, Frame
 from tofd.drivers.intrinsics import Intrinsics
 

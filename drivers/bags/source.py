@@ -23,15 +23,6 @@ PERIOD_FRAMES = 8
 """Frames whose device timestamps give the frame period before the first frame is delivered."""
 
 
-def depth_metres(raw: np.ndarray, metres_per_unit: float) -> np.ndarray:
-    """(H, W) float32 metres of integer depth values (0 = no return -> NaN) or of float metres as they are."""
-    if raw.dtype.kind == "f":
-        return raw.astype(np.float32, copy=False)
-    metres = (raw.astype(np.float64) * metres_per_unit).astype(np.float32)
-    metres[raw == 0] = np.nan
-    return metres
-
-
 class BagSource(FrameSource):
     """A FrameSource reading a bag through tofd.drivers.bags.scan.BagReader.
 

@@ -33,8 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     limit.add_argument("--frames", type=arguments.positive_int, help="stop after this many frames")
     limit.add_argument("--seconds", type=arguments.positive_float, help="stop after this many seconds of recording")
     parser.add_argument("--config", type=Path, default=None, help="config file (default: config/tofd.toml)")
-    parser.add_argument("--serial", type=arguments.serial, default=None,
-                        help="camera serial (8 hex digits); overrides [camera] serial")
+    arguments.add_camera_arguments(parser)
 
 
 def _finish_on_signal(source: FrameSource) -> Callable[[int, bool], None]:
@@ -58,16 +57,19 @@ def _status(frames: int, elapsed_s: float, nbytes: int, counters: dict[str, int]
 
 def main(args: argparse.Namespace) -> int:
     from tofd.config import load_config
+    from tofd.drivers.cameras import SdkMissing
     from tofd.drivers.recording.writer import RecordingWriter
     from tofd.drivers.source import DriverError
     from tofd.service.camera import open_camera
     from tofd.service.signals import StopSignals
 
     config = load_config(args.config)
-    if args.serial is not None:  # checked by arguments.serial when parsed
-        config = dataclasses.replace(config, camera=dataclasses.replace(config.camera, serial=args.serial))
+    config = dataclasses.replace(config, camera=arguments.camera_config(config.camera, args))
     try:
         source = open_camera(config, args.emulate)
+    except SdkMissing as exc:
+        print(f"tofd record: {exc}", file=sys.stderr)
+        return 2
     except (DriverError, OSError) as exc:
         print(f"tofd record: {exc}", file=sys.stderr)
         return 1

@@ -1,9 +1,11 @@
 """Run the live service: attach to the camera, process frames, stream to Rerun, serve /healthz and /metrics.
 
 --foxglove HOST:PORT also serves the live stream to Foxglove (its WebSocket protocol; 127.0.0.1 by default).
-Attaches to the camera with the configured serial (or --serial, else the first one found), or to the
-emulated camera with --emulate. Live queues are latest-wins: when processing falls behind, the oldest
-frames are dropped and counted in the drop ledger. SIGTERM/SIGINT drain the queues and exit 0 (also while
+Attaches to the camera of the config's [camera] kind (or --camera: sr3000, realsense, orbbec, k4a) with its
+serial (or --serial, else the first one found), to the emulated SR3000 with --emulate, or with --playback FILE
+to a recording the camera's own SDK plays as its device, in real time, through the same code as the camera.
+Live queues are latest-wins: when processing falls behind, the oldest frames are dropped and counted in the drop
+ledger. SIGTERM/SIGINT drain the queues and exit 0 (also while
 the camera or the emulated scene is still being prepared).
 """
 
@@ -33,8 +35,7 @@ class Stopped(BaseException):
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None, help="config file (default: the bundled tofd.toml)")
     parser.add_argument("--emulate", action="store_true", help="use the emulated SR3000 camera (no hardware)")
-    parser.add_argument("--serial", type=arguments.serial, default=None,
-                        help="camera serial number (8 hex digits; overrides the config)")
+    arguments.add_camera_arguments(parser)
     parser.add_argument("--rerun", default=None, metavar="SINK", help=RERUN_SPEC_HELP)
     parser.add_argument("--foxglove", default=None, metavar="HOST:PORT", help=FOXGLOVE_SPEC_HELP)
     parser.add_argument("--frames", type=arguments.positive_int, default=None, metavar="N", help="stop after N frames")
@@ -52,6 +53,7 @@ def _raise_stopped(signum: int, _first: bool) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from tofd.config import load_config
+    from tofd.drivers.cameras import SdkMissing
     from tofd.drivers.source import DriverError
     from tofd.outputs import check_output_file
     from tofd.process_setup import prepare_service_process
@@ -63,8 +65,7 @@ def main(args: argparse.Namespace) -> int:
     from tofd.service.viewer import ViewerError
 
     cfg = parse_foxglove_spec(args.foxglove, parse_rerun_spec(args.rerun, load_config(args.config)))
-    if args.serial is not None:
-        cfg = replace(cfg, camera=replace(cfg.camera, serial=args.serial))
+    cfg = replace(cfg, camera=arguments.camera_config(cfg.camera, args))
     if args.health_port is not None:
         cfg = replace(cfg, health=replace(cfg.health, port=args.health_port))
     if args.summary is not None:
@@ -76,9 +77,14 @@ def main(args: argparse.Namespace) -> int:
     except Stopped as exc:
         print(f"tofd run: {exc} before the camera was ready; stopped", file=sys.stderr)
         return 0
+    except SdkMissing as exc:
+        print(f"tofd run: {exc}", file=sys.stderr)
+        return 2
     except (DriverError, OSError) as exc:
         print(f"tofd run: {exc}", file=sys.stderr)
         return 1
+    if camera.intrinsics is not None:  # the device's own calibration (an SDK camera's), for the workers' plans
+        cfg = replace(cfg, intrinsics=camera.intrinsics)
     prepare_service_process()
     try:
         with camera:
