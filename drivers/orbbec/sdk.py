@@ -23,7 +23,7 @@ DISTRIBUTION = "pyorbbecsdk2"
 """The PyPI distribution whose wheel carries libOrbbecSDK.so (tofd's `orbbec` extra installs it)."""
 LIBRARY_NAMES = ("libOrbbecSDK.so.2", "libOrbbecSDK.so")
 LOG_OFF = 5  # OB_LOG_SEVERITY_OFF
-LOG_WARN = 2  # OB_LOG_SEVERITY_WARN
+LOG_ERROR = 3  # OB_LOG_SEVERITY_ERROR
 SENSOR_IR, SENSOR_DEPTH, SENSOR_IR_LEFT = 1, 3, 6  # OBSensorType
 FRAME_IR, FRAME_DEPTH, FRAME_IR_LEFT = 1, 3, 6  # OBFrameType
 PERMISSION_READ = 1  # OB_PERMISSION_READ
@@ -62,6 +62,7 @@ PROTOTYPES: dict[str, tuple[Any, tuple[Any, ...]]] = {
     "ob_device_list_get_count": (c_uint32, (_P,)),
     "ob_device_list_get_device_serial_number": (c_char_p, (_P, c_uint32)),
     "ob_device_list_get_device": (_P, (_P, c_uint32)),
+    "ob_device_list_get_device_name": (c_char_p, (_P, c_uint32)),
     "ob_delete_device": (None, (_P,)),
     "ob_device_get_device_info": (_P, (_P,)),
     "ob_delete_device_info": (None, (_P,)),
@@ -73,6 +74,8 @@ PROTOTYPES: dict[str, tuple[Any, tuple[Any, ...]]] = {
     "ob_device_get_int_property": (ctypes.c_int32, (_P, c_int)),
     "ob_device_get_float_property": (c_float, (_P, c_int)),
     "ob_device_get_bool_property": (c_bool, (_P, c_int)),
+    "ob_device_set_int_property": (None, (_P, c_int, ctypes.c_int32)),
+    "ob_device_set_bool_property": (None, (_P, c_int, c_bool)),
     "ob_device_get_sensor_list": (_P, (_P,)),
     "ob_delete_sensor_list": (None, (_P,)),
     "ob_sensor_list_get_count": (c_uint32, (_P,)),
@@ -152,7 +155,7 @@ class Sdk:
         if extensions.is_dir():
             self.call("ob_set_extensions_directory", str(extensions).encode())
         self.call("ob_set_logger_to_file", LOG_OFF, b"")  # the SDK's default logs into ./Log of the cwd
-        self.call("ob_set_logger_to_console", LOG_WARN)
+        self.call("ob_set_logger_to_console", LOG_ERROR)
 
     def call(self, name: str, *args: Any) -> Any:
         error = c_void_p()
