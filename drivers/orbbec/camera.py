@@ -69,6 +69,7 @@ class OrbbecCamera(SdkCamera):
         self._owned: list[tuple[str, int]] = []  # (the SDK's delete function, handle) of profiles and their lists
         self._ir_frame = sdk.FRAME_IR
         self._held = False  # a playback paused between opening and the first wait
+        self._serial = ""  # the serial of the camera opened (request.serial, or the first one found)
 
     # ------------------------------------------------------------------------------------------- opening
     def _open(self) -> None:
@@ -94,9 +95,11 @@ class OrbbecCamera(SdkCamera):
                        for i in range(s.call("ob_device_list_get_count", devices))]
             if not serials:
                 raise DriverError("no Orbbec camera is attached (`tofd devices` lists the cameras tofd sees)")
-            if request.serial and request.serial not in serials:
-                raise DriverError(f"no Orbbec camera with serial {request.serial}; attached: {', '.join(serials)}")
-            return int(s.call("ob_device_list_get_device", devices, serials.index(request.serial or serials[0])))
+            wanted = request.serial or self._serial  # a reconnect reopens the camera it had
+            if wanted and wanted not in serials:
+                raise DriverError(f"no Orbbec camera with serial {wanted}; attached: {', '.join(serials)}")
+            self._serial = wanted or serials[0]
+            return int(s.call("ob_device_list_get_device", devices, serials.index(self._serial)))
         finally:
             s.call("ob_delete_device_list", devices)
 
