@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 from bag_scenes import K4A_LIKE, Scene, depth_units, render, sphere_errors
 from orbbec_bag_helpers import T0_US, write_orbbec_bag
-from test_cli import HANG_GUARD_S
+from test_cli import HANG_GUARD_S, tofd
 from vendor_bag_helpers import assert_on_sphere, logged_foreground, pinhole_errors
 
 from tofd.drivers.cameras import CameraRequest, SdkMissing, StreamMode, backend
 from tofd.drivers.orbbec import sdk
 from tofd.drivers.orbbec.camera import BACKEND
+from tofd.drivers.recording.replay import iter_frames
 from tofd.drivers.source import DriverError
 
 K = (K4A_LIKE.fx, K4A_LIKE.fy, K4A_LIKE.cx, K4A_LIKE.cy)
@@ -145,3 +146,18 @@ def test_tofd_run_on_an_sdk_recording_puts_the_foreground_on_the_sphere(femto_ba
     assert 1 <= len(foreground) == report["viewer"]["frames"]  # live: a busy machine's viewer drops frames
     for points in foreground:
         assert_on_sphere(points, Scene(), int(sphere.sum()))
+
+
+def test_tofd_record_keeps_the_orbbec_lens_and_numbers(femto_bag, tmp_path):
+    out = tmp_path / "femto.mcap"
+    proc = tofd("record", "--camera", "orbbec", "--playback", str(femto_bag), str(out))
+    assert proc.returncode == 0, proc.stderr
+    frames = list(iter_frames(out))
+    numbers = [f.frame_counter for f in frames]
+    assert numbers == sorted(set(numbers)) and numbers[-1] == 6 + N_FRAMES and len(numbers) >= N_FRAMES - 2
+    lens = frames[-1].intrinsics
+    assert lens.distortion_model == "rational_polynomial"
+    np.testing.assert_allclose(lens.distortion, K4A_LIKE.distortion, rtol=1e-6, atol=1e-9)
+    _, _, sphere = render(K4A_LIKE, Scene())
+    errors = sphere_errors(lens.backproject(frames[-1].range_m)[sphere], Scene())
+    assert np.median(errors) <= 1e-3 and np.percentile(errors, 90) <= 2e-3

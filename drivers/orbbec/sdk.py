@@ -28,8 +28,8 @@ SENSOR_IR, SENSOR_DEPTH, SENSOR_IR_LEFT = 1, 3, 6  # OBSensorType
 FRAME_IR, FRAME_DEPTH, FRAME_IR_LEFT = 1, 3, 6  # OBFrameType
 PERMISSION_READ = 1  # OB_PERMISSION_READ
 PLAYBACK_STATUS = {0: "unknown", 1: "playing", 2: "paused", 3: "stopped"}  # OBPlaybackStatus
-FORMAT_NAMES = {8: "Y16", 28: "Z16", 1: "Y8", 2: "I420", 27: "Y12", 26: "Y10", 30: "RVL"}  # OBFormat (those tofd
-# meets on depth and IR streams)
+FORMAT_NAMES = {8: "Y16", 28: "Z16", 1: "Y8", 2: "I420", 27: "Y12", 26: "Y10", 30: "RVL"}
+"""OBFormat -> name, for the formats of depth and IR streams."""
 
 
 class OrbbecError(DriverError):
@@ -126,7 +126,7 @@ def library_path() -> Path:
         files = importlib.metadata.distribution(DISTRIBUTION).files or []
     except importlib.metadata.PackageNotFoundError:
         raise OrbbecError(f"{DISTRIBUTION} is not installed") from None
-    found = {Path(f.name if hasattr(f, "name") else str(f)).name: f for f in files}
+    found = {f.name: f for f in files}
     for name in LIBRARY_NAMES:
         if name in found:
             return Path(str(found[name].locate()))
