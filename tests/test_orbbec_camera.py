@@ -161,3 +161,19 @@ def test_tofd_record_keeps_the_orbbec_lens_and_numbers(femto_bag, tmp_path):
     _, _, sphere = render(K4A_LIKE, Scene())
     errors = sphere_errors(lens.backproject(frames[-1].range_m)[sphere], Scene())
     assert np.median(errors) <= 1e-3 and np.percentile(errors, 90) <= 2e-3
+
+
+@pytest.mark.device
+def test_an_attached_orbbec_camera_streams_with_its_own_lens():
+    """For people who own one (Femto Bolt / Mega, Gemini): `pytest -m device tests/test_orbbec_camera.py`."""
+    cameras = BACKEND.list_cameras()
+    if not cameras:
+        pytest.skip("no Orbbec camera attached")
+    camera = BACKEND.open(CameraRequest(kind="orbbec", serial=cameras[0].serial))
+    with camera:
+        frames = [frame for frame, _ in zip(camera, range(30), strict=False)]
+    assert frames[0].device.serial == cameras[0].serial and frames[0].intrinsics is not None
+    numbers, stamps = [f.frame_counter for f in frames], [f.timestamp_us for f in frames]
+    assert numbers == sorted(set(numbers)) and stamps == sorted(set(stamps))
+    assert frames[-1].sensor.depth_unit_m > 0 and "stream" in frames[-1].sensor.settings
+    assert np.isfinite(frames[-1].range_m).mean() > 0.1  # a camera looking at anything returns depth somewhere
