@@ -23,6 +23,9 @@ _EXPORTS = {
     "FeatureConfig": "tofd.algorithm.params",
     "Eccentricities": "tofd.algorithm.features",
     "SamplingError": "tofd.algorithm.features",
+    "PatchWarning": "tofd.algorithm.features",
+    "BandWarning": "tofd.algorithm.features",
+    "FeaturePlan": "tofd.plan",
     "eccentricities": "tofd.api",
     "surface_filter": "tofd.api",
     "eccentricity_transfer": "tofd.api",
@@ -60,7 +63,9 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/test_api.py checks 
     from tofd.algorithm.detector import NoseModel as NoseModel
     from tofd.algorithm.detector import load_model as load_model
     from tofd.algorithm.detector import save_model as save_model
+    from tofd.algorithm.features import BandWarning as BandWarning
     from tofd.algorithm.features import Eccentricities as Eccentricities
+    from tofd.algorithm.features import PatchWarning as PatchWarning
     from tofd.algorithm.features import SamplingError as SamplingError
     from tofd.algorithm.params import FeatureConfig as FeatureConfig
     from tofd.api import eccentricities as eccentricities
@@ -73,3 +78,4 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/test_api.py checks 
     from tofd.api_detect import render_dataset as render_dataset
     from tofd.api_detect import train_model as train_model
     from tofd.drivers.intrinsics import Intrinsics as Intrinsics
+    from tofd.plan import FeaturePlan as FeaturePlan

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tofd.algorithm.detector import Candidates, Detection, Margin, NoseDetector, NoseModel, load_model
-from tofd.api import checked_image, checked_range
+from tofd.api_inputs import checked_image, checked_range
 from tofd.config import Config, default_file, load_config
 from tofd.drivers.intrinsics import Intrinsics
 
@@ -32,7 +32,7 @@ def detect_nose(range_m: np.ndarray, amplitude: np.ndarray, intrinsics: Intrinsi
     amplitude : (H, W) float or integer ndarray
         The camera's amplitude (infrared intensity) image, any gain; the segmentation thresholds it.
     intrinsics : Intrinsics
-        The camera's pinhole intrinsics in pixels.
+        The camera's intrinsics in pixels, lens model included.
     model : NoseModel or path, optional
         A model from `train_model` or `load_model`, or a model file; default the shipped model.
     config : tofd.config.Config, optional
