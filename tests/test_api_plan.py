@@ -42,14 +42,14 @@ def test_frame_after_frame_one_plan_is_made_and_gives_the_engines_numbers(method
         assert result.iterations == reference.iterations
 
 
-def test_the_cache_is_bounded_and_keyed_by_camera_config_method_and_input():
+def test_the_cache_is_bounded_and_keyed_by_camera_config_and_method():
     cached_plan.cache_clear()
     r = sphere()
     for i in range(PLANS_KEPT + 2):
         tofd.eccentricities(r, CAMERA, method="fft", config=tofd.FeatureConfig(tuning_frequency_per_m=20.0 + i))
     assert cached_plan.cache_info().currsize == PLANS_KEPT
-    tofd.eccentricities(r, CAMERA, method="fft", fft_input="range")
-    tofd.eccentricities(r, CAMERA, method="fft", fft_input="range")
+    tofd.eccentricities(r, CAMERA, method="fft", config=tofd.FeatureConfig(fft_input="range"))
+    tofd.eccentricities(r, CAMERA, method="fft", config=tofd.FeatureConfig(fft_input="range"))
     assert cached_plan.cache_info().hits == 1
 
 
@@ -88,7 +88,7 @@ def test_fft_input_range_filters_the_range_map_as_the_paper_and_z_the_depth():
     r = sphere()
     mask = np.isfinite(r)
     c0, c2, s2 = reference_range_fields(r, mask, cfg)
-    paper = tofd.eccentricities(r, CAMERA, method="fft", fft_input="range")
+    paper = tofd.eccentricities(r, CAMERA, method="fft", config=tofd.FeatureConfig(fft_input="range"))
     scale = np.max(c0[mask] ** 2)
     np.testing.assert_allclose(paper.eps0[mask], c0[mask] ** 2, rtol=1e-6, atol=1e-7 * scale)
     np.testing.assert_allclose(paper.eps2[mask], (c2**2 + s2**2)[mask], rtol=1e-6, atol=1e-7 * scale)
@@ -97,7 +97,7 @@ def test_fft_input_range_filters_the_range_map_as_the_paper_and_z_the_depth():
     assert abs(depth.eps0[APEX] / nfft.eps0[APEX] - 1) < 0.1
     assert paper.eps0[APEX] > 1.2 * depth.eps0[APEX]  # range adds the curvature of the rays' fan
     with pytest.raises(ValueError, match="fft_input"):
-        tofd.eccentricities(r, CAMERA, method="fft", fft_input="depth")
+        tofd.FeatureConfig(fft_input="depth")
 
 
 def test_points_outside_the_nfft_patch_warn_with_their_share():

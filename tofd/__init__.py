@@ -26,6 +26,9 @@ _EXPORTS = {
     "PatchWarning": "tofd.algorithm.features",
     "BandWarning": "tofd.algorithm.features",
     "FeaturePlan": "tofd.plan",
+    "radial_tuning": "tofd.algorithm.band",
+    "band_edge_per_m": "tofd.algorithm.band",
+    "BAND_FLOOR": "tofd.algorithm.band",
     "eccentricities": "tofd.api",
     "surface_filter": "tofd.api",
     "eccentricity_transfer": "tofd.api",
@@ -59,6 +62,9 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # the same names for type checkers (tests/test_api.py checks both lists agree)
+    from tofd.algorithm.band import BAND_FLOOR as BAND_FLOOR
+    from tofd.algorithm.band import band_edge_per_m as band_edge_per_m
+    from tofd.algorithm.band import radial_tuning as radial_tuning
     from tofd.algorithm.detector import Detection as Detection
     from tofd.algorithm.detector import NoseModel as NoseModel
     from tofd.algorithm.detector import load_model as load_model

@@ -16,12 +16,11 @@ from tofd.algorithm.features.transfer import eccentricity_filters
 from tofd.algorithm.params import FeatureConfig
 from tofd.api_inputs import check_config, check_intrinsics, checked_image
 from tofd.drivers.intrinsics import Intrinsics
-from tofd.plan import FeaturePlan, FFTInput, Method, cached_plan, check_choices
+from tofd.plan import FeaturePlan, Method, cached_plan, check_method
 
 
 def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndarray | None = None,
-                   method: Method = "nfft", config: FeatureConfig | None = None,
-                   fft_input: FFTInput = "z") -> Eccentricities:
+                   method: Method = "nfft", config: FeatureConfig | None = None) -> Eccentricities:
     """Generalized eccentricities eps0 and eps2 of a range image (Haker et al. 2008).
 
     eps0 responds to the surface's curvature (at the apex of a sphere of radius R it is about
@@ -46,9 +45,6 @@ def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndar
         the pixel grid read at the equivalence range.
     config : FeatureConfig, optional
         The band, grid and solver settings; default ``FeatureConfig()``.
-    fft_input : {"z", "range"}
-        ``method="fft"`` only: filter the z-depth (range times the ray's z component: the surface the NFFT path
-        fits, and what the pipeline and its shipped model use) or the radial range itself (the paper's baseline).
 
     Returns
     -------
@@ -64,8 +60,8 @@ def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndar
 
     Notes
     -----
-    The set-up (FFT plans and filters, NUFFT plans, CG buffers) is made once per camera, config, method and
-    `fft_input` and kept (`tofd.plan.PLANS_KEPT` of them), so calling this frame after frame costs about what the
+    The set-up (FFT plans and filters, NUFFT plans, CG buffers) is made once per camera, config and method and
+    kept (`tofd.plan.PLANS_KEPT` of them), so calling this frame after frame costs about what the
     pipeline pays per frame; `tofd.FeaturePlan` holds one explicitly.
 
     Raises
@@ -74,12 +70,12 @@ def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndar
         Naming the argument: wrong type, dtype or shape, a range that looks like millimetres, an unknown method, or
         (NFFT) pixels too coarse at the object's range for the band (tofd.algorithm.features.SamplingError).
     """
-    return _plan(intrinsics, config, method, fft_input).eccentricities(range_m, mask=mask)
+    return _plan(intrinsics, config, method).eccentricities(range_m, mask=mask)
 
 
 def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transfer, *,
                    mask: np.ndarray | None = None, method: Method = "nfft",
-                   config: FeatureConfig | None = None, fft_input: FFTInput = "z") -> np.ndarray:
+                   config: FeatureConfig | None = None) -> np.ndarray:
     """Apply a linear operator, given by its transfer function, to the surface seen in a range image.
 
     The surface is the depth z(x, y) of the back-projected points (NFFT: x, y in metres on the surface; FFT: the
@@ -104,8 +100,6 @@ def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transf
         As in `eccentricities`.
     config : FeatureConfig, optional
         Grid, patch and solver settings; default ``FeatureConfig()``.
-    fft_input : {"z", "range"}
-        As in `eccentricities`.
 
     Returns
     -------
@@ -134,7 +128,7 @@ def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transf
         The NFFT path's sampling check uses the config's band (``tuning_frequency_per_m``, ``lowpass_sigma_per_m``)
         and grid: set them to the band your operator needs.
     """
-    return _plan(intrinsics, config, method, fft_input).surface_filter(range_m, transfer, mask=mask)
+    return _plan(intrinsics, config, method).surface_filter(range_m, transfer, mask=mask)
 
 
 def eccentricity_transfer(n: int, config: FeatureConfig | None = None) -> Transfer:
@@ -203,9 +197,9 @@ def range_from_depth(depth: np.ndarray, intrinsics: Intrinsics, *, scale: float)
     return z / intrinsics.unit_rays()[..., 2]
 
 
-def _plan(intrinsics: Intrinsics, config: FeatureConfig | None, method: Method, fft_input: FFTInput) -> FeaturePlan:
+def _plan(intrinsics: Intrinsics, config: FeatureConfig | None, method: Method) -> FeaturePlan:
     """The cached plan for these arguments (checked first, so a bad one is named rather than cached)."""
     check_intrinsics(intrinsics)
     cfg = check_config(config)
-    check_choices(method, fft_input)
-    return cached_plan(intrinsics, cfg, method, fft_input)
+    check_method(method)
+    return cached_plan(intrinsics, cfg, method)

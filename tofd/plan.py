@@ -12,7 +12,7 @@ import functools
 import threading
 import warnings
 from collections import OrderedDict
-from typing import Literal, get_args
+from typing import get_args
 
 import numpy as np
 
@@ -24,10 +24,8 @@ from tofd.api_inputs import check_config, check_intrinsics, checked_range
 from tofd.drivers.intrinsics import Intrinsics
 
 METHODS: tuple[str, ...] = get_args(Method)
-FFTInput = Literal["z", "range"]
-FFT_INPUTS: tuple[str, ...] = get_args(FFTInput)
 PLANS_KEPT = 8
-"""Plans `cached_plan` keeps (the most recently used): one per camera, config, method and FFT input."""
+"""Plans `cached_plan` keeps (the most recently used): one per camera, config and method."""
 TRANSFERS_KEPT = 4
 """User operators a plan keeps the set-up of (the most recently used), besides the eccentricity filters."""
 BAND_WARNING_FRACTION = 0.1
@@ -47,31 +45,28 @@ class FeaturePlan:
         Band, grid and solver settings; default ``FeatureConfig()``.
     method : {"nfft", "fft"}
         As in `tofd.eccentricities`.
-    fft_input : {"z", "range"}
-        FFT path only: the image it filters, z-depth (the pipeline's, the default) or radial range (the paper's).
 
     Constructing it builds the plans for the eccentricity filters (and, for NFFT, loads the compiled loops);
     user operators get theirs on their first `surface_filter` call. One frame at a time: calls from several
     threads on one plan wait for each other.
     """
 
-    def __init__(self, intrinsics: Intrinsics, config: FeatureConfig | None = None, *, method: Method = "nfft",
-                 fft_input: FFTInput = "z") -> None:
+    def __init__(self, intrinsics: Intrinsics, config: FeatureConfig | None = None, *, method: Method = "nfft"
+                 ) -> None:
         check_intrinsics(intrinsics)
         config = check_config(config)
-        check_choices(method, fft_input)
-        self.intrinsics, self.config, self.method, self.fft_input = intrinsics, config, method, fft_input
+        check_method(method)
+        self.intrinsics, self.config, self.method = intrinsics, config, method
         self._lock = threading.Lock()
         self._eccentricity = self._engine(None)
         self._operators: OrderedDict[object, FFTFeatures | NFFTFeatures] = OrderedDict()
 
     def __repr__(self) -> str:
-        return (f"FeaturePlan({self.intrinsics.width}x{self.intrinsics.height}, method={self.method!r}, "
-                f"fft_input={self.fft_input!r})")
+        return f"FeaturePlan({self.intrinsics.width}x{self.intrinsics.height}, method={self.method!r})"
 
     def _engine(self, transfer: Transfer | None) -> FFTFeatures | NFFTFeatures:
         if self.method == "fft":
-            return FFTFeatures(self.intrinsics, self.config, transfer, input_kind=self.fft_input)
+            return FFTFeatures(self.intrinsics, self.config, transfer)
         engine = NFFTFeatures(self.intrinsics, self.config, transfer)
         if transfer is not None and engine.beyond_band > BAND_WARNING_FRACTION:
             warnings.warn(f"transfer: {engine.beyond_band:.0%} of its peak magnitude lies beyond the band edge "
@@ -120,12 +115,10 @@ class FeaturePlan:
         return fields if engine.stacked else fields[0]
 
 
-def check_choices(method: object, fft_input: object) -> None:
-    """ValueError naming `method` or `fft_input` unless it is one of METHODS, FFT_INPUTS."""
+def check_method(method: object) -> None:
+    """ValueError naming `method` unless it is one of METHODS."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, got {method!r}")
-    if fft_input not in FFT_INPUTS:
-        raise ValueError(f"fft_input must be one of {', '.join(map(repr, FFT_INPUTS))}, got {fft_input!r}")
 
 
 def _warn_outside_patch(engine: FFTFeatures | NFFTFeatures) -> None:
@@ -142,6 +135,6 @@ def _warn_outside_patch(engine: FFTFeatures | NFFTFeatures) -> None:
 
 
 @functools.lru_cache(maxsize=PLANS_KEPT)
-def cached_plan(intrinsics: Intrinsics, config: FeatureConfig, method: Method, fft_input: FFTInput) -> FeaturePlan:
+def cached_plan(intrinsics: Intrinsics, config: FeatureConfig, method: Method) -> FeaturePlan:
     """The FeaturePlan for these arguments, made on first use; the PLANS_KEPT most recently used are kept."""
-    return FeaturePlan(intrinsics, config, method=method, fft_input=fft_input)
+    return FeaturePlan(intrinsics, config, method=method)

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, get_args
 
 from tofd.algorithm.band import band_edge_per_m
 from tofd.algorithm.names import VARIANTS
 from tofd.drivers.intrinsics import Intrinsics
+
+FFTInput = Literal["z", "range"]
+FFT_INPUTS: tuple[str, ...] = get_args(FFTInput)
+"""What the FFT path filters: z-depth (range times each ray's z component) or the radial range."""
 
 _SR3000 = Intrinsics()
 SR3000_PATCH_M = (_SR3000.width / _SR3000.fx * 0.5, _SR3000.height / _SR3000.fy * 0.5)
@@ -73,6 +77,8 @@ class FeatureConfig:
     cg_max_iterations: int = 100  # NFFT path: CG iteration cap
     nufft_eps: float = 1e-4  # NFFT path: finufft requested relative precision
     cg_precision: Literal["single", "double"] = "single"  # NFFT path: float width of NUFFTs and CG
+    fft_input: FFTInput = "z"  # FFT path: filter the z-depth (range times the ray's z, the NFFT path's surface) or
+    # the radial "range" itself (the paper's baseline)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -106,6 +112,8 @@ class FeatureConfig:
             raise ValueError(f"cg_max_iterations: {self.cg_max_iterations} must be >= 1")
         if not 1e-14 <= self.nufft_eps < 1e-1:
             raise ValueError(f"nufft_eps: {self.nufft_eps} is not in [1e-14, 0.1)")
+        if self.fft_input not in FFT_INPUTS:
+            raise ValueError(f"fft_input: {self.fft_input!r} is not one of {', '.join(map(repr, FFT_INPUTS))}")
         if self.cg_precision not in ("single", "double"):
             raise ValueError(f"cg_precision: {self.cg_precision!r} is not one of 'single', 'double'")
         edge, reach = self.band_edge_per_m, min(self.grid_nyquist_per_m)
@@ -120,8 +128,10 @@ def recorded_feature_settings(recorded: dict) -> dict:
     """Feature settings recorded with a model (dataclasses.asdict(FeatureConfig) at training time) in today's keys.
 
     Settings without the patch keys (model files written before they existed) used the camera's field of view at the
-    equivalence range as the NFFT patch; those models were trained on the SR3000, so it is the SR3000's.
+    equivalence range as the NFFT patch; those models were trained on the SR3000, so it is the SR3000's. Settings
+    without fft_input filtered z-depth.
     """
+    recorded = {"fft_input": "z", **recorded}
     if "patch_width_m" in recorded or "patch_height_m" in recorded:
         return dict(recorded)
     e = recorded.get("equivalence_range_m", FeatureConfig().equivalence_range_m)

@@ -31,7 +31,6 @@ from tofd.drivers.intrinsics import Intrinsics
 KERNEL_TAIL = 1e-9  # fraction of each operator's impulse-response L1 mass allowed beyond the padding
 SIZE_STEP = 8  # box FFT lengths are fast lengths that are multiples of this (or the whole frame's)
 GRIDS_KEPT = 16  # transfer grids (with their buffers) kept per instance, most recently used
-INPUT_KINDS = ("z", "range")  # what range_features filters: z-depth (range times the ray's z) or the radial range
 
 
 def check_frame(image: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics, name: str) -> None:
@@ -98,11 +97,8 @@ class FFTFeatures:
     [C0, C2, S2], which range_features and amplitude_features need), read at the equivalence range.
     """
 
-    def __init__(self, intrinsics: Intrinsics, cfg: FeatureConfig, transfer: Transfer | None = None,
-                 input_kind: str = "z"):
-        if input_kind not in INPUT_KINDS:
-            raise ValueError(f"input_kind must be one of {', '.join(map(repr, INPUT_KINDS))}, got {input_kind!r}")
-        self.intrinsics, self._cfg, self.input_kind = intrinsics, cfg, input_kind
+    def __init__(self, intrinsics: Intrinsics, cfg: FeatureConfig, transfer: Transfer | None = None):
+        self.intrinsics, self._cfg = intrinsics, cfg
         h, w = intrinsics.shape
         edge = band_edge_per_m(cfg.tuning_frequency_per_m, cfg.lowpass_sigma_per_m)
         nyquist = min(intrinsics.fx, intrinsics.fy) / (2 * cfg.equivalence_range_m)
@@ -175,7 +171,7 @@ class FFTFeatures:
         if not valid.any():
             return None
         depth = fill_holes(range_box, valid, mask_box)
-        if self.input_kind == "z":
+        if self._cfg.fft_input == "z":
             rays = self._rays[box]
             depth = depth * (rays[..., 2] if rotation is None else rays @ rotation[2])
         return box, self._fields(depth, mask_box, valid, float(np.max(depth[valid])), 1.0)
@@ -187,12 +183,12 @@ class FFTFeatures:
         rotation: camera -> face frame (tofd.algorithm.segmentation.Foreground); depth is then measured along its row 2.
         out: two (H, W) float32 arrays the maps are written into (and returned as), e.g. a worker's shared memory.
 
-        The filtered image is, with input_kind "z", the depth z = range * (z component of the pixel's unit ray),
-        the quantity the NFFT path filters: radial range adds a spurious curvature 1/d (a fronto-parallel wall has
-        range d / cos(angle)), so filtering it would not agree with the NFFT path at e; with "range", the radial
-        range itself, as the paper's baseline (rotation is then not used). Pixels of the mask
-        whose range is NaN, inf or <= 0 are holes: filled from their nearest valid neighbour for the transform,
-        NaN in the result.
+        The filtered image is, with FeatureConfig.fft_input "z", the depth z = range * (z component of the
+        pixel's unit ray), the quantity the NFFT path filters: radial range adds a spurious curvature 1/d (a
+        fronto-parallel wall has range d / cos(angle)), so filtering it would not agree with the NFFT path at e;
+        with "range", the radial range itself, as the paper's baseline (rotation is then not used). Pixels of the
+        mask whose range is NaN, inf or <= 0 are holes: filled from their nearest valid neighbour for the
+        transform, NaN in the result.
         """
         return self._eccentricities(self._range_fields(range_m, mask, rotation), out)
 
