@@ -34,6 +34,8 @@ _EXPORTS = {
     "eccentricity_transfer": "tofd.api",
     "range_from_depth": "tofd.api",
     "Detection": "tofd.algorithm.detector",
+    "NOSE_RADIUS_M": "tofd.algorithm.detector",
+    "ModelMismatch": "tofd.algorithm.detector",
     "NoseModel": "tofd.algorithm.detector",
     "load_model": "tofd.algorithm.detector",
     "save_model": "tofd.algorithm.detector",
@@ -65,7 +67,9 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/test_api.py checks 
     from tofd.algorithm.band import BAND_FLOOR as BAND_FLOOR
     from tofd.algorithm.band import band_edge_per_m as band_edge_per_m
     from tofd.algorithm.band import radial_tuning as radial_tuning
+    from tofd.algorithm.detector import NOSE_RADIUS_M as NOSE_RADIUS_M
     from tofd.algorithm.detector import Detection as Detection
+    from tofd.algorithm.detector import ModelMismatch as ModelMismatch
     from tofd.algorithm.detector import NoseModel as NoseModel
     from tofd.algorithm.detector import load_model as load_model
     from tofd.algorithm.detector import save_model as save_model

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Literal, get_args
 
@@ -55,13 +56,19 @@ class SegmentationConfig:
             raise ValueError(f"plane_max_tilt_deg: {self.plane_max_tilt_deg} is not in [0, 90)")
 
 
+_FLOAT_FIELDS = ("equivalence_range_m", "tuning_frequency_per_m", "lowpass_sigma_per_m", "damping", "cg_tolerance",
+                 "nufft_eps", "patch_width_m", "patch_height_m")  # FeatureConfig's numbers > 0
+_INT_FIELDS = ("grid_size", "fft_padding_px", "cg_max_iterations")  # FeatureConfig's integers
+
+
 @dataclass(frozen=True, slots=True)
 class FeatureConfig:
     """Generalized-eccentricity features (FFT and NFFT paths, tofd.algorithm.features); frequencies in cycles/metre.
 
     The NFFT path is set in metres only: a patch_width_m x patch_height_m patch centred on the foreground carries a
     grid_size x grid_size grid of modes k / patch (cycles per metre), so its features do not depend on the camera.
-    Validated when constructed (ValueError naming the field).
+    Validated when constructed (ValueError naming the field); numpy scalars are taken as the Python numbers they equal
+    (an integer field refuses a float such as 64.0).
     """
 
     equivalence_range_m: float = 0.5  # e: FFT path: the pixel grid is read at this range (cycles/pixel * f / e)
@@ -81,6 +88,14 @@ class FeatureConfig:
     # the radial "range" itself (the paper's baseline)
 
     def __post_init__(self) -> None:
+        for key in _FLOAT_FIELDS + _INT_FIELDS:  # numpy scalars as Python numbers: equal configs hash alike
+            value = getattr(self, key)
+            if isinstance(value, bool):
+                continue
+            if key in _INT_FIELDS and isinstance(value, numbers.Integral):
+                object.__setattr__(self, key, int(value))
+            elif key in _FLOAT_FIELDS and isinstance(value, numbers.Real):
+                object.__setattr__(self, key, float(value))
         self.validate()
 
     @property
@@ -95,13 +110,11 @@ class FeatureConfig:
         return self.grid_size / 2 / self.patch_width_m, self.grid_size / 2 / self.patch_height_m
 
     def validate(self) -> None:
-        positive = ("equivalence_range_m", "tuning_frequency_per_m", "lowpass_sigma_per_m", "damping",
-                    "cg_tolerance", "nufft_eps", "patch_width_m", "patch_height_m")
-        for key in positive:
+        for key in _FLOAT_FIELDS:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or value == math.inf:
                 raise ValueError(f"{key}: {value!r} must be a finite number > 0")
-        for key in ("grid_size", "fft_padding_px", "cg_max_iterations"):
+        for key in _INT_FIELDS:
             if isinstance(getattr(self, key), bool) or not isinstance(getattr(self, key), int):
                 raise ValueError(f"{key}: {getattr(self, key)!r} must be an integer")
         if self.grid_size < 8 or self.grid_size % 2:
