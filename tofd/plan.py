@@ -24,7 +24,7 @@ from tofd.api_inputs import check_config, check_intrinsics, checked_range
 from tofd.drivers.intrinsics import Intrinsics
 
 METHODS: tuple[str, ...] = get_args(Method)
-PLANS_KEPT = 8
+PLANS_KEPT = 4
 """Plans `cached_plan` keeps (the most recently used): one per camera, config and method."""
 TRANSFERS_KEPT = 4
 """User operators a plan keeps the set-up of (the most recently used), besides the eccentricity filters."""
@@ -72,7 +72,7 @@ class FeaturePlan:
             warnings.warn(f"transfer: {engine.beyond_band:.0%} of its peak magnitude lies beyond the band edge "
                           f"{self.config.band_edge_per_m:.1f} cycles/m, where the NFFT fit is damped, not measured: "
                           "its fields there are biased (taper the operator, or widen the band: "
-                          "tuning_frequency_per_m, lowpass_sigma_per_m, grid_size)", BandWarning, stacklevel=4)
+                          "tuning_frequency_per_m, lowpass_sigma_per_m, grid_size)", BandWarning, stacklevel=5)
         return engine
 
     def _operator_engine(self, transfer: Transfer) -> FFTFeatures | NFFTFeatures:

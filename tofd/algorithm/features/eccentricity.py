@@ -36,8 +36,9 @@ class Eccentricities:
         if out is None:
             return cls(np.full(shape, np.nan, np.float32), np.full(shape, np.nan, np.float32), iterations, residual)
         for a in out:
-            if a.shape != shape or a.dtype not in (np.float32, np.float64) or not a.flags.c_contiguous:
-                raise ValueError(f"out: maps must be C-contiguous float32 or float64 arrays of shape {shape}, got "
-                                 f"{a.dtype} {a.shape}")
+            if a.shape != shape or a.dtype not in (np.float32, np.float64) or a.dtype != out[0].dtype \
+                    or not a.flags.c_contiguous:
+                raise ValueError(f"out: maps must be C-contiguous float32 or float64 arrays of one dtype and shape "
+                                 f"{shape}, got {a.dtype} {a.shape}")
             a.fill(np.nan)
         return cls(out[0], out[1], iterations, residual)
