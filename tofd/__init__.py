@@ -6,6 +6,7 @@ The public API works on your own arrays (docs/API.md)::
     camera = tofd.Intrinsics(width=320, height=240, fx=228.5, fy=228.5, cx=159.5, cy=119.5)
     features = tofd.eccentricities(range_m, camera)          # .eps0, .eps2: (H, W), NaN outside the surface
     fields = tofd.surface_filter(range_m, camera, transfer)  # any operator given by its transfer(kx, ky)
+    plan = tofd.FeaturePlan(camera)                          # the set-up kept, for a stream of frames
 
 Names load on first use, so ``import tofd`` stays light (the daemon, viewer, USB and recordings load only when
 their commands run).
