@@ -1,12 +1,14 @@
 """The Orbbec backend through the real Orbbec SDK (its C library from the pyorbbecsdk2 wheel), no camera needed: a
 bag the SDK's RecordDevice wrote, played by the SDK's PlaybackDevice in real time as the device, through the same
 code a live camera runs: the lens from the device's profile with its distortion, the sphere within millimetres,
-the device's frame numbers and timestamps, a paused playback as a stalled camera, clear errors."""
+the device's frame numbers and timestamps, its exposure, gain and laser power, a paused playback as a stalled
+camera, clear errors."""
 
 from __future__ import annotations
 
 import json
 import os
+import struct
 import subprocess
 import sys
 import threading
@@ -20,7 +22,13 @@ from vendor_bag_helpers import assert_on_sphere, logged_foreground, pinhole_erro
 
 from tofd.drivers.cameras import CameraRequest, SdkMissing, StreamMode, backend
 from tofd.drivers.orbbec import sdk
-from tofd.drivers.orbbec.camera import BACKEND
+from tofd.drivers.orbbec.camera import (
+    BACKEND,
+    PROPERTY_DEPTH_AUTO_EXPOSURE,
+    PROPERTY_DEPTH_EXPOSURE,
+    PROPERTY_DEPTH_GAIN,
+    PROPERTY_LASER_POWER_LEVEL,
+)
 from tofd.drivers.recording.replay import iter_frames
 from tofd.drivers.source import DriverError
 
@@ -28,6 +36,9 @@ K = (K4A_LIKE.fx, K4A_LIKE.fy, K4A_LIKE.cx, K4A_LIKE.cy)
 k1, k2, p1, p2, k3, k4, k5, k6 = K4A_LIKE.distortion
 SDK_ORDER = (k1, k2, k3, k4, k5, k6, p1, p2)
 N_FRAMES = 40
+SETTINGS = {PROPERTY_DEPTH_AUTO_EXPOSURE: struct.pack("<i", 0), PROPERTY_DEPTH_EXPOSURE: struct.pack("<i", 1700),
+            PROPERTY_DEPTH_GAIN: struct.pack("<i", 16), PROPERTY_LASER_POWER_LEVEL: struct.pack("<i", 3)}
+"""The device's exposure, gain and laser power as the recording states them (OBPropertyID -> value bytes)."""
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +48,7 @@ def femto_bag(tmp_path_factory):
     depth = depth_units(z, 1e-3)
     ir = np.clip(infrared * 60000, 0, 65535).astype(np.uint16)
     path = tmp_path_factory.mktemp("orbbec") / "femto.bag"
-    return write_orbbec_bag(path, [depth] * N_FRAMES, [ir] * N_FRAMES, K, SDK_ORDER)
+    return write_orbbec_bag(path, [depth] * N_FRAMES, [ir] * N_FRAMES, K, SDK_ORDER, properties=SETTINGS)
 
 
 def playback(bag, **kwargs) -> CameraRequest:
@@ -67,6 +78,9 @@ def test_an_sdk_recording_played_by_the_sdk_comes_back_on_the_sphere(femto_bag):
     np.testing.assert_allclose(lens.distortion, K4A_LIKE.distortion, rtol=1e-6, atol=1e-9)  # float32 in the file
     assert first.sensor.depth_unit_m == 1e-3 and first.sensor.amplitude == "ir"
     assert first.sensor.settings["stream"] == "320x288 @ 30 fps Y16"
+    assert {k: first.sensor.settings[k] for k in ("depth_auto_exposure", "depth_exposure_us", "depth_gain",
+                                                  "laser_power_level")} == {
+        "depth_auto_exposure": "False", "depth_exposure_us": "1700", "depth_gain": "16", "laser_power_level": "3"}
     z, infrared, sphere = render(K4A_LIKE, Scene())
     np.testing.assert_array_equal(first.amplitude, np.clip(infrared * 60000, 0, 65535).astype(np.uint16))
     errors = sphere_errors(lens.backproject(first.range_m)[sphere], Scene())

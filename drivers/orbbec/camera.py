@@ -4,8 +4,9 @@ real time through the same code: depth with its IR image as amplitude, the lens 
 The stream mode asked for (width, height, fps) is matched against the depth profiles the device offers; the IR
 stream is taken in the same size and rate. Depth values are z-depth in the frame's value scale (millimetres per
 unit) and become radial range through the depth profile's lens (tofd.drivers.bags.camera_info maps the SDK's
-distortion models). Settings: exposure_us (the depth sensor's exposure, automatic exposure off) and laser_power
-(the laser's power level where the device has one, else laser on (> 0) or off (0)). The context's device-changed
+distortion models). Settings: exposure_us (the depth sensor's exposure property, written as it is: the SDK
+states no unit; automatic exposure off) and laser_power (the laser's power level where the device has one, else
+laser on (> 0) or off (0)), each checked against the device's range. The context's device-changed
 callback tells when the camera is unplugged; the shared loop (tofd.drivers.live) then reconnects. A recording is
 held paused from opening until the first frame is asked for, so it plays from its start.
 """
@@ -216,6 +217,11 @@ class OrbbecCamera(SdkCamera):
             if not self._supported(property_id, 2):  # OB_PERMISSION_WRITE
                 raise DriverError(f"orbbec camera {self._device_info().model}: cannot set property {property_id} "
                                   f"(for {', '.join(settings)}): the device does not offer it")
+            if kind == "int":
+                limits = self._sdk.call("ob_device_get_int_property_range", self._device, property_id)
+                if not limits.min <= value <= limits.max:
+                    raise DriverError(f"orbbec camera: {value:g} for property {property_id} (from "
+                                      f"{', '.join(settings)}) is outside the device's {limits.min}..{limits.max}")
             cast: Callable[[float], object] = bool if kind == "bool" else int
             self._sdk.call(f"ob_device_set_{kind}_property", self._device, property_id, cast(value))
 

@@ -41,6 +41,11 @@ class CameraIntrinsic(Structure):
                 ("height", c_int16)]
 
 
+class IntRange(Structure):
+    _fields_ = [("cur", ctypes.c_int32), ("max", ctypes.c_int32), ("min", ctypes.c_int32), ("step", ctypes.c_int32),
+                ("default", ctypes.c_int32)]
+
+
 class CameraDistortion(Structure):
     _fields_ = [("k1", c_float), ("k2", c_float), ("k3", c_float), ("k4", c_float), ("k5", c_float),
                 ("k6", c_float), ("p1", c_float), ("p2", c_float), ("model", c_int)]
@@ -72,6 +77,7 @@ PROTOTYPES: dict[str, tuple[Any, tuple[Any, ...]]] = {
     "ob_device_info_get_connection_type": (c_char_p, (_P,)),
     "ob_device_is_property_supported": (c_bool, (_P, c_int, c_int)),
     "ob_device_get_int_property": (ctypes.c_int32, (_P, c_int)),
+    "ob_device_get_int_property_range": (IntRange, (_P, c_int)),
     "ob_device_get_float_property": (c_float, (_P, c_int)),
     "ob_device_get_bool_property": (c_bool, (_P, c_int)),
     "ob_device_set_int_property": (None, (_P, c_int, ctypes.c_int32)),
