@@ -148,6 +148,62 @@ class Intrinsics:
         return d
 
     @classmethod
+    def from_opencv(cls, camera_matrix: object, dist_coeffs: object, width: int, height: int, *,
+                    fisheye: bool = False) -> Intrinsics:
+        """Intrinsics from an OpenCV calibration: the camera matrix K (3x3, no skew) and the distortion vector D as
+        cv2.calibrateCamera gives it, (k1, k2, p1, p2[, k3[, k4, k5, k6]]) (thin-prism and tilt terms must be 0),
+        or with ``fisheye=True`` cv2.fisheye's (k1, k2, k3, k4); the image size in pixels. D None or all zero: a
+        pinhole. ValueError names the argument that cannot be used."""
+        d = _coefficients(dist_coeffs, "dist_coeffs")
+        if fisheye:
+            model = "equidistant"
+        elif np.any(d[8:]):
+            raise ValueError(f"dist_coeffs: thin-prism and tilt terms (beyond k6) are not supported, got {d.tolist()}")
+        else:
+            model = "rational_polynomial" if np.any(d[5:8]) else "plumb_bob"
+        return cls._from_lens(width, height, _camera_matrix(camera_matrix, "camera_matrix"), model, d, "dist_coeffs")
+
+    @classmethod
+    def from_camera_info(cls, info: object) -> Intrinsics:
+        """Intrinsics from a ROS sensor_msgs/CameraInfo: a message (ROS 1 fields K, D; ROS 2 k, d) or a dict of its
+        fields (width, height, k, d, distortion_model), or a camera_info YAML loaded as a dict (image_width,
+        image_height, camera_matrix, distortion_model, distortion_coefficients). Distortion models: plumb_bob,
+        rational_polynomial, equidistant; all-zero D: a pinhole whatever the model. ValueError names the field."""
+        def field(*names: str) -> object:
+            for name in names:
+                value = info.get(name) if isinstance(info, dict) else getattr(info, name, None)
+                if value is not None:
+                    return value["data"] if isinstance(value, dict) and "data" in value else value
+            raise ValueError(f"camera info: no field {' or '.join(names)}")
+
+        try:
+            model = str(field("distortion_model")) or "none"
+        except ValueError:
+            model = "none"
+        d = _coefficients(field("d", "D", "distortion_coefficients"), "camera info D")
+        if np.any(d) and model not in COEFFICIENT_COUNTS:
+            raise ValueError(f"camera info: distortion_model {model!r} is not one of "
+                             f"{', '.join(m for m in COEFFICIENT_COUNTS if m != 'none')}")
+        return cls._from_lens(_integer(field("width", "image_width"), "camera info width"),
+                              _integer(field("height", "image_height"), "camera info height"),
+                              _camera_matrix(field("k", "K", "camera_matrix"), "camera info K"), model, d,
+                              "camera info D")
+
+    @classmethod
+    def _from_lens(cls, width: int, height: int, k: np.ndarray, model: str, d: np.ndarray, where: str) -> Intrinsics:
+        """The camera of matrix k (3x3) and lens `model` with coefficients d (zero: a pinhole; zeros past the model's
+        count dropped, anything else there refused naming `where`)."""
+        fx, fy, cx, cy = float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])
+        if not np.any(d):
+            return cls(width, height, fx, fy, cx, cy)
+        n = COEFFICIENT_COUNTS.get(model, 0)
+        if np.any(d[n:]):
+            raise ValueError(f"{where}: the {model} model takes {n} coefficients, got {d.tolist()}")
+        padded = np.zeros(n)
+        padded[: min(n, d.size)] = d[:n]
+        return cls(width, height, fx, fy, cx, cy, model, tuple(float(v) for v in padded))  # type: ignore[arg-type]
+
+    @classmethod
     def from_dict(cls, d: dict) -> Intrinsics:
         """The Intrinsics of a to_dict() dict (a dict without distortion keys is a pinhole)."""
         known = {"width", "height", "fx", "fy", "cx", "cy", "distortion_model", "distortion"}
@@ -158,6 +214,34 @@ class Intrinsics:
         if "distortion" in kwargs and not isinstance(kwargs["distortion"], str):
             kwargs["distortion"] = tuple(kwargs["distortion"])
         return cls(**kwargs)
+
+
+def _camera_matrix(value: object, name: str) -> np.ndarray:
+    """A 3x3 pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (3x3 or 9 numbers); ValueError naming `name`."""
+    try:
+        k = np.asarray(value, dtype=np.float64).reshape(3, 3)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a 3x3 camera matrix, got {value!r}") from None
+    if k[0, 1] != 0 or k[1, 0] != 0 or not np.array_equal(k[2], [0.0, 0.0, 1.0]):
+        raise ValueError(f"{name}: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew), got {k.tolist()}")
+    return k
+
+
+def _coefficients(value: object, name: str) -> np.ndarray:
+    """Distortion coefficients as a flat float64 array (None: none); ValueError naming `name`."""
+    try:
+        d = np.asarray(() if value is None else value, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a sequence of numbers, got {value!r}") from None
+    if not np.all(np.isfinite(d)):
+        raise ValueError(f"{name}: coefficients must be finite, got {d.tolist()}")
+    return d
+
+
+def _integer(value: object, name: str) -> int:
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool):
+        raise ValueError(f"{name}: expected an integer, got {value!r}")
+    return int(value)
 
 
 @functools.lru_cache(maxsize=8)

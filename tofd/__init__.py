@@ -6,6 +6,7 @@ The public API works on your own arrays (docs/API.md)::
     camera = tofd.Intrinsics(width=320, height=240, fx=228.5, fy=228.5, cx=159.5, cy=119.5)
     features = tofd.eccentricities(range_m, camera)          # .eps0, .eps2: (H, W), NaN outside the surface
     fields = tofd.surface_filter(range_m, camera, transfer)  # any operator given by its transfer(kx, ky)
+    plan = tofd.FeaturePlan(camera)                          # the set-up kept, for a stream of frames
 
 Names load on first use, so ``import tofd`` stays light (the daemon, viewer, USB and recordings load only when
 their commands run).
@@ -23,11 +24,19 @@ _EXPORTS = {
     "FeatureConfig": "tofd.algorithm.params",
     "Eccentricities": "tofd.algorithm.features",
     "SamplingError": "tofd.algorithm.features",
+    "PatchWarning": "tofd.algorithm.features",
+    "BandWarning": "tofd.algorithm.features",
+    "FeaturePlan": "tofd.plan",
+    "radial_tuning": "tofd.algorithm.band",
+    "band_edge_per_m": "tofd.algorithm.band",
+    "BAND_FLOOR": "tofd.algorithm.band",
     "eccentricities": "tofd.api",
     "surface_filter": "tofd.api",
     "eccentricity_transfer": "tofd.api",
     "range_from_depth": "tofd.api",
     "Detection": "tofd.algorithm.detector",
+    "NOSE_RADIUS_M": "tofd.algorithm.detector",
+    "ModelMismatch": "tofd.algorithm.detector",
     "NoseModel": "tofd.algorithm.detector",
     "load_model": "tofd.algorithm.detector",
     "save_model": "tofd.algorithm.detector",
@@ -56,11 +65,18 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # the same names for type checkers (tests/test_api.py checks both lists agree)
+    from tofd.algorithm.band import BAND_FLOOR as BAND_FLOOR
+    from tofd.algorithm.band import band_edge_per_m as band_edge_per_m
+    from tofd.algorithm.band import radial_tuning as radial_tuning
+    from tofd.algorithm.detector import NOSE_RADIUS_M as NOSE_RADIUS_M
     from tofd.algorithm.detector import Detection as Detection
+    from tofd.algorithm.detector import ModelMismatch as ModelMismatch
     from tofd.algorithm.detector import NoseModel as NoseModel
     from tofd.algorithm.detector import load_model as load_model
     from tofd.algorithm.detector import save_model as save_model
+    from tofd.algorithm.features import BandWarning as BandWarning
     from tofd.algorithm.features import Eccentricities as Eccentricities
+    from tofd.algorithm.features import PatchWarning as PatchWarning
     from tofd.algorithm.features import SamplingError as SamplingError
     from tofd.algorithm.params import FeatureConfig as FeatureConfig
     from tofd.api import eccentricities as eccentricities
@@ -73,3 +89,4 @@ if TYPE_CHECKING:  # the same names for type checkers (tests/test_api.py checks 
     from tofd.api_detect import render_dataset as render_dataset
     from tofd.api_detect import train_model as train_model
     from tofd.drivers.intrinsics import Intrinsics as Intrinsics
+    from tofd.plan import FeaturePlan as FeaturePlan

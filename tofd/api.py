@@ -7,19 +7,16 @@ cycles per metre for spatial frequencies, pixels for intrinsics.
 
 from __future__ import annotations
 
-from typing import Literal
+from dataclasses import dataclass
 
 import numpy as np
 
-from tofd.algorithm.features import Eccentricities, FFTFeatures, NFFTFeatures, Transfer
+from tofd.algorithm.features import Eccentricities, Transfer
 from tofd.algorithm.features.transfer import eccentricity_filters
 from tofd.algorithm.params import FeatureConfig
+from tofd.api_inputs import check_config, check_intrinsics, checked_image
 from tofd.drivers.intrinsics import Intrinsics
-
-Method = Literal["nfft", "fft"]
-METHODS: tuple[str, ...] = ("nfft", "fft")
-MAX_PLAUSIBLE_RANGE_M = 20.0
-"""A median range beyond this (metres) is taken for millimetres: time-of-flight cameras see a few metres."""
+from tofd.plan import FeaturePlan, Method, cached_plan, check_method
 
 
 def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndarray | None = None,
@@ -38,7 +35,7 @@ def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndar
         Radial range in metres along each pixel's ray (not z-depth: see `range_from_depth`). NaN, inf and values
         <= 0 are holes: left out, NaN in the result, the rest of the frame unaffected.
     intrinsics : Intrinsics
-        The camera's pinhole intrinsics in pixels; ``(intrinsics.height, intrinsics.width)`` must equal
+        The camera's intrinsics in pixels, lens model included; ``(intrinsics.height, intrinsics.width)`` must equal
         ``range_m.shape``.
     mask : (H, W) bool ndarray, optional
         The surface to filter (for example a segmented face). None: every pixel with a finite range > 0.
@@ -52,8 +49,20 @@ def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndar
     Returns
     -------
     Eccentricities
-        ``eps0``, ``eps2``: (H, W) float32 ndarrays in square metres, NaN outside the mask and at holes;
+        ``eps0``, ``eps2``: (H, W) float64 ndarrays in square metres, NaN outside the mask and at holes;
         ``iterations`` and ``residual``: the NFFT path's conjugate-gradient iterations and final relative residual.
+        It unpacks: ``eps0, eps2 = tofd.eccentricities(...)``.
+
+    Warns
+    -----
+    PatchWarning
+        (NFFT) when points of the mask lie outside the patch: their features are NaN.
+
+    Notes
+    -----
+    The set-up (FFT plans and filters, NUFFT plans, CG buffers) is made once per camera, config and method and
+    kept (`tofd.plan.PLANS_KEPT` of them), so calling this frame after frame costs about what the
+    pipeline pays per frame; `tofd.FeaturePlan` holds one explicitly.
 
     Raises
     ------
@@ -61,10 +70,7 @@ def eccentricities(range_m: np.ndarray, intrinsics: Intrinsics, *, mask: np.ndar
         Naming the argument: wrong type, dtype or shape, a range that looks like millimetres, an unknown method, or
         (NFFT) pixels too coarse at the object's range for the band (tofd.algorithm.features.SamplingError).
     """
-    cfg, mask = _checked(range_m, intrinsics, mask, method, config)
-    if method == "fft":
-        return FFTFeatures(intrinsics, cfg).range_features(range_m, mask)
-    return NFFTFeatures(intrinsics, cfg).range_features(range_m, mask)
+    return _plan(intrinsics, config, method).eccentricities(range_m, mask=mask)
 
 
 def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transfer, *,
@@ -83,7 +89,7 @@ def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transf
     range_m : (H, W) float ndarray
         Radial range in metres; holes as in `eccentricities`.
     intrinsics : Intrinsics
-        The camera's pinhole intrinsics in pixels.
+        The camera's intrinsics in pixels, lens model included.
     transfer : callable
         ``transfer(kx, ky) -> H``: kx, ky are float64 ndarrays of spatial frequencies in cycles per metre (x right,
         y down) of one shape S; H is the operator's transfer values, shape S, or (K, *S) for K operators at once.
@@ -102,6 +108,19 @@ def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transf
         complex128; NaN outside the mask, at holes and (NFFT) outside the patch. (H, W) when `transfer` returns one
         operator.
 
+    Warns
+    -----
+    PatchWarning
+        As in `eccentricities`.
+    BandWarning
+        (NFFT) when the operator keeps more than `tofd.plan.BAND_WARNING_FRACTION` of its peak magnitude beyond the
+        config's band edge, where the fit is damped rather than measured (a Laplacian without a taper).
+
+    Notes
+    -----
+    The set-up is kept as in `eccentricities`, per operator too for a hashable `transfer` (a function defined
+    once, or `eccentricity_transfer`'s result): a lambda made anew for every frame is set up anew every frame.
+
     Raises
     ------
     ValueError
@@ -109,12 +128,7 @@ def surface_filter(range_m: np.ndarray, intrinsics: Intrinsics, transfer: Transf
         The NFFT path's sampling check uses the config's band (``tuning_frequency_per_m``, ``lowpass_sigma_per_m``)
         and grid: set them to the band your operator needs.
     """
-    cfg, mask = _checked(range_m, intrinsics, mask, method, config)
-    if not callable(transfer):
-        raise ValueError(f"transfer must be a callable transfer(kx, ky), got {type(transfer).__name__}")
-    features = (FFTFeatures if method == "fft" else NFFTFeatures)(intrinsics, cfg, transfer)
-    fields = features.filtered(range_m, mask)
-    return fields if features.stacked else fields[0]
+    return _plan(intrinsics, config, method).surface_filter(range_m, transfer, mask=mask)
 
 
 def eccentricity_transfer(n: int, config: FeatureConfig | None = None) -> Transfer:
@@ -134,13 +148,24 @@ def eccentricity_transfer(n: int, config: FeatureConfig | None = None) -> Transf
     Returns
     -------
     callable
-        ``transfer(kx, ky) -> (2, *S)`` complex128 ndarray.
+        ``transfer(kx, ky) -> (2, *S)`` complex128 ndarray; equal for equal n and band, so plans reuse its set-up.
     """
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
         raise ValueError(f"n must be an integer >= 0, got {n!r}")
-    cfg = _config(config)
-    rho0, sigma = cfg.tuning_frequency_per_m, cfg.lowpass_sigma_per_m
-    return lambda kx, ky: eccentricity_filters(kx, ky, int(n), rho0, sigma)
+    cfg = check_config(config)
+    return EccentricityTransfer(int(n), cfg.tuning_frequency_per_m, cfg.lowpass_sigma_per_m)
+
+
+@dataclass(frozen=True, slots=True)
+class EccentricityTransfer:
+    """The transfer of [C_n, S_n] for a band (cycles per metre); equal ones share a plan's set-up."""
+
+    n: int
+    rho0_per_m: float
+    sigma_per_m: float
+
+    def __call__(self, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
+        return eccentricity_filters(kx, ky, self.n, self.rho0_per_m, self.sigma_per_m)
 
 
 def range_from_depth(depth: np.ndarray, intrinsics: Intrinsics, *, scale: float) -> np.ndarray:
@@ -161,7 +186,7 @@ def range_from_depth(depth: np.ndarray, intrinsics: Intrinsics, *, scale: float)
     (H, W) float64 ndarray
         Range in metres, ``depth * scale / ray_z``; NaN where the depth is invalid.
     """
-    _check_intrinsics(intrinsics)
+    check_intrinsics(intrinsics)
     depth = checked_image("depth", depth, intrinsics, allow_integers=True)
     if isinstance(scale, bool) or not isinstance(scale, (int, float, np.floating, np.integer)) \
             or not np.isfinite(scale) or not scale > 0:
@@ -172,56 +197,9 @@ def range_from_depth(depth: np.ndarray, intrinsics: Intrinsics, *, scale: float)
     return z / intrinsics.unit_rays()[..., 2]
 
 
-def _config(config: FeatureConfig | None) -> FeatureConfig:
-    if config is None:
-        return FeatureConfig()
-    if not isinstance(config, FeatureConfig):
-        raise ValueError(f"config must be a tofd.FeatureConfig, got {type(config).__name__}")
-    return config
-
-
-def _check_intrinsics(intrinsics: Intrinsics) -> None:
-    if not isinstance(intrinsics, Intrinsics):
-        raise ValueError(f"intrinsics must be a tofd.Intrinsics, got {type(intrinsics).__name__}")
-
-
-def checked_image(name: str, image: np.ndarray, intrinsics: Intrinsics, allow_integers: bool = False) -> np.ndarray:
-    """`image` as an ndarray of the camera's shape and a real number dtype; ValueError naming `name` otherwise."""
-    if not isinstance(image, np.ndarray):
-        raise ValueError(f"{name} must be a numpy array, got {type(image).__name__}")
-    kinds = "fiu" if allow_integers else "f"
-    if image.dtype.kind not in kinds:
-        hint = (" (integer depth in millimetres? use tofd.range_from_depth(depth, intrinsics, scale=0.001))"
-                if image.dtype.kind in "iu" else "")
-        raise ValueError(f"{name} must be a {'real number' if allow_integers else 'floating-point'} array, "
-                         f"got dtype {image.dtype}{hint}")
-    if image.shape != intrinsics.shape:
-        raise ValueError(f"{name} has shape {image.shape}, expected {intrinsics.shape} (intrinsics height, width)")
-    return image
-
-
-def checked_range(range_m: np.ndarray, intrinsics: Intrinsics, mask: np.ndarray | None) -> np.ndarray:
-    """The mask to use (None: every valid pixel) after checking range_m, intrinsics and mask; ValueError naming the
-    argument, including for a range that looks like millimetres."""
-    _check_intrinsics(intrinsics)
-    checked_image("range_m", range_m, intrinsics)
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(range_m) & (range_m > 0)
-    if mask is None:
-        mask = valid
-    elif not isinstance(mask, np.ndarray) or mask.dtype != np.bool_ or mask.shape != intrinsics.shape:
-        got = f"{mask.dtype} {mask.shape}" if isinstance(mask, np.ndarray) else type(mask).__name__
-        raise ValueError(f"mask must be a bool array of shape {intrinsics.shape}, got {got}")
-    values = range_m[mask & valid]
-    if values.size and (median := float(np.median(values))) > MAX_PLAUSIBLE_RANGE_M:
-        raise ValueError(f"range_m looks like millimetres, not metres (median {median:g} over the mask); divide by "
-                         "1000, or convert depth with tofd.range_from_depth(depth, intrinsics, scale=0.001)")
-    return mask
-
-
-def _checked(range_m: np.ndarray, intrinsics: Intrinsics, mask: np.ndarray | None, method: str,
-             config: FeatureConfig | None) -> tuple[FeatureConfig, np.ndarray]:
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, got {method!r}")
-    cfg = _config(config)
-    return cfg, checked_range(range_m, intrinsics, mask)
+def _plan(intrinsics: Intrinsics, config: FeatureConfig | None, method: Method) -> FeaturePlan:
+    """The cached plan for these arguments (checked first, so a bad one is named rather than cached)."""
+    check_intrinsics(intrinsics)
+    cfg = check_config(config)
+    check_method(method)
+    return cached_plan(intrinsics, cfg, method)

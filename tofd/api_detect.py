@@ -9,9 +9,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tofd.algorithm.detector import Candidates, Detection, Margin, NoseDetector, NoseModel, load_model
-from tofd.api import checked_image, checked_range
+from tofd.api_inputs import checked_image, checked_range
 from tofd.config import Config, default_file, load_config
 from tofd.drivers.intrinsics import Intrinsics
+from tofd.extras import install_hint
 
 if TYPE_CHECKING:
     from tofd.lab.dataset import Dataset
@@ -32,7 +33,7 @@ def detect_nose(range_m: np.ndarray, amplitude: np.ndarray, intrinsics: Intrinsi
     amplitude : (H, W) float or integer ndarray
         The camera's amplitude (infrared intensity) image, any gain; the segmentation thresholds it.
     intrinsics : Intrinsics
-        The camera's pinhole intrinsics in pixels.
+        The camera's intrinsics in pixels, lens model included.
     model : NoseModel or path, optional
         A model from `train_model` or `load_model`, or a model file; default the shipped model.
     config : tofd.config.Config, optional
@@ -42,18 +43,28 @@ def detect_nose(range_m: np.ndarray, amplitude: np.ndarray, intrinsics: Intrinsi
     Returns
     -------
     Detection
-        ``nose_px``: (u, v) pixel (column, row) or None; ``nose_xyz_m``: the camera-frame point in metres or None;
-        ``score``: the best pixel's box distance; ``accepted``: whether the acceptance rule holds.
+        ``nose_px``: (u, v) = (column, row) of the accepted pixel, int, or None when no pixel is accepted;
+        ``nose_xyz_m``: that pixel's camera-frame point (x right, y down, z forward) in metres, or None;
+        ``score``: the best candidate pixel's box distance (lower is better; inf without a foreground);
+        ``accepted``: whether the acceptance rule holds (the box scale and, if configured, the margin test);
+        ``tip_px``: (u, v) float sub-pixel nose tip fitted about the accepted pixel within
+        ``config.detector.tip_radius_m``, or None (not refined, or none accepted);
+        ``tip_xyz_m``: the tip's camera-frame point in metres, or None;
+        ``alternatives``: up to three `tofd.algorithm.detector.Alternative` (``px``, ``xyz_m``, ``score``,
+        ``tip_xyz_m``), best first: the best pixel of each other region whose box distance alone would pass the rule
+        (a tracker may take one when the frame's own answer is rejected);
+        ``answer_px`` and ``answer_xyz_m``: the reported nose, the tip when refined, else the accepted pixel.
+        A detection is right when its point lies within `tofd.NOSE_RADIUS_M` of the true tip.
 
     Raises
     ------
     ValueError
-        Naming the argument for bad arrays; tofd.algorithm.detector.ModelMismatch (a ValueError's sibling,
-        UsageError) when the model was trained with other feature settings than `config`'s.
+        Naming the argument for bad arrays or a bad `model`; `tofd.ModelMismatch` (a ValueError) when the model was
+        trained with other feature or segmentation settings than `config`'s.
     """
     checked_range(range_m, intrinsics, None)
     checked_image("amplitude", amplitude, intrinsics, allow_integers=True)
-    cfg = config if config is not None else load_config()
+    cfg = _config(config)
     detector = NoseDetector(_model(model), cfg.detector, cfg.features, cfg.segmentation, intrinsics)
     return detector.detect_frame(range_m, np.asarray(amplitude, dtype=np.float64))
 
@@ -85,8 +96,13 @@ def render_dataset(split: str = "train", frames: int = 120, seed: int = 0,
 
 def load_dataset(path: str | Path) -> Dataset:
     """A labelled dataset file (.npz from `tofd dataset generate` or `tofd import`), as `tofd train --train` reads
-    it; tofd.lab.dataset.DatasetError names a bad file."""
+    it; tofd.lab.dataset.DatasetError names a bad file. Needs the lab extra (fsspec: local paths and URLs alike)."""
     from tofd.lab.dataset import load_labelled
+
+    try:
+        import fsspec  # noqa: F401  (checked here, to name the extra)
+    except ModuleNotFoundError as exc:
+        raise ModuleNotFoundError(f"tofd.load_dataset {install_hint('lab')}", name=exc.name) from exc
 
     return load_labelled(path)
 
@@ -116,7 +132,7 @@ def train_model(dataset: Dataset, *, config: Config | None = None, quantile: flo
     from tofd.lab.evaluation import extract_samples
     from tofd.lab.evaluation import train_model as train
 
-    cfg = config if config is not None else load_config()
+    cfg = _config(config)
     samples = extract_samples(dataset, cfg.features, cfg.segmentation, workers)
     return train(samples, cfg.features, cfg.segmentation, quantile, positive_radius_m,
                  training={"data": "tofd.train_model", "subjects": sorted(set(dataset.subject.tolist()))},
@@ -147,12 +163,22 @@ def evaluate_model(model: NoseModel | str | Path | None, dataset: Dataset, *, co
     from tofd.lab.evaluation import evaluate_model as evaluate
     from tofd.lab.evaluation import extract_samples
 
-    cfg = config if config is not None else load_config()
+    cfg = _config(config)
     nose_model = _model(model)
     nose_model.check_compatible(cfg.features, cfg.segmentation)
     samples = extract_samples(dataset, cfg.features, cfg.segmentation, workers)
     return evaluate(nose_model, samples, dataset.distance_m, candidates=Candidates.from_config(
         cfg.detector, cfg.segmentation), margin=Margin.from_config(cfg.detector))
+
+
+def _config(config: Config | None) -> Config:
+    """`config`, or the bundled config for None; ValueError unless it is a tofd.config.Config."""
+    if config is None:
+        return load_config()
+    if not isinstance(config, Config):
+        raise ValueError(f"config must be a tofd.config.Config (tofd.config.load_config(path)), got "
+                         f"{type(config).__name__}")
+    return config
 
 
 def _model(model: NoseModel | str | Path | None) -> NoseModel:

@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, get_args
 
 from tofd.algorithm.band import band_edge_per_m
 from tofd.algorithm.names import VARIANTS
 from tofd.drivers.intrinsics import Intrinsics
+
+FFTInput = Literal["z", "range"]
+FFT_INPUTS: tuple[str, ...] = get_args(FFTInput)
+"""What the FFT path filters: z-depth (range times each ray's z component) or the radial range."""
 
 _SR3000 = Intrinsics()
 SR3000_PATCH_M = (_SR3000.width / _SR3000.fx * 0.5, _SR3000.height / _SR3000.fy * 0.5)
@@ -51,13 +56,19 @@ class SegmentationConfig:
             raise ValueError(f"plane_max_tilt_deg: {self.plane_max_tilt_deg} is not in [0, 90)")
 
 
+_FLOAT_FIELDS = ("equivalence_range_m", "tuning_frequency_per_m", "lowpass_sigma_per_m", "damping", "cg_tolerance",
+                 "nufft_eps", "patch_width_m", "patch_height_m")  # FeatureConfig's numbers > 0
+_INT_FIELDS = ("grid_size", "fft_padding_px", "cg_max_iterations")  # FeatureConfig's integers
+
+
 @dataclass(frozen=True, slots=True)
 class FeatureConfig:
     """Generalized-eccentricity features (FFT and NFFT paths, tofd.algorithm.features); frequencies in cycles/metre.
 
     The NFFT path is set in metres only: a patch_width_m x patch_height_m patch centred on the foreground carries a
     grid_size x grid_size grid of modes k / patch (cycles per metre), so its features do not depend on the camera.
-    Validated when constructed (ValueError naming the field).
+    Validated when constructed (ValueError naming the field); numpy scalars are taken as the Python numbers they equal
+    (an integer field refuses a float such as 64.0).
     """
 
     equivalence_range_m: float = 0.5  # e: FFT path: the pixel grid is read at this range (cycles/pixel * f / e)
@@ -73,8 +84,18 @@ class FeatureConfig:
     cg_max_iterations: int = 100  # NFFT path: CG iteration cap
     nufft_eps: float = 1e-4  # NFFT path: finufft requested relative precision
     cg_precision: Literal["single", "double"] = "single"  # NFFT path: float width of NUFFTs and CG
+    fft_input: FFTInput = "z"  # FFT path: filter the z-depth (range times the ray's z, the NFFT path's surface) or
+    # the radial "range" itself (the paper's baseline)
 
     def __post_init__(self) -> None:
+        for key in _FLOAT_FIELDS + _INT_FIELDS:  # numpy scalars as Python numbers: equal configs hash alike
+            value = getattr(self, key)
+            if isinstance(value, bool):
+                continue
+            if key in _INT_FIELDS and isinstance(value, numbers.Integral):
+                object.__setattr__(self, key, int(value))
+            elif key in _FLOAT_FIELDS and isinstance(value, numbers.Real):
+                object.__setattr__(self, key, float(value))
         self.validate()
 
     @property
@@ -89,13 +110,11 @@ class FeatureConfig:
         return self.grid_size / 2 / self.patch_width_m, self.grid_size / 2 / self.patch_height_m
 
     def validate(self) -> None:
-        positive = ("equivalence_range_m", "tuning_frequency_per_m", "lowpass_sigma_per_m", "damping",
-                    "cg_tolerance", "nufft_eps", "patch_width_m", "patch_height_m")
-        for key in positive:
+        for key in _FLOAT_FIELDS:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or value == math.inf:
                 raise ValueError(f"{key}: {value!r} must be a finite number > 0")
-        for key in ("grid_size", "fft_padding_px", "cg_max_iterations"):
+        for key in _INT_FIELDS:
             if isinstance(getattr(self, key), bool) or not isinstance(getattr(self, key), int):
                 raise ValueError(f"{key}: {getattr(self, key)!r} must be an integer")
         if self.grid_size < 8 or self.grid_size % 2:
@@ -106,6 +125,8 @@ class FeatureConfig:
             raise ValueError(f"cg_max_iterations: {self.cg_max_iterations} must be >= 1")
         if not 1e-14 <= self.nufft_eps < 1e-1:
             raise ValueError(f"nufft_eps: {self.nufft_eps} is not in [1e-14, 0.1)")
+        if self.fft_input not in FFT_INPUTS:
+            raise ValueError(f"fft_input: {self.fft_input!r} is not one of {', '.join(map(repr, FFT_INPUTS))}")
         if self.cg_precision not in ("single", "double"):
             raise ValueError(f"cg_precision: {self.cg_precision!r} is not one of 'single', 'double'")
         edge, reach = self.band_edge_per_m, min(self.grid_nyquist_per_m)
@@ -120,8 +141,10 @@ def recorded_feature_settings(recorded: dict) -> dict:
     """Feature settings recorded with a model (dataclasses.asdict(FeatureConfig) at training time) in today's keys.
 
     Settings without the patch keys (model files written before they existed) used the camera's field of view at the
-    equivalence range as the NFFT patch; those models were trained on the SR3000, so it is the SR3000's.
+    equivalence range as the NFFT patch; those models were trained on the SR3000, so it is the SR3000's. Settings
+    without fft_input filtered z-depth.
     """
+    recorded = {"fft_input": "z", **recorded}
     if "patch_width_m" in recorded or "patch_height_m" in recorded:
         return dict(recorded)
     e = recorded.get("equivalence_range_m", FeatureConfig().equivalence_range_m)

@@ -34,7 +34,6 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import fsspec
 import numpy as np
 
 from tofd.drivers.frame import Frame, GroundTruth
@@ -170,6 +169,8 @@ def sidecar_url(url: str) -> str:
 
 
 def _load_intrinsics(path: str | Path) -> Intrinsics:
+    import fsspec  # the lab extra's: reading files; rendering, training and evaluating run without it
+
     side = sidecar_url(str(path))
     try:
         fs, side_path = fsspec.core.url_to_fs(side)
@@ -287,6 +288,8 @@ class DatasetFile:
     frames [first, stop) decompresses frames [0, stop) of each, never the rest). DatasetError names a bad file."""
 
     def __init__(self, url: str):
+        import fsspec
+
         self.url = url
         self.intrinsics = _load_intrinsics(url)
         try:

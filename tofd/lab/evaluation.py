@@ -24,6 +24,7 @@ import numpy as np
 
 from tofd.algorithm.detector import (
     ALL_FOREGROUND,
+    NOSE_RADIUS_M,
     PAPER_RULE,
     VARIANTS,
     Box,
@@ -48,7 +49,6 @@ from tofd.lab.roc import Answers, RocCurve, answers_at, margin_scale, roc_from_m
 from tofd.process_setup import THREAD_ENV, child_environment, prepare_compute_process
 
 DISTANCE_BIN_M = 0.05  # per-distance results group frames by nose distance rounded to this
-NOSE_RADIUS_M = 0.015  # true nose pixels: within this 3-D distance of the ground-truth tip (default --radius-mm)
 LABEL_MEDIAN_PX = 3  # median filter (pixels) of the range the true-nose labels are measured on (label_points)
 
 

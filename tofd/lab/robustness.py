@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from tofd.algorithm.detector import PAPER_RULE, Candidates, Margin, NoseModel
+from tofd.algorithm.detector import NOSE_RADIUS_M, PAPER_RULE, Candidates, Margin, NoseModel
 from tofd.algorithm.params import FeatureConfig, SegmentationConfig
 from tofd.lab.conditions import CONDITIONS
 from tofd.lab.evaluation import evaluate_model, extract_samples
@@ -53,7 +53,7 @@ class MatrixSpec:
 
 
 def run_matrix(model: NoseModel, spec: MatrixSpec, features: FeatureConfig, segmentation: SegmentationConfig,
-               candidates: Candidates, margin: Margin = PAPER_RULE, radius_m: float = 0.015, workers: int = 2,
+               candidates: Candidates, margin: Margin = PAPER_RULE, radius_m: float = NOSE_RADIUS_M, workers: int = 2,
                variants: tuple[str, ...] = MATRIX_VARIANTS,
                progress: Callable[[str], None] | None = None) -> list[Cell]:
     """Every cell of the matrix for every variant (rendered per condition and subject, then split by distance)."""

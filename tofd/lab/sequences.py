@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tofd.algorithm.detector import Detection, NoseDetector
+from tofd.algorithm.detector import NOSE_RADIUS_M, Detection, NoseDetector
 from tofd.algorithm.tracking import NoseTracker, TrackerConfig
 from tofd.drivers.emulator.render import Pose, SensorModel, render_face
 from tofd.drivers.intrinsics import Intrinsics
@@ -94,7 +94,7 @@ def detect_sequence(detector: NoseDetector, subject: str, frames: int, fps: floa
     return DetectedSequence(subject, times, detections, np.asarray(truth), detector.intrinsics)
 
 
-def score_sequence(seq: DetectedSequence, radius_m: float = 0.015, tracker: TrackerConfig | None = None
+def score_sequence(seq: DetectedSequence, radius_m: float = NOSE_RADIUS_M, tracker: TrackerConfig | None = None
                    ) -> SequenceResult:
     """Found / wrong shares of the per-frame detections and of a track (tracker config) run over them."""
     track = NoseTracker(tracker)
@@ -110,7 +110,7 @@ def score_sequence(seq: DetectedSequence, radius_m: float = 0.015, tracker: Trac
 
 
 def evaluate_sequence(detector: NoseDetector, subject: str, frames: int, fps: float = 20.0, sweep_s: float = 6.0,
-                      seed: int = 0, model: SensorModel | None = None, radius_m: float = 0.015,
+                      seed: int = 0, model: SensorModel | None = None, radius_m: float = NOSE_RADIUS_M,
                       tracker: TrackerConfig | None = None) -> SequenceResult:
     """detect_sequence, then score_sequence."""
     return score_sequence(detect_sequence(detector, subject, frames, fps, sweep_s, seed, model), radius_m, tracker)

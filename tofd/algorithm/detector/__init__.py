@@ -13,7 +13,7 @@ from tofd.algorithm.detector.candidates import (
     depth_noise_m,
     front_gap_m,
 )
-from tofd.algorithm.detector.detect import Alternative, Detection, NoseDetector, detect
+from tofd.algorithm.detector.detect import NOSE_RADIUS_M, Alternative, Detection, NoseDetector, detect
 from tofd.algorithm.detector.model_file import (
     ModelError,
     ModelMismatch,
@@ -25,7 +25,7 @@ from tofd.algorithm.detector.model_file import (
 )
 from tofd.algorithm.names import VARIANTS
 
-__all__ = ["ALL_FOREGROUND", "PAPER_RULE", "VARIANTS", "Alternative", "Box", "Candidates", "Detection", "Margin",
-           "ModelError", "ModelMismatch", "NoseDetector", "NoseModel", "VariantModel", "border_distance_m",
-           "depth_noise_m", "detect", "front_gap_m", "learn_box", "load_model", "parse_model", "rival_distance",
-           "save_model", "stack_features", "to_log_features"]
+__all__ = ["ALL_FOREGROUND", "NOSE_RADIUS_M", "PAPER_RULE", "VARIANTS", "Alternative", "Box", "Candidates",
+           "Detection", "Margin", "ModelError", "ModelMismatch", "NoseDetector", "NoseModel", "VariantModel",
+           "border_distance_m", "depth_noise_m", "detect", "front_gap_m", "learn_box", "load_model", "parse_model",
+           "rival_distance", "save_model", "stack_features", "to_log_features"]

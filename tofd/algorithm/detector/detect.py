@@ -22,6 +22,9 @@ from tofd.algorithm.segmentation import rotation_to_z
 from tofd.drivers.intrinsics import Intrinsics
 
 MAX_ALTERNATIVES = 3  # regions whose best pixel a frame reports as alternatives
+NOSE_RADIUS_M = 0.015
+"""Metres: a detection is right (the nose "found") when its point lies within this 3-D distance of the true tip;
+evaluation counts the foreground pixels within it as the nose (tofd.lab.evaluation)."""
 
 
 @dataclass(frozen=True, slots=True)

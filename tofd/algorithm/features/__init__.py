@@ -6,6 +6,6 @@ from tofd.algorithm.features.eccentricity import Eccentricities
 from tofd.algorithm.features.fft import FFTFeatures
 from tofd.algorithm.features.nfft import NFFTFeatures
 from tofd.algorithm.features.operators import Transfer
-from tofd.algorithm.features.sampling import SamplingError
+from tofd.algorithm.features.sampling import BandWarning, PatchWarning, SamplingError
 
-__all__ = ["Eccentricities", "FFTFeatures", "NFFTFeatures", "SamplingError", "Transfer"]
+__all__ = ["BandWarning", "Eccentricities", "FFTFeatures", "NFFTFeatures", "PatchWarning", "SamplingError", "Transfer"]

@@ -170,8 +170,10 @@ class FFTFeatures:
         valid = usable(range_box, mask_box, positive=True)
         if not valid.any():
             return None
-        rays = self._rays[box]
-        depth = fill_holes(range_box, valid, mask_box) * (rays[..., 2] if rotation is None else rays @ rotation[2])
+        depth = fill_holes(range_box, valid, mask_box)
+        if self._cfg.fft_input == "z":
+            rays = self._rays[box]
+            depth = depth * (rays[..., 2] if rotation is None else rays @ rotation[2])
         return box, self._fields(depth, mask_box, valid, float(np.max(depth[valid])), 1.0)
 
     def range_features(self, range_m: np.ndarray, mask: np.ndarray, rotation: np.ndarray | None = None,
@@ -181,11 +183,12 @@ class FFTFeatures:
         rotation: camera -> face frame (tofd.algorithm.segmentation.Foreground); depth is then measured along its row 2.
         out: two (H, W) float32 arrays the maps are written into (and returned as), e.g. a worker's shared memory.
 
-        The filtered image is the depth z = range * (z component of the pixel's unit ray), the quantity
-        the NFFT path filters: radial range adds a spurious curvature 1/d (a fronto-parallel wall has
-        range d / cos(angle)), so filtering it would not agree with the NFFT path at e. Pixels of the mask
-        whose range is NaN, inf or <= 0 are holes: filled from their nearest valid neighbour for the transform,
-        NaN in the result.
+        The filtered image is, with FeatureConfig.fft_input "z", the depth z = range * (z component of the
+        pixel's unit ray), the quantity the NFFT path filters: radial range adds a spurious curvature 1/d (a
+        fronto-parallel wall has range d / cos(angle)), so filtering it would not agree with the NFFT path at e;
+        with "range", the radial range itself, as the paper's baseline (rotation is then not used). Pixels of the
+        mask whose range is NaN, inf or <= 0 are holes: filled from their nearest valid neighbour for the
+        transform, NaN in the result.
         """
         return self._eccentricities(self._range_fields(range_m, mask, rotation), out)
 

@@ -85,6 +85,7 @@ class UnitSquarePoints:
     y: np.ndarray
     z: np.ndarray
     index: np.ndarray  # flat pixel index of each kept point
+    valid: int  # points of the mask with a finite range > 0, kept or outside the patch
     damping: float  # lambda for these points
     rms_range_m: float  # root mean square of the points' range, metres (their pixel pitch is about this / f)
 
@@ -151,6 +152,13 @@ class NFFTFeatures:
         operators = evaluate(transfer or eccentricity_transfer(cfg), kx, ky)  # (K, N, N) rows ky, columns kx
         self._hermitian, self._count, self.stacked = operators.hermitian, len(operators), operators.stacked
         v = operators.values
+        magnitude = np.abs(v).reshape(len(v), -1)
+        beyond = (np.hypot(kx, ky) > cfg.band_edge_per_m).reshape(-1)
+        peak = np.maximum(magnitude.max(axis=1), np.finfo(np.float64).tiny)
+        self.beyond_band = float(np.max(magnitude[:, beyond].max(axis=1, initial=0.0) / peak))
+        """The largest magnitude of an operator on the modes beyond the band edge, as a fraction of its peak."""
+        self.last_points = (0, 0)
+        """(kept, valid): the last frame's points inside the patch, and its mask's points with a usable range."""
         # Hermitian operators give real fields: two per complex transform (v0 + i v1, v2 + i v3, ...)
         filters = np.stack([v[i] + 1j * v[i + 1] if i + 1 < len(v) else v[i] + 0j for i in range(0, len(v), 2)]
                            ) if self._hermitian else v.astype(np.complex128)
@@ -200,11 +208,13 @@ class NFFTFeatures:
         ranges = np.take(range_m.reshape(-1), flat).astype(np.float64, copy=False)
         patch_points = compiled("patch_points").patch_points
         x, y, z, index, mean_zz, mean_rr = patch_points(flat, ranges, self._ray_columns, turn, *self._square)
+        valid = int(np.count_nonzero(ranges > 0)) - int(np.count_nonzero(ranges == np.inf))  # NaN is neither
         if not z.size:
-            return UnitSquarePoints(x, y, z, index, 0.0, float("nan"))
+            return UnitSquarePoints(x, y, z, index, valid, 0.0, float("nan"))
         # points per unit area of the square: 1 / mean pixel footprint, (z/fx)(z/fy) m^2 over Lx Ly
         footprint = mean_zz / (self.intrinsics.fx * self.intrinsics.fy * self._square[0] * self._square[1])
-        return UnitSquarePoints(x, y, z - z.max(), index, self.cfg.damping / footprint, float(np.sqrt(mean_rr)))
+        return UnitSquarePoints(x, y, z - z.max(), index, valid, self.cfg.damping / footprint,
+                                float(np.sqrt(mean_rr)))
 
     def range_features(self, range_m: np.ndarray, mask: np.ndarray,
                        rotation: np.ndarray | None = None) -> Eccentricities:
@@ -264,6 +274,7 @@ class NFFTFeatures:
                         rotation: np.ndarray | None) -> UnitSquarePoints:
         """unit_square_points, refused (SamplingError) where the pixels cannot carry the band."""
         pts = self.unit_square_points(range_m, mask, rotation)
+        self.last_points = (int(pts.index.size), pts.valid)
         if pts.index.size:
             check_sampling(pts.rms_range_m, self.intrinsics, self.cfg)
         return pts

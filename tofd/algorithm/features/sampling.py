@@ -17,6 +17,16 @@ from tofd.algorithm.params import FeatureConfig
 from tofd.drivers.intrinsics import Intrinsics
 
 
+class PatchWarning(UserWarning):
+    """Points of the mask outside the NFFT patch (FeatureConfig.patch_width_m x patch_height_m about the mask's
+    centroid) were left out: their features are NaN."""
+
+
+class BandWarning(UserWarning):
+    """An operator keeps much of its magnitude beyond the config's band edge, where the NFFT fit is damped rather
+    than measured: its fields are biased there."""
+
+
 class SamplingError(ValueError):
     """The pixels at the object's range are too coarse for the band on the NFFT grid (the message says by how much)."""
 
