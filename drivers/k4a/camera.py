@@ -276,7 +276,11 @@ class K4aBackend:
 
     def open(self, request: CameraRequest) -> K4aCamera:
         camera = K4aCamera(request)
-        camera.start()
+        try:
+            camera.start()
+        except BaseException:
+            camera.close()
+            raise
         return camera
 
 
