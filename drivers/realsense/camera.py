@@ -22,6 +22,7 @@ import numpy as np
 
 from tofd.drivers.cameras import CameraListing, CameraRequest, StreamMode
 from tofd.drivers.frame import DeviceInfo, SensorInfo
+from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.lens_models import lens_intrinsics
 from tofd.drivers.live import Capture, DeviceLost, PlaybackEnded, SdkCamera
 from tofd.drivers.realsense.sdk import rs
@@ -38,9 +39,10 @@ SETTING_OPTIONS = {"exposure_us": "exposure", "laser_power": "laser_power"}
 REPORTED_OPTIONS = ("exposure", "gain", "enable_auto_exposure", "laser_power", "emitter_enabled", "visual_preset",
                     "depth_units")
 """The depth sensor's options read back into Frame.sensor.settings (those the device has)."""
-QUEUE_FRAMES = 8
-"""Framesets librealsense holds for tofd between waits (the oldest dropped beyond): a quarter second at 30 fps
-covers the time from starting the streams to the first wait, so a recording plays from its first frame."""
+QUEUE_FRAMES = {"camera": 8, "playback": 64}
+"""Framesets librealsense holds for tofd between waits, the oldest dropped beyond (a counter gap): a quarter second
+of a camera at 30 fps; two seconds of a recording, so that the service's start-up does not skip its beginning
+(tofd's latest-wins queues then drop, and ledger, what the workers cannot take)."""
 
 
 @dataclass(frozen=True, slots=True, order=True)
@@ -92,6 +94,43 @@ def choose_mode(modes: list[Mode], asked: StreamMode, where: str) -> Mode:
     raise DriverError(f"{where}: no depth + infrared stream of {asked.describe()}; it offers {offered}")
 
 
+def stream_intrinsics(profile: Any, where: str) -> Intrinsics:
+    """The lens of a video stream profile: its intrinsics with librealsense's distortion model mapped."""
+    i = profile.as_video_stream_profile().get_intrinsics()
+    return lens_intrinsics(i.width, i.height, (i.fx, i.fy, i.ppx, i.ppy), lens_model_name(i.model), list(i.coeffs),
+                           where)
+
+
+def frameset_images(frame: Any) -> tuple[Any, Any] | None:
+    """(depth frame, Infrared 1 frame) of a frameset, None when it lacks one."""
+    if not frame.is_frameset():
+        return None
+    frames = frame.as_frameset()
+    depth, infrared = frames.get_depth_frame(), frames.get_infrared_frame(INFRARED_INDEX)
+    return (depth, infrared) if depth and infrared else None
+
+
+def capture_of(depth: Any, infrared: Any) -> Capture:
+    """The Capture of a depth and an infrared frame: the images copied, the depth frame's number and timestamp
+    (milliseconds -> microseconds)."""
+    return Capture(depth=np.array(depth.get_data(), copy=True), amplitude=np.array(infrared.get_data(), copy=True),
+                   frame_counter=int(depth.get_frame_number()), timestamp_us=round(depth.get_timestamp() * 1000))
+
+
+def sensor_info(sensor: Any, mode: Mode, source: str) -> SensorInfo:
+    """The SensorInfo of a depth sensor streaming in `mode`: its depth unit (metres per value), infrared as the
+    amplitude, the streams, `source` ("camera" or "playback") and the options of REPORTED_OPTIONS it has."""
+    settings = {"source": source, "depth_stream": f"{mode.describe()} Z16",
+                "infrared_stream": f"Infrared {INFRARED_INDEX} {mode.describe()} {mode.infrared_format.upper()}"}
+    for name in REPORTED_OPTIONS:
+        option = getattr(rs.option, name)
+        if sensor.supports(option):
+            settings[name] = f"{sensor.get_option(option):g}"
+    return SensorInfo(depth_unit_m=float(sensor.as_depth_sensor().get_depth_scale()), amplitude="ir",
+                      invalid_value=0, amplitude_full_scale=INFRARED_FORMATS[mode.infrared_format],
+                      frame_period_s=1.0 / mode.fps, settings=settings)
+
+
 def device_listing(device: Any) -> CameraListing:
     """A librealsense device as `tofd devices` lists it."""
 
@@ -115,6 +154,8 @@ class RealSenseCamera(SdkCamera):
         self.playback: Any = None  # the rs.playback device of a played recording (pause / resume)
         self._lost = threading.Event()
         self._serial = request.serial
+        self._waited = False  # a wait since the streams started (a recording is paused until then)
+        self._last_number: int | None = None  # the device's number of the last capture delivered
         if request.playback is None:
             self._context.set_devices_changed_callback(self._devices_changed)
 
@@ -149,7 +190,9 @@ class RealSenseCamera(SdkCamera):
         config.enable_stream(rs.stream.infrared, INFRARED_INDEX, mode.width, mode.height,
                              getattr(rs.format, mode.infrared_format), mode.fps)
         self._lost.clear()
-        queue = rs.frame_queue(QUEUE_FRAMES, keep_frames=True)
+        self._waited, self._last_number = False, None
+        queue = rs.frame_queue(QUEUE_FRAMES["camera" if self.request.playback is None else "playback"],
+                               keep_frames=True)
         try:
             profile = pipeline.start(config, queue)
         except RuntimeError as exc:
@@ -158,6 +201,7 @@ class RealSenseCamera(SdkCamera):
         if self.request.playback is not None:
             self.playback = self._device.as_playback()
             self.playback.set_real_time(True)
+            self.playback.pause()  # until the first wait: the consumer sees the recording from its start
         try:
             self._describe(profile, self._device.first_depth_sensor(), mode)
         except DriverError:
@@ -186,25 +230,18 @@ class RealSenseCamera(SdkCamera):
 
     def _describe(self, profile: Any, sensor: Any, mode: Mode) -> None:
         """intrinsics, device_info and sensor of the started streams."""
-        depth = profile.get_stream(rs.stream.depth).as_video_stream_profile()
-        i = depth.get_intrinsics()
-        self.intrinsics = lens_intrinsics(i.width, i.height, (i.fx, i.fy, i.ppx, i.ppy), lens_model_name(i.model),
-                                          list(i.coeffs), f"{self._where()}: depth stream intrinsics")
+        self.intrinsics = stream_intrinsics(profile.get_stream(rs.stream.depth),
+                                            f"{self._where()}: depth stream intrinsics")
         listing = device_listing(self._device)
         self.device_info = DeviceInfo(serial=listing.serial, firmware=listing.firmware, backend="realsense",
                                       model=listing.model or "RealSense")
-        settings = {"source": "playback" if self.request.playback is not None else "camera",
-                    "depth_stream": f"{mode.describe()} Z16",
-                    "infrared_stream": f"Infrared {INFRARED_INDEX} {mode.describe()} {mode.infrared_format.upper()}"}
-        for name in REPORTED_OPTIONS:
-            option = getattr(rs.option, name)
-            if sensor.supports(option):
-                settings[name] = f"{sensor.get_option(option):g}"
-        self.sensor = SensorInfo(depth_unit_m=float(sensor.get_depth_scale()), amplitude="ir", invalid_value=0,
-                                 amplitude_full_scale=INFRARED_FORMATS[mode.infrared_format],
-                                 frame_period_s=1.0 / mode.fps, settings=settings)
+        self.sensor = sensor_info(sensor, mode, "playback" if self.request.playback is not None else "camera")
 
     def _wait(self, timeout_s: float) -> Capture | None:
+        if self.playback is not None and self.playback.current_status() == rs.playback_status.paused \
+                and not self._waited:
+            self.playback.resume()
+        self._waited = True
         deadline = time.monotonic() + timeout_s
         while (left_ms := int((deadline - time.monotonic()) * 1000)) > 0:
             if self._lost.is_set():
@@ -212,18 +249,16 @@ class RealSenseCamera(SdkCamera):
             ok, frame = self._queue.try_wait_for_frame(left_ms)
             if not ok:
                 break
-            if not frame.is_frameset():
+            images = frameset_images(frame)
+            if images is None:
                 self.counters["unpaired_frame"] += 1
                 continue
-            frames = frame.as_frameset()
-            depth, infrared = frames.get_depth_frame(), frames.get_infrared_frame(INFRARED_INDEX)
-            if not depth or not infrared:
-                self.counters["unpaired_frame"] += 1
-                continue
-            return Capture(depth=np.array(depth.get_data(), copy=True),
-                           amplitude=np.array(infrared.get_data(), copy=True),
-                           frame_counter=int(depth.get_frame_number()),
-                           timestamp_us=round(depth.get_timestamp() * 1000))
+            capture = capture_of(*images)
+            if capture.frame_counter == self._last_number:  # a resumed playback can repeat its current frame
+                self.counters["duplicate_frame"] += 1
+            else:
+                self._last_number = capture.frame_counter
+                return capture
         if self.playback is not None and self.playback.current_status() == rs.playback_status.stopped:
             raise PlaybackEnded
         if self._lost.is_set():
