@@ -16,12 +16,14 @@ import numpy as np
 import pytest
 from bag_scenes import Scene, depth_units, render, sphere_errors
 from rrd_helpers import read_entities
-from test_cli import HANG_GUARD_S
+from test_cli import HANG_GUARD_S, tofd
 from vendor_bag_helpers import pinhole_errors, realsense_env, record_realsense
 
 from tofd.drivers.cameras import CameraRequest, StreamMode, backend
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.live import SdkCamera
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
 from tofd.drivers.source import DriverError
 from tofd.service.viewer import blueprint as bp
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
@@ -127,6 +129,33 @@ def test_a_paused_playback_is_a_stall_then_streams_on(recording):
     assert camera.counters["stall"] == 1 and camera.counters["timeout"] >= 5, dict(camera.counters)
     assert numbers == sorted(set(numbers)) and numbers[-1] == FIRST + N_FRAMES - 1, numbers
     assert len(numbers) >= N_FRAMES - 2
+
+
+def test_record_writes_the_camera_into_a_tofd_recording_with_its_lens_and_sensor(recording, tmp_path):
+    """`tofd record --camera realsense --playback FILE`: the recording's info carries the device's lens (with its
+    distortion), its SensorInfo (depth unit, infrared, streams) and identity; its frames replay in order, on the
+    sphere through that lens."""
+    out = tmp_path / "rec.mcap"
+    proc = tofd("record", "--camera", "realsense", "--playback", str(recording), "--frames", "30", str(out))
+    assert proc.returncode == 0, proc.stderr
+    info = read_recording_info(out)
+    assert info.intrinsics.distortion_model == "plumb_bob"
+    np.testing.assert_allclose(info.intrinsics.distortion, RS_640.distortion, rtol=1e-6, atol=1e-9)
+    assert info.registers is None and info.sensor is not None
+    assert info.sensor.depth_unit_m == pytest.approx(UNITS_M, rel=1e-6) and info.sensor.amplitude == "ir"
+    assert info.sensor.settings["depth_stream"] == "640x480 @ 30 fps Z16"
+    assert (info.device.backend, info.device.serial) == ("realsense", "0123456789")
+    frames = list(iter_frames(out))
+    numbers = [f.frame_counter for f in frames]
+    assert len(frames) == 30 and numbers == sorted(set(numbers)) and numbers[0] == FIRST, numbers
+    assert all(f.sensor == info.sensor and f.intrinsics == info.intrinsics for f in frames)
+    last = frames[-1]
+    _, _, sphere = render(RS_640, SCENES[last.frame_counter - FIRST])
+    median, p90 = on_sphere(last.intrinsics.backproject(last.range_m)[sphere], SCENES[last.frame_counter - FIRST],
+                            int(sphere.sum()))
+    assert median <= 1e-3 and p90 <= 2e-3, (median, p90)
+    info_proc = tofd("info", str(out))
+    assert info_proc.returncode == 0 and "damage:     none found" in info_proc.stdout, info_proc.stdout
 
 
 def test_a_mode_the_recording_does_not_offer_is_refused_naming_what_it_offers(recording):
