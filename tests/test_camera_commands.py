@@ -56,3 +56,17 @@ def test_a_missing_sdk_is_one_line_naming_the_extra_exit_2(tmp_path, command, bl
                          "pip install 'tofd[realsense]'")
     assert ("libusb-1.0" in err) == (blocked == "libusb_package"), err
     assert not (tmp_path / "rec.mcap").exists()
+
+
+@pytest.mark.parametrize("command", ["run", "record"])
+def test_a_file_the_sdk_cannot_play_is_one_line_exit_2_and_no_camera_one_line_exit_1(tmp_path, command):
+    """A --playback file librealsense cannot read is a data error (exit 2); no such camera attached (none is
+    here) is a runtime failure (exit 1); both name what they looked for, and no recording is started."""
+    bad = tmp_path / "not_a_recording.db3"
+    bad.write_bytes(b"SQLite format 3\x00" + b"\x00" * 200)
+    out = [str(tmp_path / "rec.mcap")] if command == "record" else ["--health-port", "0"]
+    one_line_error(tofd(command, "--camera", "realsense", "--playback", str(bad), *out), 2, str(bad),
+                   "librealsense cannot play it")
+    one_line_error(tofd(command, "--camera", "realsense", "--serial", "123622270224", *out), 1,
+                   "no RealSense camera with serial 123622270224 attached")
+    assert not (tmp_path / "rec.mcap").exists()

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from tofd.drivers.cameras import CameraListing, CameraRequest, StreamMode
+from tofd.drivers.cameras import CameraListing, CameraRequest, PlaybackUnreadable, StreamMode
 from tofd.drivers.frame import DeviceInfo, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.lens_models import lens_intrinsics
@@ -174,12 +174,14 @@ class RealSenseCamera(SdkCamera):
         if self.request.playback is not None:
             config.enable_device_from_file(str(self.request.playback), repeat_playback=False)
         else:
-            self._serial = self._serial or self._first_serial()
+            self._serial = self._attached_serial()
             config.enable_device(self._serial)
         try:
             device = config.resolve(rs.pipeline_wrapper(pipeline)).get_device()
             sensor = device.first_depth_sensor()
         except RuntimeError as exc:
+            if self.request.playback is not None:
+                raise PlaybackUnreadable(f"{self._where()}: librealsense cannot play it ({exc})") from None
             raise DriverError(f"{self._where()}: cannot open ({exc})") from None
         mode = choose_mode(offered_modes(sensor), self.request.mode, self._where())
         if self.request.playback is None:
@@ -208,12 +210,15 @@ class RealSenseCamera(SdkCamera):
             self._stop()
             raise
 
-    def _first_serial(self) -> str:
-        devices = [d for d in self._context.query_devices() if d.supports(rs.camera_info.serial_number)]
-        if not devices:
-            raise DriverError("no RealSense camera attached (librealsense found none); check the cable, USB 3 "
-                              "port and udev rules")
-        return str(devices[0].get_info(rs.camera_info.serial_number))
+    def _attached_serial(self) -> str:
+        """The serial asked for (or found first) if such a camera is attached; DriverError naming the attached."""
+        serials = [str(d.get_info(rs.camera_info.serial_number)) for d in self._context.query_devices()
+                   if d.supports(rs.camera_info.serial_number)]
+        if self._serial in serials or (serials and not self._serial):
+            return self._serial or serials[0]
+        which = f" with serial {self._serial}" if self._serial else ""
+        raise DriverError(f"no RealSense camera{which} attached (librealsense finds "
+                          f"{', '.join(serials) or 'none'}); check the cable, USB 3 port and udev rules")
 
     def _apply_settings(self, sensor: Any) -> None:
         for name, value in self.request.settings.items():
