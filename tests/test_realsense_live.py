@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
 
 import numpy as np
 import pytest
-from bag_scenes import Scene, depth_units, render, sphere_errors
+from bag_scenes import RS_LIKE, RS_SCENE, Scene, depth_units, render, sphere_errors
 from rrd_helpers import read_entities
 from test_cli import HANG_GUARD_S, tofd
 from vendor_bag_helpers import pinhole_errors, realsense_env, record_realsense
@@ -26,6 +27,8 @@ from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import iter_frames
 from tofd.drivers.source import DriverError
 from tofd.service.viewer import blueprint as bp
+from tofd_testing.chaos_helpers import free_port, metric, metrics, wait_for
+from tofd_testing.chaos_helpers import tofd as chaos_tofd
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 
 RS_640 = Intrinsics(640, 480, 500.0, 502.5, 323.3, 236.6, "plumb_bob", (-0.25, 0.09, 0.0012, -0.0009, -0.012))
@@ -42,6 +45,13 @@ def recording(request, tmp_path_factory):
     env = realsense_env("current", request.config.cache.mkdir("tofd-realsense"))
     return record_realsense(tmp_path_factory.mktemp("rs") / "moving.db3", env, RS_640, SCENES, UNITS_M,
                             first_number=FIRST)
+
+
+@pytest.fixture(scope="module")
+def long_recording(request, tmp_path_factory):
+    """Ten seconds of a still sphere at 256x192: long enough to stop a run in the middle."""
+    env = realsense_env("current", request.config.cache.mkdir("tofd-realsense"))
+    return record_realsense(tmp_path_factory.mktemp("rs") / "long.db3", env, RS_LIKE, RS_SCENE, UNITS_M, 300)
 
 
 def playback(path, **fields) -> SdkCamera:
@@ -82,6 +92,25 @@ def test_run_on_the_playback_device_puts_the_foreground_on_the_moving_sphere(rec
         assert median <= 2e-3 and p90 <= 5e-3, (counter, median, p90)
         assert pinhole_errors(RS_640, scene) > 2e-3  # without the lens the same check would fail
         print(f"frame {counter}: {len(points)} points, median {median * 1e3:.3f} mm, p90 {p90 * 1e3:.3f} mm")
+
+
+@pytest.mark.slow
+def test_sigterm_during_a_playback_drains_and_exits_0_with_its_summary(long_recording, tmp_path):
+    summary_path, port = tmp_path / "s.json", free_port()
+    proc = chaos_tofd("run", "--camera", "realsense", "--playback", long_recording, "--rerun", "none",
+                      "--health-port", port, "--summary", summary_path)
+    try:
+        assert wait_for(lambda: metric(metrics(port), "tofd_frames_out_total") >= 5 or proc.poll() is not None,
+                        HANG_GUARD_S)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=HANG_GUARD_S)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    summary = json.loads(summary_path.read_text())
+    assert summary["shutdown"]["reason"] == "SIGTERM" and summary["error"] is None, summary
+    assert summary["consistent"] and summary["frames_pending"] == 0 and summary["frames_out"] >= 5
+    assert summary["frames_in"] < 300  # stopped in the middle of the ten seconds
 
 
 def test_the_playback_device_gives_the_devices_lens_units_numbers_and_times(recording):
