@@ -263,6 +263,33 @@ def test_the_software_devices_sensor_fed_a_known_surface_converts_through_the_li
         sensor.close()
 
 
+def test_settings_are_set_on_the_depth_sensor_and_read_back_into_the_frames_sensor_info():
+    """exposure_us and laser_power set through librealsense's option API on a software sensor with a D400's option
+    ranges (manual exposure turns automatic exposure off), read back into SensorInfo.settings; a value outside
+    the device's range, or a setting the sensor lacks, is refused naming it."""
+    from tofd.drivers.realsense import camera as rs_camera
+    from tofd.drivers.realsense.sdk import rs
+
+    _device, sensor, _ = software_sensor(rs, RS_LIKE, 1e-3)
+    for option, limits in {"exposure": (1, 165000, 1, 8500), "laser_power": (0, 360, 30, 150),
+                           "enable_auto_exposure": (0, 1, 1, 1)}.items():
+        option_range = rs.option_range()  # by name: the constructor's step and default came out swapped in 2.59
+        option_range.min, option_range.max, option_range.step, option_range.default = limits
+        sensor.add_option(getattr(rs.option, option), option_range, True)
+    sensor.set_option(rs.option.enable_auto_exposure, 1)
+    rs_camera.apply_settings(sensor, {"exposure_us": 1250.0, "laser_power": 90.0}, "software device")
+    (mode,) = rs_camera.offered_modes(sensor)
+    settings = rs_camera.sensor_info(sensor, mode, "camera").settings
+    assert (settings["exposure"], settings["laser_power"], settings["enable_auto_exposure"]) == ("1250", "90", "0")
+    with pytest.raises(DriverError, match="software device: laser_power 400 is outside the device's range 0..360"):
+        rs_camera.apply_settings(sensor, {"laser_power": 400.0}, "software device")
+    with pytest.raises(DriverError, match="software device: laser_power 95: the device refuses it"):
+        rs_camera.apply_settings(sensor, {"laser_power": 95.0}, "software device")  # between its 30 mW steps
+    with pytest.raises(DriverError, match="software device: the depth sensor has no gain setting"):
+        rs_camera.apply_settings(sensor, {"gain": 16.0}, "software device")
+    assert sensor.get_option(rs.option.laser_power) == 90.0  # a refused value leaves the setting alone
+
+
 @pytest.mark.device
 def test_a_real_realsense_camera_streams_frames_with_its_lens():
     """For people who own a RealSense: the first attached camera gives frames of its own calibration."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -117,6 +118,24 @@ def capture_of(depth: Any, infrared: Any) -> Capture:
                    frame_counter=int(depth.get_frame_number()), timestamp_us=round(depth.get_timestamp() * 1000))
 
 
+def apply_settings(sensor: Any, settings: Mapping[str, float], where: str) -> None:
+    """Set the request's settings (SETTING_OPTIONS names, or rs.option names) on a depth sensor, each checked
+    against the sensor's range; a manual exposure turns automatic exposure off. DriverError naming the setting."""
+    for name, value in settings.items():
+        option = getattr(rs.option, SETTING_OPTIONS.get(name, name), None)
+        if option is None or not sensor.supports(option):
+            raise DriverError(f"{where}: the depth sensor has no {name} setting")
+        limits = sensor.get_option_range(option)
+        if not limits.min <= value <= limits.max:
+            raise DriverError(f"{where}: {name} {value:g} is outside the device's range {limits.min:g}..{limits.max:g}")
+        try:
+            if name == "exposure_us" and sensor.supports(rs.option.enable_auto_exposure):
+                sensor.set_option(rs.option.enable_auto_exposure, 0)
+            sensor.set_option(option, value)
+        except RuntimeError as exc:  # e.g. a value between the device's steps
+            raise DriverError(f"{where}: {name} {value:g}: the device refuses it ({exc})") from None
+
+
 def sensor_info(sensor: Any, mode: Mode, source: str) -> SensorInfo:
     """The SensorInfo of a depth sensor streaming in `mode`: its depth unit (metres per value), infrared as the
     amplitude, the streams, `source` ("camera" or "playback") and the options of REPORTED_OPTIONS it has."""
@@ -185,7 +204,7 @@ class RealSenseCamera(SdkCamera):
             raise DriverError(f"{self._where()}: cannot open ({exc})") from None
         mode = choose_mode(offered_modes(sensor), self.request.mode, self._where())
         if self.request.playback is None:
-            self._apply_settings(sensor)
+            apply_settings(sensor, self.request.settings, self._where())
         elif self.request.settings:
             log.warning("%s: settings %s are not applied to a recording", self._where(), dict(self.request.settings))
         config.enable_stream(rs.stream.depth, mode.width, mode.height, rs.format.z16, mode.fps)
@@ -219,19 +238,6 @@ class RealSenseCamera(SdkCamera):
         which = f" with serial {self._serial}" if self._serial else ""
         raise DriverError(f"no RealSense camera{which} attached (librealsense finds "
                           f"{', '.join(serials) or 'none'}); check the cable, USB 3 port and udev rules")
-
-    def _apply_settings(self, sensor: Any) -> None:
-        for name, value in self.request.settings.items():
-            option = getattr(rs.option, SETTING_OPTIONS.get(name, name), None)
-            if option is None or not sensor.supports(option):
-                raise DriverError(f"{self._where()}: the depth sensor has no {name} setting")
-            if name == "exposure_us" and sensor.supports(rs.option.enable_auto_exposure):
-                sensor.set_option(rs.option.enable_auto_exposure, 0)
-            limits = sensor.get_option_range(option)
-            if not limits.min <= value <= limits.max:
-                raise DriverError(f"{self._where()}: {name} {value:g} is outside the device's range "
-                                  f"{limits.min:g}..{limits.max:g}")
-            sensor.set_option(option, value)
 
     def _describe(self, profile: Any, sensor: Any, mode: Mode) -> None:
         """intrinsics, device_info and sensor of the started streams."""
