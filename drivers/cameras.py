@@ -81,6 +81,10 @@ class SdkMissing(DriverError):
         super().__init__(f"the {kind} camera needs its SDK{why}: pip install 'tofd[{self.extra}]'")
 
 
+class PlaybackUnreadable(DriverError):
+    """A --playback file the vendor's SDK cannot play (not its recording, or damaged): a data error, exit 2."""
+
+
 class CameraBackend(Protocol):
     """What each kind's backend module offers as its module attribute BACKEND."""
 

@@ -53,7 +53,7 @@ def _raise_stopped(signum: int, _first: bool) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from tofd.config import load_config
-    from tofd.drivers.cameras import SdkMissing
+    from tofd.drivers.cameras import PlaybackUnreadable, SdkMissing
     from tofd.drivers.source import DriverError
     from tofd.outputs import check_output_file
     from tofd.process_setup import prepare_service_process
@@ -77,7 +77,7 @@ def main(args: argparse.Namespace) -> int:
     except Stopped as exc:
         print(f"tofd run: {exc} before the camera was ready; stopped", file=sys.stderr)
         return 0
-    except SdkMissing as exc:
+    except (SdkMissing, PlaybackUnreadable) as exc:
         print(f"tofd run: {exc}", file=sys.stderr)
         return 2
     except (DriverError, OSError) as exc:
