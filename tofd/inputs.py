@@ -118,15 +118,15 @@ def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[Fra
 
 def frames_with_rejects(source: FrameSource, summary: InputSummary) -> Iterator[Frame]:
     """The source's frames; the frames it rejects (damage) are counted in summary.rejected on the way, and why
-    it stopped early (a replayed recording's stopped_reason) in summary.stopped."""
+    it stopped early (the source's report) in summary.stopped."""
     for frame in source:
         summary.rejected.update(r.reason.split(":")[0] for r in source.take_rejected())
         yield frame
     summary.rejected.update(r.reason.split(":")[0] for r in source.take_rejected())
     summary.counters = {k: v for k, v in source.counters.items() if v}
-    reason = getattr(source, "stopped_reason", None)
-    if reason not in (None, "end"):
-        summary.stopped = f"{reason}: {getattr(source, 'stop_detail', '')}"
+    report = source.report
+    if report.stopped_early:
+        summary.stopped = f"{report.reason}: {report.detail}"
 
 
 def summarize(path: Path, bag_options: RangeOptions | None = None) -> InputSummary:

@@ -37,7 +37,7 @@ import numpy as np
 from tofd.drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.k4a.lens import depth_lens
-from tofd.drivers.source import DriverError, FrameSource
+from tofd.drivers.source import DriverError, FrameSource, SourceReport, StopReason
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +84,7 @@ class K4aRecordingSource(FrameSource):
             self._read_header(container)
         finally:
             container.close()
-        self.stopped_reason: str | None = None
+        self.stopped_reason: StopReason | None = None
         self.stop_detail = ""
         self.last_good_counter: int | None = None
         self.frame_period_us: float | None = None
@@ -161,6 +161,10 @@ class K4aRecordingSource(FrameSource):
     @property
     def shape(self) -> tuple[int, int]:
         return self.intrinsics.shape
+
+    @property
+    def report(self) -> SourceReport:
+        return SourceReport(self.stopped_reason, self.stop_detail, self.last_good_counter)
 
     def _captures(self) -> Generator[_Capture, None, None]:
         """Captures in time order: the DEPTH and IR blocks of each timestamp (None where a track has none).

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tofd.drivers import sr3000
+from tofd.drivers.errors import DataError
 from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth, Registers, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.recording import schemas
@@ -73,7 +74,7 @@ ROLE_BY_ID = {c.id: c.role for c in CHANNELS}
 _ENCODINGS: dict[str, np.dtype] = {"16UC1": np.dtype("<u2"), "32FC1": np.dtype("<f4")}
 
 
-class FormatError(ValueError):
+class FormatError(DataError):
     """A frame message or metadata record that does not follow this layout."""
 
 

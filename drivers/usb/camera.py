@@ -136,7 +136,7 @@ class UsbCamera(FrameSource):
         self.reconnect_initial_s, self.reconnect_max_s = reconnect_initial_s, reconnect_max_s
         self.backend = backend
         self.backend_name = backend_name
-        self.intrinsics = intrinsics or Intrinsics()
+        self.intrinsics: Intrinsics = intrinsics or Intrinsics()
         self.ground_truth = ground_truth
         self.on_gap = on_gap
         self.gaps: deque[FrameGap] = deque(maxlen=1000)

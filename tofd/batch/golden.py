@@ -18,6 +18,7 @@ from tofd.algorithm.detector import NoseModel
 from tofd.batch.plan import run_digests
 from tofd.batch.rows import frame_row, pipeline_fields, rows_digest
 from tofd.config import Config, config_table
+from tofd.errors import UsageError
 from tofd.service.pipeline.results import FrameResult
 
 FORMAT = "tofd.golden.v1"
@@ -100,13 +101,13 @@ def write_golden(path: str | Path, document: dict) -> None:
 
 
 def load_golden(path: str | Path) -> dict:
-    """A golden file; ValueError names a file that is not one."""
+    """A golden file; UsageError (a ValueError) names a file that is not one."""
     try:
         doc = json.loads(Path(path).read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read golden file: {exc}") from None
+        raise UsageError(f"{path}: cannot read golden file: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a golden file (expected format {FORMAT!r})")
+        raise UsageError(f"{path}: not a golden file (expected format {FORMAT!r})")
     return doc
 
 

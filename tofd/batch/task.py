@@ -86,10 +86,8 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
                 stats["frames_in"] += len(lost)
                 stats["dropped"]["damaged"] += len(lost)
                 errors.append(f"{len(lost)} frames lost or damaged, the first: {lost[0].reason}")
-            stopped = getattr(source, "stopped_reason", None)
-            if stopped not in (None, "end"):
-                errors.append(f"{stopped} after frame {getattr(source, 'last_good_counter', None)}: "
-                              f"{getattr(source, 'stop_detail', '')}")
+            if source.report.stopped_early:
+                errors.append(source.report.line())
         return
     offsets = (0,) * part.first + part.offsets
     index = FrameIndex(offsets, frozenset(part.frame_channels), "")

@@ -45,6 +45,6 @@ def main(args: argparse.Namespace) -> int:
     print(f"tofd convert: wrote {args.out}: {writer.frames_written} frames "
           f"(format {info.format_version} -> {FORMAT_VERSION})"
           + (f", {left_out} left out (see the log)" if left_out else "")
-          + ("" if source.stopped_reason == "end" else f"; {args.file} is {source.stopped_reason}: "
-                                                     f"{source.stop_detail}"), file=sys.stderr)
+          + (f"; {args.file} is {source.report.reason}: {source.report.detail}" if source.report.stopped_early
+             else ""), file=sys.stderr)
     return 0

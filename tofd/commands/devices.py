@@ -6,7 +6,6 @@ With --emulate, lists one emulated camera instead (the one `tofd run --emulate` 
 from __future__ import annotations
 
 import argparse
-import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -15,18 +14,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from tofd.drivers.usb.camera import list_devices
-    from tofd.drivers.usb.errors import UsbCameraError
 
     backend = None
     if args.emulate:
         from tofd.drivers.emulator.backend import EmulatorBackend
 
         backend = EmulatorBackend()
-    try:
-        listings = list_devices(backend)
-    except UsbCameraError as exc:
-        print(f"tofd devices: {exc}", file=sys.stderr)
-        return 1
+    listings = list_devices(backend)
     if not listings:
         print("no SR3000-style camera (USB 0852:0074) attached; check the cable and the camera's power.")
         return 1

@@ -59,9 +59,9 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
     if fmt.read_as != "bag" and options != RangeOptions():
         raise UsageError(f"{bag} is a {fmt.description}: the ROS bag options are for ROS bags")
     provenance = {"import": {"bag": str(bag), **dataclasses.asdict(options),
-                             "source": getattr(source, "settings", {})} if fmt.read_as == "bag"
+                             "source": source.settings} if fmt.read_as == "bag"
                   else {"file": str(bag), "format": fmt.name}}
-    progress = Progress(command, getattr(source, "range_messages", None))
+    progress = Progress(command, source.expected_frames)
     # the writer opens the temp file by name; AtomicFile renames it to `out` only when every frame is in
     with source, AtomicFile(out, "wb") as target:
         try:
@@ -74,8 +74,8 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
         finally:
             progress.done()
         unpaired = _unpaired(source.counters)
-        intrinsics = getattr(source, "intrinsics", None)
-        damage = getattr(source, "damage", None)
+        intrinsics = source.intrinsics
+        damage = source.report.detail if source.report.stopped_early else ""
         if intrinsics is None or not writer.frames_written:
             why = f"; {damage}" if damage else ""
             raise UsageError(f"{bag}: no header stamp has a range image, an amplitude image and a camera_info "

@@ -146,7 +146,7 @@ def _replay_source(args: argparse.Namespace, stem: str) -> int:
         source = open_source(args.file)
     except (DriverError, OSError, ValueError) as exc:
         raise UsageError(str(exc)) from None
-    return _serve(args, cfg, source, getattr(source, "intrinsics", None), args.frames, stem)
+    return _serve(args, cfg, source, source.intrinsics, args.frames, stem)
 
 
 def _replay_config(args: argparse.Namespace, cfg: Config, stem: str) -> Config:
@@ -159,17 +159,14 @@ def _replay_config(args: argparse.Namespace, cfg: Config, stem: str) -> Config:
 
 def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsics: Intrinsics | None,
            total: int | None, stem: str) -> int:
-    """Run the pipeline over `source` and write the outputs; the source may say where a damaged file stopped
-    (stopped_reason, last_good_counter, stop_detail, as ReplaySource does)."""
+    """Run the pipeline over `source` and write the outputs, saying where a damaged file stopped (its report)."""
     from tofd.batch.golden import GoldenRecorder
-    from tofd.drivers.source import DriverError
     from tofd.outputs import prepare_output_dir
     from tofd.process_setup import prepare_service_process
     from tofd.progress import Progress
     from tofd.service.daemon import serve
-    from tofd.service.pipeline import PipelineError, ResultsWriter
+    from tofd.service.pipeline import ResultsWriter
     from tofd.service.pipeline.queues import run_policy
-    from tofd.service.viewer import ViewerError
 
     policy = run_policy(cfg.pipeline.policy, live_source=False)
     out = prepare_output_dir(args.out)
@@ -184,11 +181,7 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
             result = serve(cfg, source, policy, live_source=False, writers=(writer,) + ((golden,) if golden else ()),
                            writers_read_maps=golden is not None, max_frames=args.frames,
                            progress=Progress("replay", total), summary_path=out / f"{stem}.summary.json")
-    except (DriverError, PipelineError, ViewerError, OSError) as exc:
-        writer.discard()
-        print(f"tofd replay: {exc}", file=sys.stderr)
-        return 1
-    except BaseException:
+    except BaseException:  # a TofdError or OSError is one line and exit status 1 (tofd.cli)
         writer.discard()
         raise
     s = result.summary
@@ -197,10 +190,8 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
     except OSError as exc:
         s["outputs_failed"][str(results_path)] = exc.strerror or str(exc)
         print(f"tofd replay: output {results_path} failed: {exc.strerror or exc}", file=sys.stderr)
-    stopped = getattr(source, "stopped_reason", None)
-    if stopped not in (None, "end"):
-        print(f"tofd replay: the recording is {stopped} after frame {getattr(source, 'last_good_counter', None)}: "
-              f"{getattr(source, 'stop_detail', '')}", file=sys.stderr)
+    if source.report.stopped_early:
+        print(f"tofd replay: the recording is {source.report.line()}", file=sys.stderr)
     failed = s["outputs_failed"]  # each said so in one line when it failed
     if str(results_path) not in failed:
         _report_accuracy(results_path, out / f"{stem}.accuracy.png")
@@ -238,11 +229,7 @@ def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Con
         print(f"tofd replay: wrote golden file {args.write_golden} ({len(rows)} frames)", file=sys.stderr)
     if not args.check:
         return 0
-    try:
-        golden = load_golden(args.check)
-    except ValueError as exc:
-        print(f"tofd replay: {exc}", file=sys.stderr)
-        return 2
+    golden = load_golden(args.check)
     report = compare(golden, rows)
     notes = list(report.notes) + [
         f"the golden file was made with {k} {v[:12]}, this run has {doc['digests'][k][:12]}"

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 from tofd.algorithm.params import FeatureConfig
 from tofd.drivers.intrinsics import Intrinsics
+from tofd.errors import UsageError
 
 
-class SamplingError(ValueError):
+class SamplingError(UsageError):
     """The pixels at the object's range are too coarse for the band on the NFFT grid (the message says by how much)."""
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import rerun as rr
 
 from tofd.config import RerunConfig
+from tofd.errors import TofdError
 from tofd.service.lifeline import preexec_die_with_parent
 from tofd.service.viewer.blueprint import build_blueprint
 
@@ -44,7 +45,7 @@ def apply_analytics_setting(enabled: bool) -> None:
         os.environ["CI"] = "1"
 
 
-class ViewerError(RuntimeError):
+class ViewerError(TofdError, RuntimeError):
     """A viewer that could not be started or reached."""
 
 
