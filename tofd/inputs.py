@@ -1,4 +1,5 @@
-"""Every input tofd reads as a FrameSource, and what one says about itself (for `tofd info` and `tofd export`).
+"""Every input tofd reads as a FrameSource, what one says about itself (for `tofd info` and `tofd export`), and
+its frames written as a tofd recording (for `tofd import`, and `tofd replay` of a bag).
 
 open_input opens what tofd.drivers.opener recognises (the one table of input kinds); a kind whose file has a header
 worth showing gets a branch there that describes it; everything else (frames, duration, rate, camera,
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -21,6 +22,9 @@ from tofd.drivers.source import FrameSource
 
 if TYPE_CHECKING:
     from tofd.drivers.bags.driver_bag import RangeOptions
+    from tofd.drivers.opener import InputFormat
+    from tofd.drivers.source import Rejected
+    from tofd.progress import Progress
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,32 +92,28 @@ class InputSummary:
 def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[FrameSource, InputDescription]:
     """A lossless FrameSource on `path` and its format, recognised by tofd.drivers.opener (`bag_options`: a ROS bag's
     topics and range encoding); DriverError (or OSError) when it cannot be read."""
-    from tofd.drivers.opener import identify
+    from tofd.drivers import opener
+    from tofd.drivers.recording.replay import ReplaySource
     from tofd.drivers.source import DriverError
 
     try:
-        fmt = identify(path)
+        fmt, source = opener.open_input(path, bag_options)
     except ValueError as exc:
         raise DriverError(str(exc)) from None
-    if fmt.read_as == "bag":
-        from tofd.drivers.bags.opener import open_bag
-
-        source = open_bag(path, bag_options)
-        if fmt.name != "rosbag":  # a vendor SDK's recording
-            return source, InputDescription(fmt.description, "")
+    if fmt == opener.ROSBAG:
         kind = "ROS 1 bag" if path.suffix == ".bag" else "ROS 2 bag"
         storage = "mcap" if path.suffix == ".mcap" or any(path.glob("*.mcap")) else "sqlite3"
         return source, InputDescription(kind, "", () if kind == "ROS 1 bag" else (("storage", storage),))
-    if fmt.read_as == "source" and fmt.open is not None:
-        return fmt.open(path), InputDescription(fmt.description, "")
-    from tofd.drivers.recording.reader import read_recording_info
-    from tofd.drivers.recording.replay import ReplaySource
-
-    info = read_recording_info(path)
+    if not isinstance(source, ReplaySource):
+        return source, InputDescription(fmt.description, "")
+    info = source.info
+    if info is None:
+        source.close()
+        raise DriverError(source.header_problem)
     created = datetime.fromtimestamp(info.created_wall_s, UTC).strftime("%Y-%m-%d %H:%M:%S UTC") \
         if math.isfinite(info.created_wall_s) else "unknown"
-    return ReplaySource(path), InputDescription("tofd recording (MCAP)", str(info.format_version),
-                                           (("written by", f"tofd {info.software_version}"), ("created", created)))
+    return source, InputDescription("tofd recording (MCAP)", str(info.format_version),
+                                    (("written by", f"tofd {info.software_version}"), ("created", created)))
 
 
 def frames_with_rejects(source: FrameSource, summary: InputSummary) -> Iterator[Frame]:
@@ -137,3 +137,77 @@ def summarize(path: Path, bag_options: RangeOptions | None = None) -> InputSumma
         for frame in frames_with_rejects(source, summary):
             summary.add(frame)
     return summary
+
+
+def open_reader(path: Path, bag_options: RangeOptions) -> tuple[InputFormat, FrameSource]:
+    """The format of `path` and a lossless FrameSource on it (tofd.drivers.opener.open_input); UsageError names an
+    input that cannot be read, and ROS bag options given for another kind of file."""
+    from tofd.drivers.bags.driver_bag import RangeOptions
+    from tofd.drivers.opener import open_input
+    from tofd.drivers.source import DriverError
+    from tofd.errors import UsageError
+
+    try:
+        fmt, source = open_input(path, bag_options)
+    except (DriverError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+    if fmt.read_as != "bag" and bag_options != RangeOptions():
+        source.close()
+        raise UsageError(f"{path} is a {fmt.description}: the ROS bag options are for ROS bags")
+    return fmt, source
+
+
+def convert(path: Path, fmt: InputFormat, source: FrameSource, bag_options: RangeOptions, out: Path,
+            progress: Callable[[int | None], Progress], rejected: list[Rejected] | None = None) -> str:
+    """Write the frames of `source` (open_reader's, on the bag or .mkv `path` of format `fmt`, with `bag_options`)
+    to the tofd recording `out`, renamed into place when complete, with the progress bar `progress(total)` makes;
+    returns what was written, e.g. "12 frames of 176x144". The frames the source rejected (a damaged tail) are
+    added to `rejected`. UsageError names a bad input."""
+    import dataclasses
+
+    from tofd.drivers.bags.scan import BagError
+    from tofd.drivers.recording.writer import RecordingWriter
+    from tofd.drivers.source import DriverError
+    from tofd.errors import UsageError
+    from tofd.outputs import AtomicFile
+
+    provenance = {"import": {"bag": str(path), **dataclasses.asdict(bag_options), "source": source.settings}
+                  if fmt.read_as == "bag" else {"file": str(path), "format": fmt.name}}
+    bar = progress(source.expected_frames)
+    # the writer opens the temp file by name; AtomicFile renames it to `out` only when every frame is in
+    with source, AtomicFile(out, "wb") as target:
+        try:
+            with RecordingWriter(target.tmp_path, config=provenance, fsync_interval_s=None) as writer:
+                for frame in source:
+                    writer.write(frame)
+                    bar.update(writer.frames_written)
+        except (BagError, DriverError) as exc:
+            raise UsageError(str(exc)) from None
+        finally:
+            bar.done()
+        unpaired = _unpaired(source.counters)
+        intrinsics = source.intrinsics
+        damage = source.report.detail if source.report.stopped_early else ""
+        if intrinsics is None or not writer.frames_written:
+            why = f"; {damage}" if damage else ""
+            raise UsageError(f"{path}: no header stamp has a range image, an amplitude image and a camera_info "
+                             f"({unpaired or 'its topics are empty'}{why}); nothing written" if fmt.read_as == "bag"
+                             else f"{path}: no frame could be read; nothing written")
+    lost_frames = source.take_rejected()
+    lost = len(lost_frames)
+    if rejected is not None:
+        rejected.extend(lost_frames)
+    skipped = "; ".join(filter(None, [unpaired, f"{lost} frames lost or damaged (see the log)" if lost else ""]))
+    size = f"{intrinsics.width}x{intrinsics.height}"
+    damaged = f"; damaged, the rest unread: {damage}" if damage else ""
+    return f"{writer.frames_written} frames of {size}" + (f"; skipped {skipped}" if skipped else "") + damaged
+
+
+def _unpaired(counters: dict[str, int]) -> str:
+    """The messages left without the others of their stamp and those that did not decode, e.g. "3 range,
+    1 camera_info messages unpaired; 1 garbled message skipped"."""
+    parts = [f"{n} {key.removeprefix('unpaired_')}" for key, n in sorted(counters.items())
+             if key.startswith("unpaired_") and n]
+    garbled = counters.get("damaged_message", 0)
+    return "; ".join(filter(None, [f"{', '.join(parts)} messages unpaired" if parts else "",
+                                   f"{garbled} garbled message{'s' * (garbled != 1)} skipped" if garbled else ""]))

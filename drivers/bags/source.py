@@ -13,13 +13,10 @@ from typing import Any
 import numpy as np
 
 from tofd.drivers.bags.scan import BagError, BagReader, DamagedMessage, RawMessage
-from tofd.drivers.frame import AmplitudeKind, Frame, SensorInfo
+from tofd.drivers.frame import COUNTER_LIMIT, PERIOD_FRAMES, AmplitudeKind, Frame, SensorInfo
 from tofd.drivers.source import FrameSource, Rejected, SourceReport
 
 log = logging.getLogger(__name__)
-
-PERIOD_FRAMES = 8
-"""Frames whose device timestamps give the frame period before the first frame is delivered."""
 
 
 def depth_metres(raw: np.ndarray, metres_per_unit: float) -> np.ndarray:
@@ -47,10 +44,11 @@ class BagSource(FrameSource):
     unambiguous_range_m: float | None = None
     """The range at which the phase wraps, when the file says (None: unknown)."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, bag: BagReader | None = None) -> None:
+        """`bag`: the bag at `path` already open (its reader is the source's from then on)."""
         super().__init__()
         self.path = Path(path)
-        self.bag = BagReader(self.path)
+        self.bag = bag or BagReader(self.path)
         self.range_messages: int | None = None
         """Range images in the bag (an upper bound on the frames; None when unknown)."""
         self._ended = False  # iteration reached the end of the bag or its damage
@@ -102,7 +100,7 @@ class BagSource(FrameSource):
             self.counters["damaged_message"] += 1
             log.warning("%s", why)
         else:
-            self.reject(frame_number % (1 << 32), f"damaged: {why}")
+            self.reject(frame_number % COUNTER_LIMIT, f"damaged: {why}")
 
     def check_sizes(self, where: str, **planes: tuple[int, int]) -> None:
         """BagError when the named (H, W) shapes differ."""

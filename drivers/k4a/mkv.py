@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from tofd.drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame, SensorInfo
+from tofd.drivers.frame import COUNTER_LIMIT, PERIOD_FRAMES, DeviceInfo, Frame, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.k4a.lens import depth_lens
 from tofd.drivers.source import DriverError, FrameSource, SourceReport, StopReason
@@ -46,8 +46,6 @@ MATROSKA_MAGIC = b"\x1a\x45\xdf\xa3"
 DEPTH_TRACK, IR_TRACK = "DEPTH", "IR"
 CALIBRATION_ATTACHMENT = "calibration.json"
 GREY16_FOURCC = "b16g"
-PERIOD_FRAMES = 8
-"""Captures whose timestamps give the frame period before the first frame is delivered."""
 MAX_LOST_FRAMES = 100_000
 """A larger gap between two captures is not counted as lost frames (a clock jump, not a drop)."""
 

@@ -66,13 +66,12 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
         yield from _dataset_frames(part, stats, errors)
         return
     if not part.offsets:  # no index, or a file a FrameSource reads: the whole file, sequentially
-        from tofd.drivers.opener import open_source
-        from tofd.drivers.recording.replay import ReplaySource
-        from tofd.drivers.source import DriverError, FrameSource
+        from tofd.drivers.opener import open_input
+        from tofd.drivers.source import DriverError
 
         t0 = time.perf_counter()
         try:
-            source: FrameSource = open_source(part.url) if part.reader else ReplaySource(part.url)
+            _, source = open_input(part.url)
         except (DriverError, OSError, ValueError) as exc:
             errors.append(str(exc))
             return

@@ -30,7 +30,6 @@ from tofd.service.daemon import RERUN_SPEC_HELP
 from tofd.service.foxglove.spec import FOXGLOVE_SPEC_HELP, parse_foxglove_spec
 
 if TYPE_CHECKING:
-    from tofd.algorithm.detector import NoseModel
     from tofd.drivers.intrinsics import Intrinsics
     from tofd.drivers.source import FrameSource, Rejected
 
@@ -76,32 +75,28 @@ def _report_accuracy(results: Path, plot: Path) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tofd.drivers.bags.driver_bag import RangeOptions
-    from tofd.drivers.opener import identify
     from tofd.errors import UsageError
+    from tofd.inputs import convert, open_reader
+    from tofd.progress import Progress
 
     if args.speed is not None and not (args.realtime or args.foxglove not in (None, "none")):
         raise UsageError("--speed needs --realtime (a lossless replay runs as fast as the pipeline goes)")
     stem = args.file.name.split(".")[0]
-    try:
-        fmt = identify(args.file)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    if fmt.read_as != "bag" and arguments.bag_options(args) != RangeOptions():
-        raise UsageError(f"{args.file} is a {fmt.description}: the ROS bag options are for ROS bags")
-    if fmt.read_as == "recording":
+    options = arguments.bag_options(args)
+    fmt, source = open_reader(args.file, options)
+    if fmt.read_as == "recording":  # replayed by a source with the replay's pace, loop and seek
+        source.close()
         return _replay(args, args.file, stem)
     if fmt.read_as == "source" and not (args.realtime or args.foxglove not in (None, "none") or args.loop
                                         or args.seek is not None):
-        return _replay_source(args, stem)
+        return _replay_source(args, source, stem)
     import tempfile
-
-    from tofd.commands.import_ import convert
 
     with tempfile.TemporaryDirectory(prefix="tofd-replay-") as tmp:
         recording = Path(tmp) / f"{stem}.mcap"
         rejected: list[Rejected] = []
-        done = convert(args.file, recording, arguments.bag_options(args), "replay: import", rejected)
+        done = convert(args.file, fmt, source, options, recording, lambda total: Progress("replay: import", total),
+                       rejected)
         print(f"tofd replay: imported {done} from {args.file}", file=sys.stderr)
         return _replay(args, recording, stem, rejected)
 
@@ -133,19 +128,16 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list
     return _serve(args, cfg, source, info.intrinsics, args.frames or (None if args.loop else info.frame_count), stem)
 
 
-def _replay_source(args: argparse.Namespace, stem: str) -> int:
-    """Replay a file a FrameSource reads directly (tofd.drivers.opener), lossless, from its first frame: its lost
-    frames are ledgered as the pipeline meets them."""
+def _replay_source(args: argparse.Namespace, source: FrameSource, stem: str) -> int:
+    """Replay `source`, a file a FrameSource reads directly (tofd.drivers.opener), lossless, from its first frame:
+    its lost frames are ledgered as the pipeline meets them."""
     from tofd.config import load_config
-    from tofd.drivers.opener import open_source
-    from tofd.drivers.source import DriverError
-    from tofd.errors import UsageError
 
-    cfg = _replay_config(args, load_config(args.config), stem)
     try:
-        source = open_source(args.file)
-    except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(str(exc)) from None
+        cfg = _replay_config(args, load_config(args.config), stem)
+    except BaseException:
+        source.close()
+        raise
     return _serve(args, cfg, source, source.intrinsics, args.frames, stem)
 
 
@@ -160,7 +152,7 @@ def _replay_config(args: argparse.Namespace, cfg: Config, stem: str) -> Config:
 def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsics: Intrinsics | None,
            total: int | None, stem: str) -> int:
     """Run the pipeline over `source` and write the outputs, saying where a damaged file stopped (its report)."""
-    from tofd.batch.golden import GoldenRecorder
+    from tofd.batch.golden import GoldenRecorder, golden_check
     from tofd.outputs import prepare_output_dir
     from tofd.process_setup import prepare_service_process
     from tofd.progress import Progress
@@ -215,32 +207,8 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
         return 128 + signal.Signals[stopped_by].value
     code = 1 if failed else result.exit_code
     if golden is not None:
-        return check_golden(args, golden.rows, stem, cfg, result.model) or code
+        regression, lines = golden_check(golden.rows, stem, cfg, result.model, args.write_golden, args.check)
+        for line in lines:
+            print(line if line.startswith("  ") else f"tofd replay: {line}", file=sys.stderr)
+        return 1 if regression else code
     return code
-
-
-def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Config, model: NoseModel | None) -> int:
-    """Write and/or check the golden file; 1 (with the differences on stderr) on a regression."""
-    from tofd.batch.golden import compare, golden_document, load_golden, write_golden
-
-    doc = golden_document(rows, stem, cfg, model)
-    if args.write_golden:
-        write_golden(args.write_golden, doc)
-        print(f"tofd replay: wrote golden file {args.write_golden} ({len(rows)} frames)", file=sys.stderr)
-    if not args.check:
-        return 0
-    golden = load_golden(args.check)
-    report = compare(golden, rows)
-    notes = list(report.notes) + [
-        f"the golden file was made with {k} {v[:12]}, this run has {doc['digests'][k][:12]}"
-        for k, v in golden.get("digests", {}).items() if k != "run" and v != doc["digests"].get(k)]
-    for line in notes:
-        print(f"tofd replay: check: {line}", file=sys.stderr)
-    if report.problems:
-        print(f"tofd replay: check FAILED against {args.check}:", file=sys.stderr)
-        for line in report.problems:
-            print(f"  {line}", file=sys.stderr)
-        return 1
-    print(f"tofd replay: check passed against {args.check} ({report.frames_compared} frames within tolerance"
-          f"{', bit-identical' if report.bit_identical else ''})", file=sys.stderr)
-    return 0
