@@ -1,9 +1,10 @@
 """Every input tofd reads as a FrameSource, what one says about itself (for `tofd info` and `tofd export`), and
 its frames written as a tofd recording (for `tofd import`, and `tofd replay` of a bag).
 
-open_input opens what tofd.drivers.opener recognises (the one table of input kinds); a kind whose file has a header
-worth showing gets a branch there that describes it; everything else (frames, duration, rate, camera,
-intrinsics, damage) is read from the frames and the source's counters, the same for every kind.
+open_reader opens what tofd.drivers.opener recognises (the one table of input kinds), naming an input it cannot
+read in a UsageError; describe_input describes a kind whose file has a header worth showing; everything else
+(frames, duration, rate, camera, intrinsics, damage) is read from the frames and the source's counters, the same
+for every kind.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from tofd.drivers.frame import DeviceInfo, Frame
 from tofd.drivers.intrinsics import Intrinsics
@@ -23,7 +24,10 @@ from tofd.drivers.source import FrameSource
 if TYPE_CHECKING:
     from tofd.drivers.bags.driver_bag import RangeOptions
     from tofd.drivers.opener import InputFormat
+    from tofd.drivers.recording.reader import RecordingInfo
+    from tofd.drivers.recording.replay import ReplaySource
     from tofd.drivers.source import Rejected
+    from tofd.errors import UsageError
     from tofd.progress import Progress
 
 
@@ -89,31 +93,23 @@ class InputSummary:
                 "damage": {"rejected": dict(self.rejected), "stopped": self.stopped or None}}
 
 
-def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[FrameSource, InputDescription]:
-    """A lossless FrameSource on `path` and its format, recognised by tofd.drivers.opener (`bag_options`: a ROS bag's
-    topics and range encoding); DriverError (or OSError) when it cannot be read."""
+def describe_input(path: Path, fmt: InputFormat, source: FrameSource) -> InputDescription:
+    """What kind of file the input `path` of format `fmt` (open_reader's) is; a ROS bag's storage, a tofd
+    recording's format version, writer and creation time from its header."""
     from tofd.drivers import opener
     from tofd.drivers.recording.replay import ReplaySource
-    from tofd.drivers.source import DriverError
 
-    try:
-        fmt, source = opener.open_input(path, bag_options)
-    except ValueError as exc:
-        raise DriverError(str(exc)) from None
     if fmt == opener.ROSBAG:
         kind = "ROS 1 bag" if path.suffix == ".bag" else "ROS 2 bag"
         storage = "mcap" if path.suffix == ".mcap" or any(path.glob("*.mcap")) else "sqlite3"
-        return source, InputDescription(kind, "", () if kind == "ROS 1 bag" else (("storage", storage),))
-    if not isinstance(source, ReplaySource):
-        return source, InputDescription(fmt.description, "")
+        return InputDescription(kind, "", () if kind == "ROS 1 bag" else (("storage", storage),))
+    if not isinstance(source, ReplaySource) or source.info is None:
+        return InputDescription(fmt.description, "")
     info = source.info
-    if info is None:
-        source.close()
-        raise DriverError(source.header_problem)
     created = datetime.fromtimestamp(info.created_wall_s, UTC).strftime("%Y-%m-%d %H:%M:%S UTC") \
         if math.isfinite(info.created_wall_s) else "unknown"
-    return source, InputDescription("tofd recording (MCAP)", str(info.format_version),
-                                    (("written by", f"tofd {info.software_version}"), ("created", created)))
+    return InputDescription("tofd recording (MCAP)", str(info.format_version),
+                            (("written by", f"tofd {info.software_version}"), ("created", created)))
 
 
 def frames_with_rejects(source: FrameSource, summary: InputSummary) -> Iterator[Frame]:
@@ -129,14 +125,22 @@ def frames_with_rejects(source: FrameSource, summary: InputSummary) -> Iterator[
         summary.stopped = f"{report.reason}: {report.detail}"
 
 
-def summarize(path: Path, bag_options: RangeOptions | None = None) -> InputSummary:
-    """Read the input at `path` to its end (InputSummary); DriverError/OSError when it cannot be opened."""
-    source, fmt = open_input(path, bag_options)
-    summary = InputSummary(path, fmt)
+def summarize(path: Path, bag_options: RangeOptions) -> InputSummary:
+    """Read the input at `path` to its end (InputSummary); UsageError when it cannot be opened."""
+    fmt, source = open_reader(path, bag_options)
+    summary = InputSummary(path, describe_input(path, fmt, source))
     with source:
         for frame in frames_with_rejects(source, summary):
             summary.add(frame)
     return summary
+
+
+def _unusable(path: Path, exc: Exception) -> UsageError:
+    """A UsageError of an input that cannot be read, naming it once."""
+    from tofd.errors import UsageError
+
+    why = str(exc)
+    return UsageError(why if why.startswith(str(path)) else f"{path}: {why}")
 
 
 def open_reader(path: Path, bag_options: RangeOptions) -> tuple[InputFormat, FrameSource]:
@@ -145,16 +149,31 @@ def open_reader(path: Path, bag_options: RangeOptions) -> tuple[InputFormat, Fra
     from tofd.drivers.bags.driver_bag import RangeOptions
     from tofd.drivers.opener import open_input
     from tofd.drivers.source import DriverError
-    from tofd.errors import UsageError
 
     try:
         fmt, source = open_input(path, bag_options)
-    except (DriverError, ValueError) as exc:
-        raise UsageError(str(exc)) from None
+    except (DriverError, OSError, ValueError) as exc:
+        raise _unusable(path, exc) from None
     if fmt.read_as != "bag" and bag_options != RangeOptions():
         source.close()
-        raise UsageError(f"{path} is a {fmt.description}: the ROS bag options are for ROS bags")
+        raise _unusable(path, ValueError(f"a {fmt.description}: the ROS bag options are for ROS bags"))
     return fmt, source
+
+
+def open_recording(path: Path, **replay: Any) -> tuple[ReplaySource, RecordingInfo]:
+    """A ReplaySource on the tofd recording `path` (`replay`: its mode, speed, loop and seek) and its header;
+    UsageError names a file that cannot be replayed or whose header is damaged."""
+    from tofd.drivers.recording.replay import ReplaySource
+    from tofd.drivers.source import DriverError
+
+    try:
+        source = ReplaySource(path, **replay)
+    except (DriverError, OSError, ValueError) as exc:
+        raise _unusable(path, exc) from None
+    if source.info is None:
+        source.close()
+        raise _unusable(path, ValueError(source.header_problem))
+    return source, source.info
 
 
 def convert(path: Path, fmt: InputFormat, source: FrameSource, bag_options: RangeOptions, out: Path,

@@ -106,20 +106,13 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list
     its import rejected ledgered after its own)."""
     from tofd.config import load_config
     from tofd.drivers.bags.source import RejectsAfter
-    from tofd.drivers.recording.replay import ReplaySource
-    from tofd.drivers.source import DriverError
     from tofd.errors import UsageError
+    from tofd.inputs import open_recording
 
     cfg = _replay_config(args, load_config(args.config), stem)
     realtime = args.realtime or (args.foxglove is not None and cfg.foxglove.enabled)  # someone watches it live
-    try:
-        replay = ReplaySource(recording, mode="realtime" if realtime else "lossless", speed=args.speed or 1.0,
-                              loop=args.loop, seek=args.seek)
-    except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(f"{args.file}: {exc}") from None
-    info = replay.info
-    if info is None:
-        raise UsageError(replay.header_problem)
+    replay, info = open_recording(recording, mode="realtime" if realtime else "lossless", speed=args.speed or 1.0,
+                                  loop=args.loop, seek=args.seek)
     if args.seek is not None:
         reached, last = replay.counters_reach(args.seek)
         if not reached:
