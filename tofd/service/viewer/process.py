@@ -25,7 +25,6 @@ import os
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
 from pathlib import Path
@@ -33,7 +32,7 @@ from typing import NotRequired, Protocol, TypedDict
 
 from tofd.config import Config, config_from_dict, config_table
 from tofd.errors import TofdError
-from tofd.outputs import finish_output, temp_path
+from tofd.outputs import finish_output
 from tofd.process_setup import child_environment, keep_arrays_on_the_heap
 from tofd.service.lifeline import die_with_parent
 from tofd.service.pipeline.results import FrameResult
@@ -41,7 +40,6 @@ from tofd.service.pipeline.slots import SlotRing
 from tofd.service.signals import children_start, ignore_in_child
 from tofd.service.summary import ViewerReport
 from tofd.service.viewer import wire
-from tofd.service.viewer.rotation import FileRotation
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +51,7 @@ VIEWER_NICE = 10  # the viewer process's niceness: on busy cores the feature wor
 
 class ViewerClosed(TypedDict):
     frames: int  # frames logged
-    errors: int  # frames Rerun refused
+    errors: int  # frames the backend refused
 
 
 class ViewerStatus(TypedDict):
@@ -168,28 +166,26 @@ def viewer_main(open_backend: OpenBackend, cfg_table: dict, sink: str, batch_fra
 
 class ViewerProcess:
     """The parent's handle: start the child (raising ViewerError if its sink cannot start), `offer` frames,
-    `close` within a deadline. Use from one thread for offer and one for close. `footer`: whether a "save" sink
-    writes Rerun's footer (targets.file_footer). `open_backend`: what the child runs (None: Rerun,
-    rerun_sink.RerunBackend);
-    `name` names the child and the viewer's drops ("blocked" for Rerun, "<name>_blocked" for others)."""
+    `close` within a deadline. Use from one thread for offer and one for close. `open_backend`: what the child runs
+    (None: Rerun, rerun_sink.RerunBackend, with its output file, and `footer`: whether a "save" sink writes
+    Rerun's footer, targets.file_footer); `name` names the child and the viewer's drops ("blocked" for Rerun,
+    "<name>_blocked" for others)."""
 
     def __init__(self, cfg: Config, sink: str, batch_frames: int = 1, queue_frames: int = 8,
                  start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True,
                  open_backend: OpenBackend | None = None, name: str = "rerun"):
         env: dict[str, str] = {}
+        self.output: Path | None = None  # the backend's output file, once finished
+        self._writing: Path | None = None  # where it grows meanwhile, renamed to `output` when the child finished it
         if open_backend is None:
-            from tofd.service.viewer.rerun_sink import RerunBackend, rerun_log_env
+            from tofd.service.viewer.rerun_sink import RerunBackend, rerun_log_env, rerun_output
 
             open_backend, env = RerunBackend, rerun_log_env(sink, footer)
+            self.output, self._writing, cfg = rerun_output(cfg, sink)
         ctx = mp.get_context("spawn")
         self.queue_frames = queue_frames
-        self.output = Path(cfg.rerun.path) if sink == "save" else None  # the .rrd, once finished
-        # where it grows meanwhile (numbered segments, rotation.py, are written under their own names)
-        self._writing = None if self.output is None or FileRotation.wanted(cfg.rerun, sink) else temp_path(self.output)
         self.failed: str | None = None  # why the output failed, once the child said so
         self._failure_told = False
-        if self._writing is not None:
-            cfg = replace(cfg, rerun=replace(cfg.rerun, path=str(self._writing)))
         self._ring = SlotRing.create(queue_frames, cfg.intrinsics.shape, wire.PLANES, use="viewer")
         self._free: Semaphore | None = ctx.Semaphore(queue_frames)  # slots the child has finished with
         self._next = 0  # the slot the next frame goes to
@@ -283,7 +279,7 @@ class ViewerProcess:
         """Let the child log what it was handed, flush and exit; SIGKILL it after `timeout_s` or once `cancelled()`
         (polled) turns true. A summary:
         {"exit": "clean" | "killed" | "cancelled" (stopped while starting), "frames": logged, "errors": frames
-        Rerun refused, "unsent": frames handed over but not logged}."""
+        the backend refused, "unsent": frames handed over but not logged}."""
         if self.report:  # cancelled at start: the child is gone already
             return self.report
         deadline = time.monotonic() + timeout_s
@@ -308,7 +304,7 @@ class ViewerProcess:
         return self.report
 
     def _finish_output(self) -> None:
-        """The .rrd of a "save" sink under its name if the child finished it, else its readable part under
+        """The output file under its name if the child finished it, else its readable part under
         outputs.partial_path (its name in the report's "output", `failed` saying why)."""
         if self.output is None or self._writing is None:
             return

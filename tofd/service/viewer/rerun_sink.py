@@ -9,9 +9,11 @@ import os
 import shutil
 import time
 import uuid
+from dataclasses import replace
 from pathlib import Path
 
 from tofd.config import Config
+from tofd.outputs import temp_path
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer.logger import RerunLogger
 from tofd.service.viewer.rotation import FileRotation
@@ -23,6 +25,17 @@ FULL_DISK_BYTES = 1 << 20  # a failed file sink's disk with less free space than
 FILE_SINK_LOG = "re_log_encoding::rrd=off,re_sdk::recording_stream=off"
 """Added to RUST_LOG (default "warn") of a "save" sink's viewer process: the SDK's own lines about its file are off
 (no warning that a live file has no footer; a failed file is reported by tofd, once)."""
+
+
+def rerun_output(cfg: Config, sink: str) -> tuple[Path | None, Path | None, Config]:
+    """A "save" sink's .rrd (None for other sinks), the temp file it grows in until the viewer process finishes
+    it (None where numbered segments, rotation.py, are written under their own names), and the config the viewer
+    process gets (writing the temp file)."""
+    output = Path(cfg.rerun.path) if sink == "save" else None
+    writing = None if output is None or FileRotation.wanted(cfg.rerun, sink) else temp_path(output)
+    if writing is not None:
+        cfg = replace(cfg, rerun=replace(cfg.rerun, path=str(writing)))
+    return output, writing, cfg
 
 
 def rerun_log_env(sink: str, footer: bool) -> dict[str, str]:
