@@ -87,7 +87,7 @@ def channel_role(topic: str, message_encoding: str) -> str | None:
 
 def range_scales_m(registers: Registers | None) -> tuple[float, ...]:
     """Candidate metres per raw distance unit at the frame's modulation frequency (raw/65535 * c/(2 f)):
-    rounded to float32 as the USB backend multiplies (tofd.drivers.usb.protocol.raw_to_range_m), and exact; none
+    rounded to float32 as the USB backend multiplies (tofd.drivers.sr3000.raw_to_range_m), and exact; none
     without SR3000 registers (such a range plane is stored as float32)."""
     if registers is None:
         return ()
