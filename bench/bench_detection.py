@@ -20,7 +20,7 @@ from report import add_model_arguments, shown_path, write_json
 from tofd.lab.cameras import parse_intrinsics
 
 DISTANCES_M = (0.35, 0.45, 0.55, 0.70)
-GOAL_RATIO = 4.0  # issue 33: per-frame stage time at 640x576 at most this times the SR3000's
+GOAL_RATIO = 4.0  # per-frame stage time at 640x576 at most this times the SR3000's
 
 
 def main() -> int:

@@ -8,7 +8,7 @@ own threading was catastrophic on this 2-core machine, see design/nfft_notes.md)
 per-frame time = wall time / frames of both. eps0 error: largest relative deviation of the NFFT eps0 from the
 converged solution (CG to a 1e-9 band residual, NUFFTs to 1e-9, in double precision) over the pixels where the
 converged eps0 is at least a tenth of its peak (the pixels a detector box can accept). Goal: NFFT / FFT <= 2 on CPU
-time at 176x144 (issue 33; issue 19's was 4). The NFFT CPU time is split into its stages: points (back-projection
+time at 176x144. The NFFT CPU time is split into its stages: points (back-projection
 into the patch) and map writing, type 1 (the finufft type-1 NUFFT onto the 2N grid giving the Toeplitz kernel and
 A^H z), CG (the conjugate-gradient solve; also per iteration: one Toeplitz product, a real FFT pair of size 2N, plus
 the CG updates) and type 2 (the forward NUFFT of the filtered fields, with the set-up around the solve: the points
@@ -54,7 +54,7 @@ DISTANCES_M = (0.35, 0.5, 0.7)
 SPHERE_CHECK_M = (0.35, 0.5, 0.8)  # the cross-camera check's apex distances, metres
 
 
-GOAL_RATIO = 2.0  # NFFT / FFT range-feature CPU time per frame at 176x144 (issue 33)
+GOAL_RATIO = 2.0  # NFFT / FFT range-feature CPU time per frame at 176x144
 STAGE_COLUMNS = ("points", "type1", "cg", "type2")  # the NFFT CPU time's parts (points: with the map writing)
 TIMED_COLUMNS = (*STAGE_COLUMNS, "nufft")  # and finufft's calls alone, inside type1 and type2
 ABOUT = ("FFT and NFFT range features per frame, CPU milliseconds (thread time), per camera geometry; ratios within "

@@ -35,7 +35,7 @@ from tofd.lab.roc import answers_at
 RATIOS = (0.0, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 SCALE_FACTORS = (1.0, 1.25, 1.5, 2.0, 3.0)
 VARIANT = "nfft_range"  # the default detector variant (config/tofd.toml)
-GOAL_FOUND, GOAL_WRONG = 0.97, 0.01  # issue 18: per cell
+GOAL_FOUND, GOAL_WRONG = 0.97, 0.01  # per cell
 TRAIN_FRAMES = 40  # per identity at 0.60 m (the shipped model: 200 frames of five identities)
 
 

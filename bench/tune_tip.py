@@ -1,7 +1,7 @@
 """Choose the tip fit's step limit (tofd.algorithm.detector.tip.MAX_STEP_RADII) on the TRAINING subjects' head-motion
 sequences (never the held-out ones), on the SR3000 and a 640x576 camera.
 
-Each sequence (tofd.lab.sequences, issue 33/34's motion, 30 fps, 0.35-0.70-0.35 m) of each subject in
+Each sequence (tofd.lab.sequences: head motion, 30 fps, 0.35-0.70-0.35 m) of each subject in
 tofd.lab.faces.CV_SUBJECTS is rendered and detected once with the shipped model; in every frame at --min-range or
 farther whose detection is accepted, the tip is refined from the accepted pixel with each step limit (radii of the
 configured tip_radius_m; "inf": the minimum itself, the previous rule). Prints per camera and step the share of

@@ -72,13 +72,22 @@ class CameraListing:
 
 
 class SdkMissing(DriverError):
-    """The vendor SDK a camera kind needs is not installed (or cannot load); says which extra installs it."""
+    """The vendor SDK a camera kind needs is not installed (or cannot load); says which extra installs it (exit 2,
+    as for any command whose extra is missing)."""
+
+    exit_status = 2
 
     def __init__(self, kind: str, detail: str = "") -> None:
         self.kind = kind
         self.extra = EXTRAS[kind]
         why = f" ({detail})" if detail else ""
         super().__init__(f"the {kind} camera needs its SDK{why}: pip install 'tofd[{self.extra}]'")
+
+
+class PlaybackUnreadable(DriverError):
+    """A --playback file the vendor's SDK cannot play (not its recording, or damaged): a data error, exit 2."""
+
+    exit_status = 2
 
 
 class CameraBackend(Protocol):

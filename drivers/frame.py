@@ -17,6 +17,9 @@ COUNTER_LIMIT = 1 << 32
 """Frame counters are 32-bit on the device: 0 <= counter < COUNTER_LIMIT."""
 TIMESTAMP_LIMIT_US = 1 << 63
 """Device timestamps are non-negative int64 microseconds."""
+PERIOD_FRAMES = 8
+"""Frames whose device timestamps give a file source's frame period (SensorInfo.frame_period_s) before it
+delivers the first one."""
 
 
 @dataclass(frozen=True, slots=True)

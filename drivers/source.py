@@ -1,4 +1,5 @@
-"""The interface every frame source implements: USB camera, emulated camera, recording replay."""
+"""The interface every frame source implements (USB camera, emulated camera, recording replay, bags, .mkv files)
+and what a source says about itself: its intrinsics, its settings, how many frames to expect and where it stopped."""
 
 from __future__ import annotations
 
@@ -7,13 +8,17 @@ from abc import ABC, abstractmethod
 from collections import Counter, deque
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any, Literal
 
+from tofd.drivers.errors import DriverError
 from tofd.drivers.frame import Frame
 from tofd.drivers.intrinsics import Intrinsics
 
+__all__ = ["DriverError", "FrameSource", "Rejected", "SourceReport", "StopReason"]
 
-class DriverError(RuntimeError):
-    """A frame source that cannot be opened or used (no device, access denied, unreadable file)."""
+StopReason = Literal["end", "truncated", "corrupt", "damaged"]
+"""Why a file source stopped: read to its end; cut short; unreadable bytes with nothing intact after them; damaged
+where the reader cannot tell which of the two."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -24,6 +29,26 @@ class Rejected:
     reason: str  # "invalid_frame: ...", "damaged: ...", "duplicate: ..."
 
 
+@dataclass(frozen=True, slots=True)
+class SourceReport:
+    """Where and why a source stopped reading: `reason` None while it has not stopped (or never does: a camera),
+    "end" when it read its file to the end, otherwise the damage that stopped it, described by `detail`, after
+    the intact frame with counter `last_good_counter` (None: none was read)."""
+
+    reason: StopReason | None = None
+    detail: str = ""
+    last_good_counter: int | None = None
+
+    @property
+    def stopped_early(self) -> bool:
+        """Whether damage ended the reading before the end of the file."""
+        return self.reason not in (None, "end")
+
+    def line(self) -> str:
+        """E.g. "truncated after frame 41: the file ends at byte 30000"."""
+        return f"{self.reason} after frame {self.last_good_counter}: {self.detail}"
+
+
 class FrameSource(ABC):
     """A stream of Frames.
 
@@ -32,13 +57,28 @@ class FrameSource(ABC):
     (e.g. "timeout", "crc_error", "device_dropped", "reconnect"), so a caller can report them. Frames the
     source rejects (see `reject`) are queued for the consumer, who takes them with `take_rejected` before
     each frame and at the end, so that every frame is either delivered or accounted for.
+
+    What a source knows about itself: `intrinsics` (the frames' calibration; None until known), `settings` (what
+    the device or file says about how it was set, JSON-ready, for provenance), `expected_frames` (how many frames
+    a file holds or at most holds, None when unknown or endless) and `report` (where and why it stopped).
     """
 
     def __init__(self) -> None:
-        self.intrinsics: Intrinsics | None = None  # the frames' calibration, once the source knows it
         self.counters: Counter[str] = Counter()
+        self.intrinsics: Intrinsics | None = None
+        self.settings: dict[str, Any] = {}
         self._closed = threading.Event()
         self._rejected: deque[Rejected] = deque()
+
+    @property
+    def expected_frames(self) -> int | None:
+        """Frames the source will deliver, or at most delivers (None: unknown or endless)."""
+        return None
+
+    @property
+    def report(self) -> SourceReport:
+        """Where and why reading stopped (SourceReport(): not stopped, or a source that does not end)."""
+        return SourceReport()
 
     def reject(self, frame_counter: int, reason: str) -> None:
         """Record a frame that will not be delivered; counted in counters[reason up to its first ':']."""

@@ -5,6 +5,7 @@ its units (0 = no return) and an infrared image falling off as cos / r^2."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -31,8 +32,9 @@ K4A_LIKE = Intrinsics(320, 288, 262.6, 264.7, 156.3, 140.4, "rational_polynomial
 FISHEYE_LIKE = Intrinsics(224, 172, 150.0, 150.0, 111.0, 86.5, "equidistant", (0.05, -0.01, 0.002, -0.0005))
 
 
+@functools.lru_cache(maxsize=4)
 def opencv_rays(intrinsics: Intrinsics) -> np.ndarray:
-    """(H, W, 3) rays (x, y, 1) of every pixel, undistorted by OpenCV."""
+    """(H, W, 3) rays (x, y, 1) of every pixel, undistorted by OpenCV (made once per lens: read only)."""
     i = intrinsics
     u, v = np.meshgrid(np.arange(i.width, dtype=np.float64), np.arange(i.height, dtype=np.float64))
     pixels = np.stack([u, v], -1).reshape(-1, 1, 2)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from vendor_bag_helpers import assert_on_sphere, logged_foreground, pinhole_erro
 
 from tofd.drivers.bags.driver_bag import RangeOptions, RosbagSource
 from tofd.drivers.bags.driver_layouts import LAYOUTS
+from tofd.drivers.bags.join import StreamJoin
 from tofd.drivers.bags.opener import open_bag
 from tofd.drivers.intrinsics import Intrinsics
 
@@ -202,3 +204,19 @@ def test_a_garbled_frame_in_the_middle_is_ledgered_and_the_rest_read(tmp_path):
     assert counters == {"damaged": 2}
     proc = tofd("import", str(bag), str(tmp_path / "out.mcap"))
     assert proc.returncode == 0 and "2 frames of 256x192; skipped 2 frames lost or damaged" in proc.stderr, proc.stderr
+
+
+def test_the_stream_join_pairs_by_key_and_counts_what_it_gives_up():
+    """Parts pair by key in any order; a repeated part, a key pushed out past the limit and the keys left at the
+    end are counted as unpaired by role."""
+    counters: Counter[str] = Counter()
+    join: StreamJoin[int, str] = StreamJoin(("range", "amplitude"), counters, limit=2)
+    assert join.add(1, "range", "r1") is None
+    assert join.add(1, "amplitude", "a1") == {"range": "r1", "amplitude": "a1"}
+    assert join.add(2, "amplitude", "a2") is None
+    assert join.add(2, "amplitude", "a2'") is None  # the first a2 is given up
+    assert join.add(3, "range", "r3") is None and join.add(4, "range", "r4") is None  # key 2 pushed out
+    assert join.add(3, "amplitude", "a3") == {"range": "r3", "amplitude": "a3"}
+    assert counters == {"unpaired_amplitude": 2}
+    join.finish()  # key 4 never completed
+    assert counters == {"unpaired_amplitude": 2, "unpaired_range": 1}

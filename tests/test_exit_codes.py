@@ -81,3 +81,41 @@ def test_stop_signal_behind_finds_the_signal_only_where_there_is_one():
         _load_a_module_when_interrupted(argparse.Namespace())
     assert isinstance(stop_signal_behind(caught.value), KeyboardInterrupt)
     assert stop_signal_behind(RuntimeError("a real failure")) is None
+
+
+def _raises(exc: BaseException):
+    def command(args: argparse.Namespace) -> int:
+        raise exc
+
+    return command
+
+
+@pytest.mark.parametrize("exc, code", [
+    ("tofd.drivers.errors:DriverError", 1), ("tofd.drivers.recording.format:FormatError", 2),
+    ("tofd.drivers.bags.ros1_wire:WireError", 2), ("tofd.drivers.usb.protocol:ProtocolError", 1),
+    ("tofd.lab.npz:NpzError", 2), ("tofd.algorithm.features:SamplingError", 2),
+    ("tofd.service.pipeline:PipelineError", 1), ("tofd.service.viewer:ViewerError", 1),
+    ("tofd.errors:UsageError", 2), ("tofd.drivers.bags.scan:BagError", 1)])
+def test_every_error_is_a_tofd_error_printed_in_one_line_with_its_exit_status(capsys, exc, code):
+    import importlib
+
+    from tofd.errors import TofdError
+
+    module, name = exc.split(":")
+    cls = getattr(importlib.import_module(module), name)
+    assert issubclass(cls, TofdError) and cls.exit_status == code
+    assert _run(argparse.Namespace(command="replay", func=_raises(cls("the file ends at byte 12")))) == code
+    assert capsys.readouterr().err == "tofd replay: the file ends at byte 12\n"
+
+
+def test_value_errors_of_the_api_stay_value_errors():
+    from tofd.algorithm.features import SamplingError
+    from tofd.drivers.recording.format import FormatError
+    from tofd.errors import UsageError
+
+    assert all(issubclass(cls, ValueError) for cls in (SamplingError, FormatError, UsageError))
+
+
+def test_an_os_error_is_a_runtime_failure_in_one_line(capsys):
+    assert _run(argparse.Namespace(command="run", func=_raises(PermissionError(13, "Permission denied", "x")))) == 1
+    assert capsys.readouterr().err == "tofd run: [Errno 13] Permission denied: 'x'\n"

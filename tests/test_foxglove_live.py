@@ -194,3 +194,20 @@ def test_a_port_in_use_is_a_config_error_naming_the_key(tmp_path):
     assert run.returncode == 2, run.stderr
     assert run.stderr.strip().splitlines()[-1] == (f"tofd run: config error: foxglove.port: port {port} on 127.0.0.1 "
                                                    "is already in use (--foxglove HOST:PORT)")
+
+
+def test_the_foxglove_viewer_process_does_not_load_the_rerun_sdk():
+    """The viewer host and the Foxglove publisher import no Rerun module: rerun-sdk stays out of that process."""
+    from dataclasses import replace
+
+    from tofd.service.viewer.process import ViewerProcess
+    from tofd_testing.pipeline_sources import ModulesReportingFoxglove
+
+    cfg = Config()
+    cfg = replace(cfg, foxglove=replace(cfg.foxglove, enabled=True, port=0))
+    viewer = ViewerProcess(cfg, "foxglove", open_backend=ModulesReportingFoxglove, name="foxglove")
+    try:
+        assert viewer.process.is_alive() and viewer.web_url is not None
+        assert json.loads(viewer.web_url) == []
+    finally:
+        viewer.close(10.0)

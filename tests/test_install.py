@@ -128,6 +128,7 @@ def test_the_wheels_core_requirements_are_the_algorithms_only(wheel):
     assert {"dask[distributed]", "distributed", "pyarrow"} <= required["batch"]
     assert "rosbags" in required["rosbag"]
     assert "tofd[batch,lab,rosbag,service]" in required["all"] and "tofd[all]" in required["test"]
+    assert required["realsense"] == {"pyrealsense2", "libusb-package"} and "tofd[realsense]" in required["test"]
 
 
 def test_the_wheel_installs_one_top_level_name_tofd_with_its_drivers_and_type_information(wheel):
@@ -136,6 +137,7 @@ def test_the_wheel_installs_one_top_level_name_tofd_with_its_drivers_and_type_in
     tops = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert tops == {"tofd"}
     assert {"tofd/py.typed", "tofd/drivers/frame.py", "tofd/drivers/bags/scan.py", "tofd/drivers/k4a/mkv.py",
+            "tofd/drivers/realsense/camera.py", "tofd/drivers/lens_models.py",
             "tofd/drivers/data/lee_perry_smith.npz", "tofd/defaults/tofd.toml"} <= set(names)
 
 

@@ -27,6 +27,7 @@ from tofd.drivers.bags.realsense import RealSenseSource
 from tofd.drivers.opener import identify
 from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import iter_frames
+from tofd.drivers.source import SourceReport
 
 VERSIONS = {"db3": ("current", 1e-4), "bag": (LEGACY_VERSION, 5e-4)}
 """File kind -> (pyrealsense2 version, depth unit in metres): units other than 1 mm, so that they must be read."""
@@ -53,7 +54,7 @@ def test_frames_carry_the_device_numbers_times_units_lens_and_identity(recording
     with open_bag(path) as source:
         assert isinstance(source, RealSenseSource)
         frames = list(source)
-        assert dict(source.counters) == {} and source.damage is None
+        assert dict(source.counters) == {} and source.report == SourceReport("end", "", 100 + N_FRAMES - 1)
         assert source.settings["depth_units_m"] == pytest.approx(units, rel=1e-6)
     assert [f.frame_counter for f in frames] == list(range(100, 100 + N_FRAMES))
     expected_us = 1e6 + np.arange(N_FRAMES) * 1e6 / 30  # the device timestamps, in milliseconds in the file

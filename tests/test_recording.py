@@ -172,17 +172,17 @@ def test_writer_rejects_bad_fsync_interval(tmp_path):
 
 def test_realistic_face_frames_stay_small(tmp_path):
     """Rendered SR3000-like frames (noise, flying pixels) as the USB backend delivers them: <= 100 kB each."""
+    from tofd.drivers import sr3000
     from tofd.drivers.emulator.render import Pose, load_face, render_face
-    from tofd.drivers.usb import protocol
 
     mesh, rng = load_face("lee_perry_smith"), np.random.default_rng(1)
     path = tmp_path / "face.mcap"
-    khz = protocol.mod_freq_khz(Registers().mod_freq_index)
+    khz = sr3000.mod_freq_khz(Registers().mod_freq_index)
     with RecordingWriter(path) as writer:
         for i, d in enumerate(np.linspace(0.35, 0.70, 6)):
             r = render_face(mesh, Pose(distance_m=float(d)), rng=rng)
             frame = make_frame(i)
-            frame.range_m = protocol.raw_to_range_m(protocol.range_m_to_raw(r.range_m, khz), khz)
+            frame.range_m = sr3000.raw_to_range_m(sr3000.range_m_to_raw(r.range_m, khz), khz)
             frame.amplitude = np.minimum(np.rint(r.amplitude), 65535).astype(np.float32)
             writer.write(frame)
     assert path.stat().st_size / 6 < 100_000

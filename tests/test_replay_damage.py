@@ -12,11 +12,12 @@ import pytest
 from mcap.reader import make_reader
 from test_replay import collect, counters
 
+from tofd.drivers.bags.source import RejectsAfter
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import ReplaySource
 from tofd.drivers.recording.writer import RecordingWriter
-from tofd.drivers.source import DriverError
+from tofd.drivers.source import DriverError, Rejected, SourceReport
 from tofd_testing.recording_helpers import (
     RECORDING_FAULTS,
     SMALL_INTRINSICS,
@@ -70,6 +71,23 @@ def test_64_corrupted_bytes_after_frame_38_lose_only_that_frame(clip101, tmp_pat
         assert_frames_equal(frames[frame.frame_counter], frame)
     assert [(r.frame_counter, r.reason.split(":")[0]) for r in rejected] == [(39, "damaged")]
     assert source.stopped_reason == "end" and source.counters["damaged"] == 1
+
+
+def test_a_cut_recording_reports_where_it_stopped_through_the_frame_source_contract(clip101, tmp_path):
+    """The report of a truncated file names the last intact frame; RejectsAfter reports its source's and adds the
+    earlier stage's rejects after the frames."""
+    path, _, chunks = clip101
+    cut = damaged_copy(tmp_path, path, "cut.mcap", lambda data: data.__delitem__(slice(chunks[50][1] - 100, None)))
+    inner = ReplaySource(cut)
+    assert inner.report == SourceReport() and inner.expected_frames is None  # no footer: the count is unknown
+    source = RejectsAfter(inner, [Rejected(7000, "damaged: an earlier import's tail")])
+    replayed = collect(source)
+    report = source.report
+    assert report == inner.report and report.stopped_early and report.reason == "truncated"
+    assert report.last_good_counter == replayed[-1].frame_counter == 49
+    assert report.line().startswith("truncated after frame 49: ")
+    assert [r.frame_counter for r in source.take_rejected()][-1] == 7000
+    assert source.intrinsics == inner.intrinsics == replayed[0].intrinsics and source.settings == inner.settings
 
 
 @pytest.mark.parametrize("k", [0, 6, 99])

@@ -18,7 +18,7 @@ from test_track_reporting import MISS, result
 from tofd.algorithm.tracking import NoseTracker
 from tofd.config import Config, ConfigError, config_from_dict
 from tofd.service.viewer import blueprint as bp
-from tofd.service.viewer.process import RerunBackend
+from tofd.service.viewer.rerun_sink import RerunBackend
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -265,9 +265,10 @@ def test_camera_config_keywords_match(make_emulated_camera):
     import dataclasses
 
     from tofd.config import CameraConfig
+    from tofd.service.camera import sr3000_keywords
 
     config = dataclasses.replace(CameraConfig(), serial="30000001", int_time_code=0, read_timeout_s=0.02)
-    camera = EmulatedCamera(EmulatedSR3000("30000001", readout_s=0.0005), **dataclasses.asdict(config))
+    camera = EmulatedCamera(EmulatedSR3000("30000001", readout_s=0.0005), **sr3000_keywords(config))
     with camera:
         assert take(camera, 2)[-1].registers.int_time_code == 0
 

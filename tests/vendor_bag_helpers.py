@@ -7,6 +7,7 @@ import importlib.metadata
 import os
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -44,17 +45,19 @@ def realsense_env(version: str, cache_dir: Path) -> dict[str, str]:
     return env
 
 
-def record_realsense(out: Path, env: dict[str, str], intrinsics: Intrinsics, scene: Scene, units_m: float,
-                     n_frames: int = 3, first_number: int = 100) -> Path:
-    """`out` written by librealsense's recorder: n_frames of the scene (z16 depth in `units_m`, y8 infrared) at
-    30 fps device time, frame numbers from first_number, the Brown-Conrady lens of `intrinsics`."""
-    z, infrared, _ = render(intrinsics, scene)
+def record_realsense(out: Path, env: dict[str, str], intrinsics: Intrinsics, scene: Scene | Sequence[Scene],
+                     units_m: float, n_frames: int = 3, first_number: int = 100) -> Path:
+    """`out` written by librealsense's recorder: n_frames of the scene (or one frame of each of a sequence of
+    scenes; z16 depth in `units_m`, y8 infrared) at 30 fps device time, frame numbers from first_number, the
+    Brown-Conrady lens of `intrinsics`."""
+    scenes = [scene] * n_frames if isinstance(scene, Scene) else list(scene)
+    images = [render(intrinsics, s)[:2] for s in scenes]
     frames = out.with_suffix(".frames.npz")
-    np.savez(frames, depth=np.stack([depth_units(z, units_m)] * n_frames),
-             infrared=np.stack([np.clip(infrared * 1000, 0, 255).astype(np.uint8)] * n_frames),
+    np.savez(frames, depth=np.stack([depth_units(z, units_m) for z, _ in images]),
+             infrared=np.stack([np.clip(infrared * 1000, 0, 255).astype(np.uint8) for _, infrared in images]),
              intrinsics=np.array([intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy]),
              coeffs=np.array(intrinsics.distortion), depth_units=np.array([units_m]),
-             timestamps_ms=1000.0 + np.arange(n_frames) * 1000 / 30, first_number=np.array([first_number]))
+             timestamps_ms=1000.0 + np.arange(len(scenes)) * 1000 / 30, first_number=np.array([first_number]))
     proc = subprocess.run([sys.executable, str(RECORDER), str(frames), str(out)], capture_output=True, text=True,
                           env=env, timeout=RECORD_TIMEOUT_S)
     assert proc.returncode == 0 and out.exists(), proc.stderr[-2000:]

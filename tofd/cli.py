@@ -17,7 +17,7 @@ from pathlib import Path
 
 import tofd
 import tofd.commands
-from tofd.errors import ConfigError, UsageError
+from tofd.errors import ConfigError, TofdError
 from tofd.extras import install_hint, missing_extra
 from tofd.logs import LEVELS, setup_logging
 
@@ -146,10 +146,14 @@ def _run(args: argparse.Namespace) -> int:
         return int(args.func(args) or 0)
     except ConfigError as exc:
         print(f"tofd {args.command}: config error: {exc}", file=sys.stderr)
-        return 2
-    except UsageError as exc:
+        return exc.exit_status
+    except TofdError as exc:  # usage, config and data mistakes exit 2, runtime failures 1
         print(f"tofd {args.command}: {exc}", file=sys.stderr)
-        return 2
+        return exc.exit_status
+    except OSError as exc:  # a file, socket or device the command could not use: a runtime failure
+        logging.getLogger("tofd").debug("I/O error", exc_info=True)
+        print(f"tofd {args.command}: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as exc:
         print(f"tofd {args.command}: interrupted{_signal_name(exc)}", file=sys.stderr)
         return 130

@@ -1,13 +1,20 @@
-"""The exceptions a command turns into one line on stderr and exit status 2 (a usage, config or data mistake)."""
+"""tofd's exceptions above the drivers: TofdError (the root, from tofd.drivers.errors) carries the exit status `tofd`
+ends with; UsageError and ConfigError are a user's mistakes (exit status 2)."""
 
 from __future__ import annotations
 
+from tofd.drivers.errors import DataError, DriverError, TofdError
 
-class UsageError(ValueError):
+__all__ = ["ConfigError", "DataError", "DriverError", "TofdError", "UsageError"]
+
+
+class UsageError(TofdError, ValueError):
     """A mistake of the user's: a bad argument, a missing or malformed input file, an unusable output path.
 
-    `tofd` prints `tofd: <message>` and exits 2; the message names the argument or file and the problem.
+    `tofd` prints `tofd <command>: <message>` and exits 2; the message names the argument or file and the problem.
     """
+
+    exit_status = 2
 
 
 class ConfigError(UsageError):

@@ -102,3 +102,18 @@ def write_config(directory: Path, **sections: dict[str, object]) -> Path:
     model = write_test_model(directory / "nose_model.json", load_config())
     detector = {"model_path": str(model), **sections.pop("detector", {})}
     return bundled_config(directory / "tofd.toml", detector=detector, **sections)
+
+
+class ModulesReportingFoxglove:
+    """A viewer process backend: the Foxglove publisher, whose `web_url` is the JSON list of the Rerun SDK modules
+    loaded in its process (so the parent sees what the viewer process imported)."""
+
+    def __new__(cls, *args: object, **kwargs: object):  # noqa: ANN204 (returns the publisher itself)
+        import json
+        import sys
+
+        from tofd.service.foxglove.publisher import FoxglovePublisher
+
+        publisher = FoxglovePublisher(*args, **kwargs)  # type: ignore[arg-type]
+        publisher.web_url = json.dumps(sorted(m for m in sys.modules if m.split(".")[0] == "rerun"))
+        return publisher

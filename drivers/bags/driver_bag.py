@@ -40,7 +40,8 @@ from tofd.drivers.bags.driver_layouts import (
     no_layout_error,
 )
 from tofd.drivers.bags.images import AMPLITUDE_ENCODINGS, IMAGE_TYPE, IMAGE_TYPES, RANGE_ENCODINGS, plane
-from tofd.drivers.bags.scan import BagError, DamagedMessage, RawMessage
+from tofd.drivers.bags.join import StreamJoin
+from tofd.drivers.bags.scan import BagError, BagReader, DamagedMessage, RawMessage
 from tofd.drivers.bags.source import BagSource
 from tofd.drivers.depth import depth_metres
 from tofd.drivers.frame import DeviceInfo, Frame, Registers
@@ -53,9 +54,6 @@ log = logging.getLogger(__name__)
 
 RANGE_UNITS = ("device", "mm")
 DEPTH_CONVENTIONS = ("radial", "z")
-MAX_PENDING_STAMPS = 256
-"""Stamps waiting for their other messages; an older incomplete one is given up as unpaired (bags interleave the
-messages of one frame closely, so this only bounds memory)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,8 +114,8 @@ class RosbagSource(BagSource):
     the rest ledgered as one rejected frame) where the bag is damaged.
     """
 
-    def __init__(self, path: str | Path, options: RangeOptions | None = None) -> None:
-        super().__init__(path)
+    def __init__(self, path: str | Path, options: RangeOptions | None = None, bag: BagReader | None = None) -> None:
+        super().__init__(path, bag)
         options = options or RangeOptions()
         options.validate()
         try:
@@ -205,7 +203,7 @@ class RosbagSource(BagSource):
         """Frames in the order their last message arrives in the bag."""
         roles = {topic: role for role, topic in self.options.topics.items()}
         types = {topic: self.bag.topics[topic].msgtype for topic in roles}
-        pending: dict[int, dict[str, tuple[Any, RawMessage]]] = {}
+        join: StreamJoin[int, tuple[Any, RawMessage]] = StreamJoin(roles.values(), self.counters)
         counter = 0
         for message in self.messages(set(roles)):
             role = roles[message.topic]
@@ -215,27 +213,17 @@ class RosbagSource(BagSource):
                 self.damaged(counter if role == "range" else None, exc)  # frame's other messages unpaired
                 counter += role == "range"
                 continue
-            parts = pending.setdefault(_stamp(msg), {})
-            if role in parts:  # a second message of this role and stamp: the first one stays unpaired
-                self.counters[f"unpaired_{role}"] += 1
-            parts[role] = (msg, message)
-            if len(parts) == len(roles):
-                del pending[_stamp(msg)]
-                try:
-                    frame = self._frame(counter, parts)
-                except DamagedMessage as exc:
-                    self.damaged(counter, exc)
-                else:
-                    yield frame
-                counter += 1
-            while len(pending) > MAX_PENDING_STAMPS:
-                self._unpaired(pending.pop(next(iter(pending))))
-        for parts in pending.values():
-            self._unpaired(parts)
-
-    def _unpaired(self, parts: dict[str, Any]) -> None:
-        for role in parts:
-            self.counters[f"unpaired_{role}"] += 1
+            parts = join.add(_stamp(msg), role, (msg, message))
+            if parts is None:
+                continue
+            try:
+                frame = self._frame(counter, parts)
+            except DamagedMessage as exc:
+                self.damaged(counter, exc)
+            else:
+                yield frame
+            counter += 1
+        join.finish()
 
 
 def _stamp(msg: Any) -> int:

@@ -16,24 +16,25 @@ from tofd.drivers.bags.scan import BagError, BagReader
 from tofd.drivers.bags.source import BagSource
 
 
-def bag_kind(path: str | Path) -> str:
-    """"realsense", "orbbec" or "driver" (a camera driver's bag) by the bag's topics; BagError if unreadable."""
-    reader = BagReader(path)
-    try:
-        topics = reader.topics
-    finally:
-        reader.close()
-    return "realsense" if is_realsense(topics) else "orbbec" if is_orbbec(topics) else "driver"
+def bag_kind(bag: BagReader) -> str:
+    """"realsense", "orbbec" or "driver" (a camera driver's bag) by the open bag's topics."""
+    return "realsense" if is_realsense(bag.topics) else "orbbec" if is_orbbec(bag.topics) else "driver"
 
 
-def open_bag(path: str | Path, options: RangeOptions | None = None) -> BagSource:
-    """The frame source of the bag at `path`. Topic and range options apply to driver bags only: a vendor SDK
-    recording says itself where its frames are and in what unit (BagError if options are given for one)."""
+def open_bag(path: str | Path, options: RangeOptions | None = None, bag: BagReader | None = None) -> BagSource:
+    """The frame source of the bag at `path` (`bag`: the bag already open, handed on to the source; BagError if
+    it cannot be read). Topic and range options apply to driver bags only: a vendor SDK recording says itself
+    where its frames are and in what unit (BagError if options are given for one)."""
     options = options or RangeOptions()
-    kind = bag_kind(path)
-    if kind == "driver":
-        return RosbagSource(path, options)
-    if options != RangeOptions(mod_freq_mhz=options.mod_freq_mhz):
-        raise BagError(f"{path}: a {'RealSense' if kind == 'realsense' else 'Orbbec'} SDK recording says where its "
-                       "frames are and their units; the topic and range options are for camera drivers' bags")
-    return RealSenseSource(path) if kind == "realsense" else OrbbecSource(path)
+    bag = bag or BagReader(path)
+    try:
+        kind = bag_kind(bag)
+        if kind == "driver":
+            return RosbagSource(path, options, bag)
+        if options != RangeOptions(mod_freq_mhz=options.mod_freq_mhz):
+            raise BagError(f"{path}: a {'RealSense' if kind == 'realsense' else 'Orbbec'} SDK recording says where "
+                           "its frames are and their units; the topic and range options are for camera drivers' bags")
+        return RealSenseSource(path, bag) if kind == "realsense" else OrbbecSource(path, bag)
+    except BaseException:
+        bag.close()
+        raise

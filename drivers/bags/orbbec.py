@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import re
 import struct
-from collections.abc import Collection, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -28,10 +28,11 @@ import numpy as np
 from tofd.drivers.bags import ros1_wire
 from tofd.drivers.bags.camera_info import orbbec_lens_intrinsics
 from tofd.drivers.bags.images import AMPLITUDE_ENCODINGS, RANGE_ENCODINGS, image_plane
-from tofd.drivers.bags.scan import BagError, DamagedMessage, RawMessage, Topic
+from tofd.drivers.bags.join import StreamJoin
+from tofd.drivers.bags.scan import BagError, BagReader, DamagedMessage, RawMessage, Topic
 from tofd.drivers.bags.source import BagSource
 from tofd.drivers.depth import depth_metres
-from tofd.drivers.frame import DeviceInfo, Frame
+from tofd.drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame
 from tofd.drivers.intrinsics import Intrinsics
 
 FRAME_TOPIC = re.compile(r"^/cam/sensor_(\d+)/frameType_(\d+)$")
@@ -43,7 +44,6 @@ PROPERTY_DEPTH_UNIT_MM = 176  # OB_PROP_DEPTH_UNIT_FLEXIBLE_ADJUSTMENT_FLOAT
 PROPERTY_PRECISION_LEVEL = 75  # OB_PROP_DEPTH_PRECISION_LEVEL_INT
 PRECISION_LEVEL_MM = (1.0, 0.8, 0.4, 0.1, 0.2, 0.5, 0.05)
 """OBDepthPrecisionLevel -> millimetres per depth unit."""
-MAX_PENDING = 64
 
 
 def is_orbbec(topics: dict[str, Topic]) -> bool:
@@ -58,8 +58,8 @@ class OrbbecSource(BagSource):
     infrared frame are counted in counters["unpaired_range"], infrared ones in counters["unpaired_amplitude"].
     """
 
-    def __init__(self, path: str | Path) -> None:
-        super().__init__(path)
+    def __init__(self, path: str | Path, bag: BagReader | None = None) -> None:
+        super().__init__(path, bag)
         try:
             self.depth_topic, self.ir_topic = self._topics()
             self.intrinsics = self._calibration()  # the depth stream's profile, known before the first frame
@@ -130,8 +130,8 @@ class OrbbecSource(BagSource):
 
     def frames(self) -> Iterator[Frame]:
         """Frames in the order their second image arrives."""
-        roles = {self.depth_topic: "depth", self.ir_topic: "infrared"}
-        pending: dict[int, dict[str, tuple[ros1_wire.ExtendedImage, RawMessage]]] = {}
+        roles = {self.depth_topic: "range", self.ir_topic: "amplitude"}
+        join: StreamJoin[int, tuple[ros1_wire.ExtendedImage, RawMessage]] = StreamJoin(roles.values(), self.counters)
         for message in self.messages(set(roles)):
             try:
                 image = self._image(message)
@@ -139,24 +139,16 @@ class OrbbecSource(BagSource):
                 self.damaged(None, exc)
                 continue
             number = image.number if image.number is not None else image.header.seq
-            parts = pending.setdefault(number, {})
-            parts[roles[message.topic]] = (image, message)
-            if len(parts) == 2:
-                del pending[number]
-                try:
-                    frame = self._frame(number, parts["depth"], parts["infrared"])
-                except DamagedMessage as exc:
-                    self.damaged(number, exc)
-                    continue
-                yield frame
-            while len(pending) > MAX_PENDING:
-                self._unpaired(pending.pop(next(iter(pending))))
-        for parts in pending.values():
-            self._unpaired(parts)
-
-    def _unpaired(self, parts: Collection[str]) -> None:
-        for role in parts:
-            self.counters["unpaired_range" if role == "depth" else "unpaired_amplitude"] += 1
+            parts = join.add(number, roles[message.topic], (image, message))
+            if parts is None:
+                continue
+            try:
+                frame = self._frame(number, parts["range"], parts["amplitude"])
+            except DamagedMessage as exc:
+                self.damaged(number, exc)
+                continue
+            yield frame
+        join.finish()
 
     def _frame(self, number: int, depth: tuple[ros1_wire.ExtendedImage, RawMessage],
                infrared: tuple[ros1_wire.ExtendedImage, RawMessage]) -> Frame:
@@ -174,7 +166,7 @@ class OrbbecSource(BagSource):
         z = depth_metres(raw, units_mm * 1e-3)
         timestamp_us = image.timestamp_usec if image.timestamp_usec is not None else image.header.stamp_ns // 1000
         return Frame(range_m=intrinsics.radial_from_z(z).astype(np.float32), amplitude=amplitude,
-                     frame_counter=number % (1 << 32), timestamp_us=timestamp_us,
+                     frame_counter=number % COUNTER_LIMIT, timestamp_us=timestamp_us,
                      host_monotonic_s=message.log_ns / 1e9, host_wall_s=message.log_ns / 1e9,
                      intrinsics=intrinsics, device=self.device)
 

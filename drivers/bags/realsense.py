@@ -28,16 +28,15 @@ import numpy as np
 from tofd.drivers.bags import ros1_wire
 from tofd.drivers.bags.camera_info import camera_info_intrinsics, lens_intrinsics
 from tofd.drivers.bags.images import AMPLITUDE_ENCODINGS, IMAGE_TYPES, RANGE_ENCODINGS, plane
-from tofd.drivers.bags.scan import BagError, DamagedMessage, RawMessage, Topic
+from tofd.drivers.bags.join import StreamJoin
+from tofd.drivers.bags.scan import BagError, BagReader, DamagedMessage, RawMessage, Topic
 from tofd.drivers.bags.source import BagSource
 from tofd.drivers.depth import depth_metres
-from tofd.drivers.frame import DeviceInfo, Frame
+from tofd.drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame
 from tofd.drivers.intrinsics import Intrinsics
 
 STREAM_TOPIC = re.compile(r"^(/device_\d+/sensor_\d+/)(Depth|Infrared)_(\d+)/image/data(/compressed\w*)?$")
 """A stream's image topic: sensor prefix, stream name, index, transport."""
-MAX_PENDING = 64
-"""Frame numbers waiting for their other stream (bounds memory only)."""
 
 
 def is_realsense(topics: dict[str, Topic]) -> bool:
@@ -72,8 +71,8 @@ class RealSenseSource(BagSource):
     counters["unpaired_range"], infrared ones in counters["unpaired_amplitude"].
     """
 
-    def __init__(self, path: str | Path) -> None:
-        super().__init__(path)
+    def __init__(self, path: str | Path, bag: BagReader | None = None) -> None:
+        super().__init__(path, bag)
         try:
             self.depth, self.infrared = self._streams()
             self.intrinsics = self._calibration()  # one per stream, known before the first frame
@@ -171,35 +170,32 @@ class RealSenseSource(BagSource):
         return out
 
     def _images(self) -> Iterator[tuple[str, _Image]]:
-        """("depth" | "infrared", image) in bag order."""
-        roles = {self.depth.image_topic: "depth", self.infrared.image_topic: "infrared"}
+        """("range" | "amplitude", image) in bag order: depth and infrared images (a ROS 2 bag's each paired with
+        its metadata by receive time; one left without the other is counted in counters["unpaired_image"] or
+        counters["unpaired_metadata"])."""
+        roles = {self.depth.image_topic: "range", self.infrared.image_topic: "amplitude"}
         if self.bag.ros1:
             for message in self.messages(set(roles)):
                 try:
                     yield roles[message.topic], self._legacy_image(message)
                 except DamagedMessage as exc:
-                    self.damaged(exc.frame_number if roles[message.topic] == "depth" else None, exc)
+                    self.damaged(exc.frame_number if roles[message.topic] == "range" else None, exc)
             return
         metadata = {f"{stream.base}/image/metadata": role for role, stream in
-                    (("depth", self.depth), ("infrared", self.infrared))}
-        waiting: dict[tuple[str, int], dict[str, Any]] = {}
+                    (("range", self.depth), ("amplitude", self.infrared))}
+        join: StreamJoin[tuple[str, int], RawMessage] = StreamJoin(("image", "metadata"), self.counters)
         for message in self.messages(set(roles) | set(metadata)):
             role = roles.get(message.topic) or metadata[message.topic]
-            part = "image" if message.topic in roles else "metadata"
-            entry = waiting.setdefault((role, message.log_ns), {})
-            entry[part] = message
-            if len(entry) == 2:
-                del waiting[(role, message.log_ns)]
-                try:
-                    image = self._ros2_image(entry["image"], entry["metadata"])
-                except DamagedMessage as exc:
-                    self.damaged(exc.frame_number if role == "depth" else None, exc)
-                    continue
-                yield role, image
-            while len(waiting) > MAX_PENDING:
-                self.counters[f"unpaired_{next(iter(waiting.pop(next(iter(waiting)))))}"] += 1
-        for entry in waiting.values():  # an image without its metadata, or metadata without its image
-            self.counters[f"unpaired_{next(iter(entry))}"] += 1
+            entry = join.add((role, message.log_ns), "image" if message.topic in roles else "metadata", message)
+            if entry is None:
+                continue
+            try:
+                image = self._ros2_image(entry["image"], entry["metadata"])
+            except DamagedMessage as exc:
+                self.damaged(exc.frame_number if role == "range" else None, exc)
+                continue
+            yield role, image
+        join.finish()
 
     def _legacy_image(self, message: RawMessage) -> _Image:
         try:
@@ -238,21 +234,12 @@ class RealSenseSource(BagSource):
 
     def frames(self) -> Iterator[Frame]:
         """Frames in the order their second image arrives."""
-        pending: dict[int, dict[str, _Image]] = {}
+        join: StreamJoin[int, _Image] = StreamJoin(("range", "amplitude"), self.counters)
         for role, image in self._images():
-            parts = pending.setdefault(image.number, {})
-            parts[role] = image
-            if len(parts) == 2:
-                del pending[image.number]
-                yield self._frame(parts["depth"], parts["infrared"])
-            while len(pending) > MAX_PENDING:
-                self._unpaired(pending.pop(next(iter(pending))))
-        for parts in pending.values():
-            self._unpaired(parts)
-
-    def _unpaired(self, parts: dict[str, _Image]) -> None:
-        for role in parts:
-            self.counters["unpaired_range" if role == "depth" else "unpaired_amplitude"] += 1
+            parts = join.add(image.number, role, image)
+            if parts is not None:
+                yield self._frame(parts["range"], parts["amplitude"])
+        join.finish()
 
     def _frame(self, depth: _Image, infrared: _Image) -> Frame:
         intrinsics = self.intrinsics
@@ -265,7 +252,7 @@ class RealSenseSource(BagSource):
         self.note_signal(depth.array, infrared.array, units)
         z = depth_metres(depth.array, units)
         return Frame(range_m=intrinsics.radial_from_z(z).astype(np.float32), amplitude=amplitude,
-                     frame_counter=depth.number % (1 << 32), timestamp_us=max(0, depth.timestamp_us),
+                     frame_counter=depth.number % COUNTER_LIMIT, timestamp_us=max(0, depth.timestamp_us),
                      host_monotonic_s=depth.log_ns / 1e9, host_wall_s=depth.log_ns / 1e9, intrinsics=intrinsics,
                      device=self.device)
 

@@ -12,8 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tofd.drivers.errors import DataError
 
-class WireError(ValueError):
+
+class WireError(DataError):
     """A message shorter than its fields, or a length field pointing past its end."""
 
 

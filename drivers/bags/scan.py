@@ -19,11 +19,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from mcap.writer import MCAP0_MAGIC
+
 from tofd.drivers.source import DriverError
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 OP_MESSAGE, OP_CHUNK, OP_CONNECTION = 0x02, 0x05, 0x07
 
 
@@ -175,7 +176,7 @@ def _fallback(path: Path, ros1: bool, exc: Exception) -> _Ros1Scan | _SqliteScan
         for candidate in files:
             if _starts_with(candidate, SQLITE_MAGIC):
                 return _SqliteScan(candidate)
-            if _starts_with(candidate, MCAP_MAGIC):
+            if _starts_with(candidate, MCAP0_MAGIC):
                 return _McapScan(candidate)
     except Exception as second:  # noqa: BLE001 (unreadable either way: say what rosbags said, and ours)
         why = f"{why}; read record by record: {type(second).__name__}: {second}"

@@ -13,22 +13,19 @@ from typing import Any
 import numpy as np
 
 from tofd.drivers.bags.scan import BagError, BagReader, DamagedMessage, RawMessage
-from tofd.drivers.frame import AmplitudeKind, Frame, SensorInfo
-from tofd.drivers.intrinsics import Intrinsics
-from tofd.drivers.source import FrameSource, Rejected
+from tofd.drivers.frame import COUNTER_LIMIT, PERIOD_FRAMES, AmplitudeKind, Frame, SensorInfo
+from tofd.drivers.source import FrameSource, Rejected, SourceReport
 
 log = logging.getLogger(__name__)
-
-PERIOD_FRAMES = 8
-"""Frames whose device timestamps give the frame period before the first frame is delivered."""
 
 
 class BagSource(FrameSource):
     """A FrameSource reading a bag through tofd.drivers.bags.scan.BagReader.
 
-    After iteration, `intrinsics` is the calibration of the frames (None when none was delivered), `damage` says
-    why reading stopped early (None: the whole bag was read) and `settings` holds what the file says about the
-    device and how it was set (units, rates, options), for the provenance of an imported recording. Frames
+    After iteration, `intrinsics` is the calibration of the frames (None when none was delivered), `report` says
+    why reading stopped early (reason "damaged", detail the bag's damage) and `settings` holds what the file says
+    about the device and how it was set (units, rates, options), for the provenance of an imported recording;
+    `expected_frames` is the number of range images (an upper bound on the frames). Frames
     without SR3000 registers carry it as `sensor` (tofd.drivers.frame.SensorInfo), with `amplitude_kind`, the raw
     planes' units (note_signal) and the frame period from the first PERIOD_FRAMES device timestamps.
     """
@@ -38,14 +35,15 @@ class BagSource(FrameSource):
     unambiguous_range_m: float | None = None
     """The range at which the phase wraps, when the file says (None: unknown)."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, bag: BagReader | None = None) -> None:
+        """`bag`: the bag at `path` already open (its reader is the source's from then on)."""
         super().__init__()
         self.path = Path(path)
-        self.bag = BagReader(self.path)
-        self.intrinsics: Intrinsics | None = None
-        self.settings: dict[str, Any] = {}
+        self.bag = bag or BagReader(self.path)
         self.range_messages: int | None = None
         """Range images in the bag (an upper bound on the frames; None when unknown)."""
+        self._ended = False  # iteration reached the end of the bag or its damage
+        self._last_good: int | None = None  # counter of the last frame delivered
         self.sensor: SensorInfo | None = None
         """The frames' signal and settings (known once iteration started)."""
         self._signal: tuple[float, int | None, float | None] | None = None
@@ -56,8 +54,14 @@ class BagSource(FrameSource):
         return n if n >= 0 else None
 
     @property
-    def damage(self) -> str | None:
-        return self.bag.damage
+    def expected_frames(self) -> int | None:
+        return self.range_messages
+
+    @property
+    def report(self) -> SourceReport:
+        if self.bag.damage is not None:
+            return SourceReport("damaged", self.bag.damage, self._last_good)
+        return SourceReport("end" if self._ended else None, "", self._last_good)
 
     def close(self) -> None:
         super().close()
@@ -87,7 +91,7 @@ class BagSource(FrameSource):
             self.counters["damaged_message"] += 1
             log.warning("%s", why)
         else:
-            self.reject(frame_number % (1 << 32), f"damaged: {why}")
+            self.reject(frame_number % COUNTER_LIMIT, f"damaged: {why}")
 
     def check_sizes(self, where: str, **planes: tuple[int, int]) -> None:
         """BagError when the named (H, W) shapes differ."""
@@ -148,31 +152,42 @@ class BagSource(FrameSource):
         counter = 0
         try:
             for frame in self._with_sensor(self.frames()):
-                counter = frame.frame_counter + 1
+                counter, self._last_good = frame.frame_counter + 1, frame.frame_counter
                 yield frame
         except BagError as exc:
             if not self.bag.recovering:
                 raise exc if str(exc).startswith(str(self.path)) else BagError(f"{self.path}: {exc}") from None
             self.bag.damage = f"{self.bag.damage or 'damaged'}; {exc}"
+        self._ended = not self.closed
         if self.bag.damage is not None:
             self.reject(counter, f"damaged: {self.path}: the rest is unreadable ({self.bag.damage})")
 
 
 class RejectsAfter(FrameSource):
     """`source`'s frames, then the frames an earlier stage rejected: what importing a bag ledgered (its damaged
-    tail) reaches the pipeline's ledger when the imported recording is replayed. Counters and other attributes
-    are `source`'s."""
+    tail) reaches the pipeline's ledger when the imported recording is replayed. Counters, intrinsics, settings,
+    expected frames and report are `source`'s."""
 
     def __init__(self, source: FrameSource, rejected: list[Rejected]) -> None:
         super().__init__()
         self.source, self._pending = source, list(rejected)
-        self.counters = source.counters
+        self.counters, self.intrinsics, self.settings = source.counters, source.intrinsics, source.settings
+
+    @property
+    def expected_frames(self) -> int | None:
+        return self.source.expected_frames
+
+    @property
+    def report(self) -> SourceReport:
+        return self.source.report
 
     def __iter__(self) -> Iterator[Frame]:
         for frame in self.source:
             self._rejected.extend(self.source.take_rejected())
+            self.intrinsics = self.source.intrinsics
             yield frame
         self._rejected.extend(self.source.take_rejected())
+        self.intrinsics, self.settings = self.source.intrinsics, self.source.settings
         for item in self._pending:
             self.reject(item.frame_counter, item.reason)
         self._pending.clear()
@@ -180,6 +195,3 @@ class RejectsAfter(FrameSource):
     def close(self) -> None:
         super().close()
         self.source.close()
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.source, name)

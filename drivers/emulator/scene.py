@@ -43,7 +43,7 @@ class Motion:
 class FaceScene:
     """Rendered face frames; each pose is rendered once (on first use, or all at once by prerender()).
 
-    Payload encoding: distance per protocol.range_m_to_raw (NaN or beyond the non-ambiguity range ->
+    Payload encoding: distance per tofd.drivers.sr3000.range_m_to_raw (NaN or beyond the non-ambiguity range ->
     0xFFFF) for the modulation frequency of the frame; amplitude = renderer units (SensorModel.gain is the
     amplitude of an albedo-1 surface at 1 m), rounded and clipped to 0..65535. Noise is seeded per pose,
     so a frame counter always gives the same image.

@@ -36,10 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from tofd.drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame, SensorInfo
+from tofd.drivers.frame import COUNTER_LIMIT, PERIOD_FRAMES, DeviceInfo, Frame, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.k4a.lens import depth_lens
-from tofd.drivers.source import DriverError, FrameSource
+from tofd.drivers.source import DriverError, FrameSource, SourceReport, StopReason
 
 log = logging.getLogger(__name__)
 
@@ -48,8 +48,6 @@ MATROSKA_MAGIC = b"\x1a\x45\xdf\xa3"
 DEPTH_TRACK, IR_TRACK = "DEPTH", "IR"
 CALIBRATION_ATTACHMENT = "calibration.json"
 GREY16_FOURCC = "b16g"
-PERIOD_FRAMES = 8
-"""Captures whose timestamps give the frame period before the first frame is delivered."""
 MAX_LOST_FRAMES = 100_000
 """A larger gap between two captures is not counted as lost frames (a clock jump, not a drop)."""
 
@@ -86,7 +84,7 @@ class K4aRecordingSource(FrameSource):
             self._read_header(container)
         finally:
             container.close()
-        self.stopped_reason: str | None = None
+        self.stopped_reason: StopReason | None = None
         self.stop_detail = ""
         self.last_good_counter: int | None = None
         self.frame_period_us: float | None = None
@@ -165,6 +163,10 @@ class K4aRecordingSource(FrameSource):
     @property
     def shape(self) -> tuple[int, int]:
         return self.intrinsics.shape
+
+    @property
+    def report(self) -> SourceReport:
+        return SourceReport(self.stopped_reason, self.stop_detail, self.last_good_counter)
 
     def _captures(self) -> Generator[_Capture, None, None]:
         """Captures in time order: the DEPTH and IR blocks of each timestamp (None where a track has none).

@@ -3,7 +3,7 @@
 Only the bundled shared libraries are used, never the `pyk4a` Python module (its compiled part was built against
 numpy 1.x and does not import under numpy 2). `load()` finds them beside the installed pyk4a package without
 importing it and declares the prototypes of the functions tofd calls; the structures are the SDK's (k4atypes.h,
-k4arecord/types.h).
+k4arecord/types.h). The SDK's own log messages go to this module's logger instead of stdout.
 """
 
 from __future__ import annotations
@@ -12,8 +12,11 @@ import ctypes
 import functools
 import glob
 import importlib.util
+import logging
 import os
 from pathlib import Path
+
+log = logging.getLogger(__name__)
 
 DEPTH_MODE_VALUES = {"NFOV_2X2BINNED": 1, "NFOV_UNBINNED": 2, "WFOV_2X2BINNED": 3, "WFOV_UNBINNED": 4}
 """k4a_depth_mode_t of each depth mode with a depth image (0 is off, 5 PASSIVE_IR)."""
@@ -63,6 +66,19 @@ class HardwareVersion(ctypes.Structure):
                 ("firmware_build", ctypes.c_int), ("firmware_signature", ctypes.c_int)]
 
 
+LOG_LEVELS = {0: logging.WARNING, 1: logging.DEBUG, 2: logging.DEBUG}
+"""k4a_log_level_t (critical, error, warning) -> the level tofd logs the SDK's message at: its errors are what it
+says about expected conditions too ("No devices found"), so they are debug, and tofd reports what fails itself."""
+LOG_MIN_LEVEL = 2  # K4A_LOG_LEVEL_WARNING
+MESSAGE_CALLBACK = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_int,
+                                    ctypes.c_char_p)
+
+
+@MESSAGE_CALLBACK
+def _forward_message(context: object, level: int, file: bytes | None, line: int, message: bytes | None) -> None:
+    log.log(LOG_LEVELS.get(level, logging.DEBUG), "libk4a: %s", (message or b"").decode(errors="replace").strip())
+
+
 class Libraries:
     """The loaded libk4a and libk4arecord with the prototypes of the functions tofd calls."""
 
@@ -71,6 +87,7 @@ class Libraries:
         vp, c = ctypes.c_void_p, ctypes
         size_p = c.POINTER(c.c_size_t)
         for lib, name, args, res in (
+            (k4a, "k4a_set_debug_message_handler", [MESSAGE_CALLBACK, vp, c.c_int], c.c_int),
             (k4a, "k4a_device_get_installed_count", [], c.c_uint32),
             (k4a, "k4a_device_open", [c.c_uint32, c.POINTER(vp)], c.c_int),
             (k4a, "k4a_device_close", [vp], None),
@@ -99,6 +116,7 @@ class Libraries:
         ):
             fn = getattr(lib, name)
             fn.argtypes, fn.restype = args, res
+        k4a.k4a_set_debug_message_handler(_forward_message, None, LOG_MIN_LEVEL)
 
 
 def read_buffer(call: object, *args: object) -> bytes | None:
@@ -132,6 +150,7 @@ def load() -> Libraries | str:
     record = sorted(glob.glob(str(libs / "libk4arecord-*.so*")))
     if not k4a or not record:
         return f"no libk4a / libk4arecord in {libs} (pyk4a-bundle ships them for Linux x86-64)"
+    os.environ.setdefault("K4A_ENABLE_LOG_TO_STDOUT", "0")  # the SDK's messages go to tofd's log instead
     try:
         mode = os.RTLD_GLOBAL  # libk4arecord resolves libk4a's symbols
         return Libraries(ctypes.CDLL(k4a[0], mode=mode), ctypes.CDLL(record[0], mode=mode))

@@ -18,10 +18,10 @@ import threading
 import time
 from collections.abc import Callable
 
-from tofd.drivers.bags.camera_info import orbbec_lens_intrinsics
 from tofd.drivers.bags.orbbec import PRECISION_LEVEL_MM, PROPERTY_DEPTH_UNIT_MM, PROPERTY_PRECISION_LEVEL
 from tofd.drivers.cameras import CameraListing, CameraRequest, SdkMissing
 from tofd.drivers.frame import DeviceInfo, SensorInfo
+from tofd.drivers.lens_models import orbbec_lens_intrinsics
 from tofd.drivers.live import Capture, DeviceLost, PlaybackEnded, SdkCamera
 from tofd.drivers.orbbec import sdk
 from tofd.drivers.source import DriverError, FrameSource

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tofd.drivers import sr3000
+from tofd.drivers.errors import DataError
 from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth, Registers, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.recording import schemas
@@ -73,7 +74,7 @@ ROLE_BY_ID = {c.id: c.role for c in CHANNELS}
 _ENCODINGS: dict[str, np.dtype] = {"16UC1": np.dtype("<u2"), "32FC1": np.dtype("<f4")}
 
 
-class FormatError(ValueError):
+class FormatError(DataError):
     """A frame message or metadata record that does not follow this layout."""
 
 
@@ -86,7 +87,7 @@ def channel_role(topic: str, message_encoding: str) -> str | None:
 
 def range_scales_m(registers: Registers | None) -> tuple[float, ...]:
     """Candidate metres per raw distance unit at the frame's modulation frequency (raw/65535 * c/(2 f)):
-    rounded to float32 as the USB backend multiplies (tofd.drivers.usb.protocol.raw_to_range_m), and exact; none
+    rounded to float32 as the USB backend multiplies (tofd.drivers.sr3000.raw_to_range_m), and exact; none
     without SR3000 registers (such a range plane is stored as float32)."""
     if registers is None:
         return ()

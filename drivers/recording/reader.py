@@ -22,7 +22,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
-from typing import Literal
 
 import zstandard
 from mcap.data_stream import ReadDataStream
@@ -35,9 +34,8 @@ from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.recording import bounds, format_v1
 from tofd.drivers.recording import format as fmt
 from tofd.drivers.recording.bounds import MAX_RECORD_BYTES
-from tofd.drivers.source import DriverError
+from tofd.drivers.source import DriverError, StopReason
 
-StopReason = Literal["end", "truncated", "corrupt"]
 CHUNK_HEADER_BYTES = 8 + 8 + 8 + 4 + 4  # start time, end time, uncompressed size, CRC, compression length
 CHUNK_COMPRESSION_AT = 9 + CHUNK_HEADER_BYTES - 4
 """Offset of a chunk record's compression field from the record's start (opcode and length come first)."""

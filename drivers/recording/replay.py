@@ -23,10 +23,9 @@ from tofd.drivers.recording.reader import (
     Damage,
     RecordingInfo,
     RecordingReader,
-    StopReason,
     recording_info,
 )
-from tofd.drivers.source import DriverError, FrameSource
+from tofd.drivers.source import DriverError, FrameSource, SourceReport, StopReason
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +87,17 @@ class ReplaySource(FrameSource):
         self.last_good_counter: int | None = None  # counter of the last frame read intact from the file
         self.frames_read = 0  # intact frames read from the file in the first pass
         self.damage: list[Damage] = []  # damaged stretches skipped in the first pass
+        if self.info is not None:
+            self.intrinsics, self.settings = self.info.intrinsics, dict(self.info.config or {})
+
+    @property
+    def expected_frames(self) -> int | None:
+        """The recording's frames per its header (None: no header, or looping)."""
+        return None if self.info is None or self.loop else self.info.frame_count
+
+    @property
+    def report(self) -> SourceReport:
+        return SourceReport(self.stopped_reason, self.stop_detail, self.last_good_counter)
 
     def counters_reach(self, seek: int) -> tuple[bool, int | None]:
         """Whether a frame of the recording has a counter >= seek, and the last counter read to find out (a pass

@@ -102,7 +102,7 @@ class _DropTally:
 class UsbCamera(FrameSource):
     """An SR3000-style camera (protocol of docs/protocol.md) as a stream of Frames.
 
-    Keyword names match tofd's [camera] config section, so `UsbCamera(**asdict(config.camera))` works.
+    Keyword names match tofd's [camera] config section (tofd.service.camera.sr3000_keywords picks them out of it).
     serial: 8 hex digits, "" = the first camera found (then that camera's serial is kept for reconnects).
     int_time_code, mod_freq_index: INT_TIME and MOD_FREQ registers, written and read back at open and
     after every reconnect. read_timeout_s: one bulk read's timeout. stall_report_s: no frame for this long

@@ -40,6 +40,10 @@ class UsbCameraError(DriverError):
     """A USB camera problem; `where` says which operation failed."""
 
 
+class NoUsbBackend(UsbCameraError):
+    """pyusb finds no USB library (libusb-1.0) to talk to the bus with."""
+
+
 class DeviceNotFound(UsbCameraError):
     """No SR3000-style camera (0852:0074) attached, or none with the requested serial."""
 
@@ -115,5 +119,5 @@ def usb_errors(where: str) -> Iterator[None]:
     except usb.core.USBError as exc:
         raise translate(exc, where) from exc
     except usb.core.NoBackendError as exc:
-        raise UsbCameraError(f"{where}: no USB backend available; install libusb-1.0 "
+        raise NoUsbBackend(f"{where}: no USB backend available; install libusb-1.0 "
                              "(Debian/Ubuntu: sudo apt install libusb-1.0-0)") from exc

@@ -14,6 +14,7 @@ from enum import IntEnum, IntFlag
 
 import numpy as np
 
+from tofd.drivers.errors import TofdError
 from tofd.drivers.frame import DEFAULT_REGISTER_VALUES
 from tofd.drivers.sr3000 import HEIGHT, MOD_FREQS_MHZ, WIDTH
 
@@ -91,8 +92,8 @@ def register_write_error(register: int, value: int) -> str | None:
     return None
 
 
-class ProtocolError(ValueError):
-    """Bytes from the device that do not follow the protocol."""
+class ProtocolError(TofdError, ValueError):
+    """Bytes from the device that do not follow the protocol (a runtime failure: exit status 1)."""
 
 
 class PartialFrame(ProtocolError):

@@ -18,6 +18,7 @@ from tofd.algorithm.detector import NoseModel
 from tofd.batch.plan import run_digests
 from tofd.batch.rows import frame_row, pipeline_fields, rows_digest
 from tofd.config import Config, config_table
+from tofd.errors import UsageError
 from tofd.service.pipeline.results import FrameResult
 
 FORMAT = "tofd.golden.v1"
@@ -100,13 +101,13 @@ def write_golden(path: str | Path, document: dict) -> None:
 
 
 def load_golden(path: str | Path) -> dict:
-    """A golden file; ValueError names a file that is not one."""
+    """A golden file; UsageError (a ValueError) names a file that is not one."""
     try:
         doc = json.loads(Path(path).read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read golden file: {exc}") from None
+        raise UsageError(f"{path}: cannot read golden file: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a golden file (expected format {FORMAT!r})")
+        raise UsageError(f"{path}: not a golden file (expected format {FORMAT!r})")
     return doc
 
 
@@ -169,3 +170,26 @@ def compare(golden: dict, rows: list[dict]) -> CheckReport:
     if len(problems) > MAX_LINES:
         problems = problems[:MAX_LINES] + [f"... and {len(problems) - MAX_LINES} more differences"]
     return CheckReport(len(common), tuple(problems), tuple(notes), identical)
+
+
+def golden_check(rows: list[dict], recording: str, cfg: Config, model: NoseModel | None, write_to: Path | None,
+                 check: Path | None) -> tuple[bool, list[str]]:
+    """Write the golden file of a run's `rows` to `write_to` and/or compare them with the golden file `check`:
+    whether the check found a regression, and the lines that report it (the differences indented). UsageError
+    names a golden file that cannot be read."""
+    doc = golden_document(rows, recording, cfg, model)
+    lines = []
+    if write_to:
+        write_golden(write_to, doc)
+        lines.append(f"wrote golden file {write_to} ({len(rows)} frames)")
+    if not check:
+        return False, lines
+    golden = load_golden(check)
+    report = compare(golden, rows)
+    lines += [f"check: {line}" for line in report.notes]
+    lines += [f"check: the golden file was made with {k} {v[:12]}, this run has {doc['digests'][k][:12]}"
+              for k, v in golden.get("digests", {}).items() if k != "run" and v != doc["digests"].get(k)]
+    if report.problems:
+        return True, [*lines, f"check FAILED against {check}:", *(f"  {line}" for line in report.problems)]
+    return False, [*lines, f"check passed against {check} ({report.frames_compared} frames within tolerance"
+                           f"{', bit-identical' if report.bit_identical else ''})"]

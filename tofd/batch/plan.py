@@ -203,7 +203,7 @@ def _plan_by_content(inp: InputPlan, out: str, run_digest: str, partition_frames
     if fmt.read_as == "recording":
         _plan_recording(inp, out, run_digest, partition_frames, taken)
         return
-    if fmt.open is None or Path(inp.url).is_dir():
+    if Path(inp.url).is_dir():
         inp.error = f"a {fmt.description}: convert it with `tofd import` first"
         return
     with open(inp.url, "rb") as f:

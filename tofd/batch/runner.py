@@ -28,6 +28,7 @@ from tofd.batch.plan import InputPlan, Partition, expand_inputs, plan_inputs, ru
 from tofd.batch.rows import TIMED, minima_from_rows, rows_digest
 from tofd.batch.task import PrepareWorker, partition_stats, run_partition
 from tofd.config import Config, config_from_dict, config_table
+from tofd.errors import UsageError
 from tofd.lab.accuracy import accuracy_from_records
 from tofd.lab.evaluation import variant_results
 from tofd.lab.report import answers_table, eer_table, results_to_dict
@@ -243,7 +244,7 @@ def prepare(items: list[str], out: str, cfg: Config, partition_frames: int,
     evaluate the model on frames with ground truth) and the run's digests, for the service config `cfg` and its
     detector model."""
     if partition_frames < 1:
-        raise ValueError(f"partition size: expected >= 1 frames, got {partition_frames}")
+        raise UsageError(f"partition size: expected >= 1 frames, got {partition_frames}")
     model = load_service_model(cfg)
     table, model_dict = config_table(cfg), None if model is None else model.to_dict()
     job = {"config": table, "model": model_dict, "evaluation": evaluation}

@@ -66,13 +66,12 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
         yield from _dataset_frames(part, stats, errors)
         return
     if not part.offsets:  # no index, or a file a FrameSource reads: the whole file, sequentially
-        from tofd.drivers.opener import open_source
-        from tofd.drivers.recording.replay import ReplaySource
-        from tofd.drivers.source import DriverError, FrameSource
+        from tofd.drivers.opener import open_input
+        from tofd.drivers.source import DriverError
 
         t0 = time.perf_counter()
         try:
-            source: FrameSource = open_source(part.url) if part.reader else ReplaySource(part.url)
+            _, source = open_input(part.url)
         except (DriverError, OSError, ValueError) as exc:
             errors.append(str(exc))
             return
@@ -86,10 +85,8 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
                 stats["frames_in"] += len(lost)
                 stats["dropped"]["damaged"] += len(lost)
                 errors.append(f"{len(lost)} frames lost or damaged, the first: {lost[0].reason}")
-            stopped = getattr(source, "stopped_reason", None)
-            if stopped not in (None, "end"):
-                errors.append(f"{stopped} after frame {getattr(source, 'last_good_counter', None)}: "
-                              f"{getattr(source, 'stop_detail', '')}")
+            if source.report.stopped_early:
+                errors.append(source.report.line())
         return
     offsets = (0,) * part.first + part.offsets
     index = FrameIndex(offsets, frozenset(part.frame_channels), "")

@@ -40,29 +40,20 @@ def main(args: argparse.Namespace) -> int:
 
     from tofd.batch.runner import SUMMARY_NAME, RunOptions, batch_client, prepare, run_plan
     from tofd.config import load_config
+    from tofd.errors import UsageError
     from tofd.lab.accuracy import accuracy_table
 
     if args.workers < 1:
-        print(f"tofd batch: --workers: expected >= 1, got {args.workers}", file=sys.stderr)
-        return 2
+        raise UsageError(f"--workers: expected >= 1, got {args.workers}")
     cfg = load_config(args.config)
-    try:
-        inputs, job, digests = prepare(args.inputs, args.out, cfg, args.partition_frames, args.evaluation)
-    except ValueError as exc:
-        print(f"tofd batch: {exc}", file=sys.stderr)
-        return 2
+    inputs, job, digests = prepare(args.inputs, args.out, cfg, args.partition_frames, args.evaluation)
     for inp in inputs:
         if inp.error:
             print(f"tofd batch: {inp.url}: {inp.error}", file=sys.stderr)
     if not any(inp.partitions for inp in inputs):
-        print("tofd batch: no input can be processed", file=sys.stderr)
-        return 2  # a data error: every input is missing, empty or unreadable
-    try:
-        with batch_client(args.scheduler, args.workers) as client:
-            summary = run_plan(client, inputs, job, args.out, digests, RunOptions(args.resume, args.retries))
-    except OSError as exc:
-        print(f"tofd batch: {exc}", file=sys.stderr)
-        return 1
+        raise UsageError("no input can be processed")  # every input is missing, empty or unreadable
+    with batch_client(args.scheduler, args.workers) as client:
+        summary = run_plan(client, inputs, job, args.out, digests, RunOptions(args.resume, args.retries))
     bad = [e for e in summary["inputs"] if e["status"] != "ok"]
     for e in bad:
         print(f"tofd batch: {e['input']}: {e['status']}: {'; '.join(e['errors'][:3])}", file=sys.stderr)

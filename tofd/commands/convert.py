@@ -19,20 +19,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from tofd.drivers.recording.format import FORMAT_VERSION
-    from tofd.drivers.recording.replay import ReplaySource
     from tofd.drivers.recording.writer import RecordingWriter
-    from tofd.drivers.source import DriverError
-    from tofd.errors import UsageError
+    from tofd.inputs import open_recording
     from tofd.outputs import check_output_file
 
     check_output_file(args.out, "OUT")
-    try:
-        source = ReplaySource(args.file)
-    except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(f"{args.file}: {exc}") from None
-    info = source.info
-    if info is None:
-        raise UsageError(source.header_problem)
+    source, info = open_recording(args.file)
     tmp = args.out.with_name(f".{args.out.name}.{os.getpid()}.tmp")
     try:
         with source, RecordingWriter(tmp, config=info.config, fsync_interval_s=None) as writer:
@@ -45,6 +37,6 @@ def main(args: argparse.Namespace) -> int:
     print(f"tofd convert: wrote {args.out}: {writer.frames_written} frames "
           f"(format {info.format_version} -> {FORMAT_VERSION})"
           + (f", {left_out} left out (see the log)" if left_out else "")
-          + ("" if source.stopped_reason == "end" else f"; {args.file} is {source.stopped_reason}: "
-                                                     f"{source.stop_detail}"), file=sys.stderr)
+          + (f"; {args.file} is {source.report.reason}: {source.report.detail}" if source.report.stopped_early
+             else ""), file=sys.stderr)
     return 0

@@ -77,18 +77,18 @@ def write_ply(path: Path, frame) -> int:  # noqa: ANN001 (tofd.drivers.frame.Fra
 
 
 def main(args: argparse.Namespace) -> int:
-    from tofd.drivers.source import DriverError
     from tofd.errors import UsageError
-    from tofd.inputs import InputSummary, frames_with_rejects, open_input
+    from tofd.inputs import InputSummary, describe_input, frames_with_rejects, open_reader
     from tofd.outputs import prepare_output_dir
 
+    fmt, source = open_reader(args.file, arguments.bag_options(args))
     try:
-        source, fmt = open_input(args.file, arguments.bag_options(args))
-    except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(f"{args.file}: {exc}") from None
-    out = prepare_output_dir(args.out)
+        out = prepare_output_dir(args.out)
+    except BaseException:
+        source.close()
+        raise
     stem = args.file.name.split(".")[0]
-    summary = InputSummary(args.file, fmt)
+    summary = InputSummary(args.file, describe_input(args.file, fmt, source))
     sel = args.frames
     written = []
     arrays: dict[str, list] = {"range_m": [], "amplitude": [], "frame_counter": [], "timestamp_us": []}

@@ -59,13 +59,8 @@ def describe(summary) -> list[str]:  # noqa: ANN001 (tofd.inputs.InputSummary, i
 
 
 def main(args: argparse.Namespace) -> int:
-    from tofd.drivers.source import DriverError
-    from tofd.errors import UsageError
     from tofd.inputs import summarize
 
-    try:
-        summary = summarize(args.file, arguments.bag_options(args))
-    except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(f"{args.file}: {exc}") from None
+    summary = summarize(args.file, arguments.bag_options(args))
     print(json.dumps(summary.to_dict(), indent=2) if args.json else "\n".join(describe(summary)))
     return 0

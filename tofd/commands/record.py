@@ -57,22 +57,13 @@ def _status(frames: int, elapsed_s: float, nbytes: int, counters: dict[str, int]
 
 def main(args: argparse.Namespace) -> int:
     from tofd.config import load_config
-    from tofd.drivers.cameras import SdkMissing
     from tofd.drivers.recording.writer import RecordingWriter
-    from tofd.drivers.source import DriverError
     from tofd.service.camera import open_camera
     from tofd.service.signals import StopSignals
 
     config = load_config(args.config)
     config = dataclasses.replace(config, camera=arguments.camera_config(config.camera, args))
-    try:
-        source = open_camera(config, args.emulate)
-    except SdkMissing as exc:
-        print(f"tofd record: {exc}", file=sys.stderr)
-        return 2
-    except (DriverError, OSError) as exc:
-        print(f"tofd record: {exc}", file=sys.stderr)
-        return 1
+    source = open_camera(config, args.emulate)
     tty = sys.stderr.isatty()
     frames = 0
     t_start = time.monotonic()

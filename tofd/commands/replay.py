@@ -30,7 +30,6 @@ from tofd.service.daemon import RERUN_SPEC_HELP
 from tofd.service.foxglove.spec import FOXGLOVE_SPEC_HELP, parse_foxglove_spec
 
 if TYPE_CHECKING:
-    from tofd.algorithm.detector import NoseModel
     from tofd.drivers.intrinsics import Intrinsics
     from tofd.drivers.source import FrameSource, Rejected
 
@@ -76,32 +75,28 @@ def _report_accuracy(results: Path, plot: Path) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tofd.drivers.bags.driver_bag import RangeOptions
-    from tofd.drivers.opener import identify
     from tofd.errors import UsageError
+    from tofd.inputs import convert, open_reader
+    from tofd.progress import Progress
 
     if args.speed is not None and not (args.realtime or args.foxglove not in (None, "none")):
         raise UsageError("--speed needs --realtime (a lossless replay runs as fast as the pipeline goes)")
     stem = args.file.name.split(".")[0]
-    try:
-        fmt = identify(args.file)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    if fmt.read_as != "bag" and arguments.bag_options(args) != RangeOptions():
-        raise UsageError(f"{args.file} is a {fmt.description}: the ROS bag options are for ROS bags")
-    if fmt.read_as == "recording":
+    options = arguments.bag_options(args)
+    fmt, source = open_reader(args.file, options)
+    if fmt.read_as == "recording":  # replayed by a source with the replay's pace, loop and seek
+        source.close()
         return _replay(args, args.file, stem)
     if fmt.read_as == "source" and not (args.realtime or args.foxglove not in (None, "none") or args.loop
                                         or args.seek is not None):
-        return _replay_source(args, stem)
+        return _replay_source(args, source, stem)
     import tempfile
-
-    from tofd.commands.import_ import convert
 
     with tempfile.TemporaryDirectory(prefix="tofd-replay-") as tmp:
         recording = Path(tmp) / f"{stem}.mcap"
         rejected: list[Rejected] = []
-        done = convert(args.file, recording, arguments.bag_options(args), "replay: import", rejected)
+        done = convert(args.file, fmt, source, options, recording, lambda total: Progress("replay: import", total),
+                       rejected)
         print(f"tofd replay: imported {done} from {args.file}", file=sys.stderr)
         return _replay(args, recording, stem, rejected)
 
@@ -111,20 +106,13 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list
     its import rejected ledgered after its own)."""
     from tofd.config import load_config
     from tofd.drivers.bags.source import RejectsAfter
-    from tofd.drivers.recording.replay import ReplaySource
-    from tofd.drivers.source import DriverError
     from tofd.errors import UsageError
+    from tofd.inputs import open_recording
 
     cfg = _replay_config(args, load_config(args.config), stem)
     realtime = args.realtime or (args.foxglove is not None and cfg.foxglove.enabled)  # someone watches it live
-    try:
-        replay = ReplaySource(recording, mode="realtime" if realtime else "lossless", speed=args.speed or 1.0,
-                              loop=args.loop, seek=args.seek)
-    except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(f"{args.file}: {exc}") from None
-    info = replay.info
-    if info is None:
-        raise UsageError(replay.header_problem)
+    replay, info = open_recording(recording, mode="realtime" if realtime else "lossless", speed=args.speed or 1.0,
+                                  loop=args.loop, seek=args.seek)
     if args.seek is not None:
         reached, last = replay.counters_reach(args.seek)
         if not reached:
@@ -133,20 +121,17 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list
     return _serve(args, cfg, source, info.intrinsics, args.frames or (None if args.loop else info.frame_count), stem)
 
 
-def _replay_source(args: argparse.Namespace, stem: str) -> int:
-    """Replay a file a FrameSource reads directly (tofd.drivers.opener), lossless, from its first frame: its lost
-    frames are ledgered as the pipeline meets them."""
+def _replay_source(args: argparse.Namespace, source: FrameSource, stem: str) -> int:
+    """Replay `source`, a file a FrameSource reads directly (tofd.drivers.opener), lossless, from its first frame:
+    its lost frames are ledgered as the pipeline meets them."""
     from tofd.config import load_config
-    from tofd.drivers.opener import open_source
-    from tofd.drivers.source import DriverError
-    from tofd.errors import UsageError
 
-    cfg = _replay_config(args, load_config(args.config), stem)
     try:
-        source = open_source(args.file)
-    except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(str(exc)) from None
-    return _serve(args, cfg, source, getattr(source, "intrinsics", None), args.frames, stem)
+        cfg = _replay_config(args, load_config(args.config), stem)
+    except BaseException:
+        source.close()
+        raise
+    return _serve(args, cfg, source, source.intrinsics, args.frames, stem)
 
 
 def _replay_config(args: argparse.Namespace, cfg: Config, stem: str) -> Config:
@@ -159,17 +144,14 @@ def _replay_config(args: argparse.Namespace, cfg: Config, stem: str) -> Config:
 
 def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsics: Intrinsics | None,
            total: int | None, stem: str) -> int:
-    """Run the pipeline over `source` and write the outputs; the source may say where a damaged file stopped
-    (stopped_reason, last_good_counter, stop_detail, as ReplaySource does)."""
-    from tofd.batch.golden import GoldenRecorder
-    from tofd.drivers.source import DriverError
+    """Run the pipeline over `source` and write the outputs, saying where a damaged file stopped (its report)."""
+    from tofd.batch.golden import GoldenRecorder, golden_check
     from tofd.outputs import prepare_output_dir
     from tofd.process_setup import prepare_service_process
     from tofd.progress import Progress
     from tofd.service.daemon import serve
-    from tofd.service.pipeline import PipelineError, ResultsWriter
+    from tofd.service.pipeline import ResultsWriter
     from tofd.service.pipeline.queues import run_policy
-    from tofd.service.viewer import ViewerError
 
     policy = run_policy(cfg.pipeline.policy, live_source=False)
     out = prepare_output_dir(args.out)
@@ -184,11 +166,7 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
             result = serve(cfg, source, policy, live_source=False, writers=(writer,) + ((golden,) if golden else ()),
                            writers_read_maps=golden is not None, max_frames=args.frames,
                            progress=Progress("replay", total), summary_path=out / f"{stem}.summary.json")
-    except (DriverError, PipelineError, ViewerError, OSError) as exc:
-        writer.discard()
-        print(f"tofd replay: {exc}", file=sys.stderr)
-        return 1
-    except BaseException:
+    except BaseException:  # a TofdError or OSError is one line and exit status 1 (tofd.cli)
         writer.discard()
         raise
     s = result.summary
@@ -197,10 +175,8 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
     except OSError as exc:
         s["outputs_failed"][str(results_path)] = exc.strerror or str(exc)
         print(f"tofd replay: output {results_path} failed: {exc.strerror or exc}", file=sys.stderr)
-    stopped = getattr(source, "stopped_reason", None)
-    if stopped not in (None, "end"):
-        print(f"tofd replay: the recording is {stopped} after frame {getattr(source, 'last_good_counter', None)}: "
-              f"{getattr(source, 'stop_detail', '')}", file=sys.stderr)
+    if source.report.stopped_early:
+        print(f"tofd replay: the recording is {source.report.line()}", file=sys.stderr)
     failed = s["outputs_failed"]  # each said so in one line when it failed
     if str(results_path) not in failed:
         _report_accuracy(results_path, out / f"{stem}.accuracy.png")
@@ -224,36 +200,8 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
         return 128 + signal.Signals[stopped_by].value
     code = 1 if failed else result.exit_code
     if golden is not None:
-        return check_golden(args, golden.rows, stem, cfg, result.model) or code
+        regression, lines = golden_check(golden.rows, stem, cfg, result.model, args.write_golden, args.check)
+        for line in lines:
+            print(line if line.startswith("  ") else f"tofd replay: {line}", file=sys.stderr)
+        return 1 if regression else code
     return code
-
-
-def check_golden(args: argparse.Namespace, rows: list[dict], stem: str, cfg: Config, model: NoseModel | None) -> int:
-    """Write and/or check the golden file; 1 (with the differences on stderr) on a regression."""
-    from tofd.batch.golden import compare, golden_document, load_golden, write_golden
-
-    doc = golden_document(rows, stem, cfg, model)
-    if args.write_golden:
-        write_golden(args.write_golden, doc)
-        print(f"tofd replay: wrote golden file {args.write_golden} ({len(rows)} frames)", file=sys.stderr)
-    if not args.check:
-        return 0
-    try:
-        golden = load_golden(args.check)
-    except ValueError as exc:
-        print(f"tofd replay: {exc}", file=sys.stderr)
-        return 2
-    report = compare(golden, rows)
-    notes = list(report.notes) + [
-        f"the golden file was made with {k} {v[:12]}, this run has {doc['digests'][k][:12]}"
-        for k, v in golden.get("digests", {}).items() if k != "run" and v != doc["digests"].get(k)]
-    for line in notes:
-        print(f"tofd replay: check: {line}", file=sys.stderr)
-    if report.problems:
-        print(f"tofd replay: check FAILED against {args.check}:", file=sys.stderr)
-        for line in report.problems:
-            print(f"  {line}", file=sys.stderr)
-        return 1
-    print(f"tofd replay: check passed against {args.check} ({report.frames_compared} frames within tolerance"
-          f"{', bit-identical' if report.bit_identical else ''})", file=sys.stderr)
-    return 0

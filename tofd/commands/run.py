@@ -53,16 +53,12 @@ def _raise_stopped(signum: int, _first: bool) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from tofd.config import load_config
-    from tofd.drivers.cameras import SdkMissing
-    from tofd.drivers.source import DriverError
     from tofd.outputs import check_output_file
     from tofd.process_setup import prepare_service_process
     from tofd.service.camera import open_camera
     from tofd.service.daemon import parse_rerun_spec, serve
-    from tofd.service.pipeline import PipelineError
     from tofd.service.pipeline.queues import run_policy
     from tofd.service.signals import StopSignals
-    from tofd.service.viewer import ViewerError
 
     cfg = parse_foxglove_spec(args.foxglove, parse_rerun_spec(args.rerun, load_config(args.config)))
     cfg = replace(cfg, camera=arguments.camera_config(cfg.camera, args))
@@ -77,22 +73,11 @@ def main(args: argparse.Namespace) -> int:
     except Stopped as exc:
         print(f"tofd run: {exc} before the camera was ready; stopped", file=sys.stderr)
         return 0
-    except SdkMissing as exc:
-        print(f"tofd run: {exc}", file=sys.stderr)
-        return 2
-    except (DriverError, OSError) as exc:
-        print(f"tofd run: {exc}", file=sys.stderr)
-        return 1
     if camera.intrinsics is not None:  # the device's own calibration (an SDK camera's), for the workers' plans
         cfg = replace(cfg, intrinsics=camera.intrinsics)
     prepare_service_process()
-    try:
-        with camera:
-            result = serve(cfg, camera, policy, live_source=True, max_frames=args.frames,
-                           summary_path=args.summary)
-    except (DriverError, PipelineError, ViewerError, OSError) as exc:
-        print(f"tofd run: {exc}", file=sys.stderr)
-        return 1
+    with camera:
+        result = serve(cfg, camera, policy, live_source=True, max_frames=args.frames, summary_path=args.summary)
     s = result.summary
     by_stage = ", ".join(f"{stage} {n}" for stage, n in s["dropped_by_stage"].items())
     print(f"tofd run: frames in {s['frames_in']}, out {s['frames_out']}, dropped {s['frames_dropped']}"

@@ -12,11 +12,13 @@ from typing import IO
 
 import numpy as np
 
+from tofd.errors import DataError
+
 MAX_LOADED_BYTES = 1 << 30
 """Most bytes of .npy members read whole from one dataset (about 5,000 SR3000 frames of range and amplitude)."""
 
 
-class NpzError(ValueError):
+class NpzError(DataError):
     """An .npz whose members are not what their headers say, or larger than tofd reads."""
 
 

@@ -20,7 +20,7 @@ from tofd.lab.evaluation import evaluate_model, extract_samples
 from tofd.lab.faces import HOLDOUT_SUBJECTS, TEST_DISTANCES_M, render_frames
 
 MATRIX_VARIANTS = ("nfft_range", "fft_range")
-GOAL_EER, GOAL_FOUND, GOAL_WRONG = 0.02, 0.97, 0.01  # issue 18's goal for a cell: EER, found and wrong rates
+GOAL_EER, GOAL_FOUND, GOAL_WRONG = 0.02, 0.97, 0.01  # the goal for a cell: EER, found and wrong rates
 MEANS = ("eer", "found", "wrong", "rejected", "outranked", "no_candidate")  # per-cell measures averaged
 
 

@@ -116,8 +116,8 @@ def evaluate_sequence(detector: NoseDetector, subject: str, frames: int, fps: fl
     return score_sequence(detect_sequence(detector, subject, frames, fps, sweep_s, seed, model), radius_m, tracker)
 
 
-NEAR_PX, FAR_PX = 5.0, 10.0  # issue 34's pixel thresholds: found within, wrong beyond
-NEAR_M, FAR_M = 0.010, 0.020  # issue 33's metric thresholds (3-D distance to the true tip)
+NEAR_PX, FAR_PX = 5.0, 10.0  # pixel thresholds: found within, wrong beyond
+NEAR_M, FAR_M = 0.010, 0.020  # metric thresholds (3-D distance to the true tip)
 
 
 @dataclass(frozen=True, slots=True)

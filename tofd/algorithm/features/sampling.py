@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from tofd.algorithm.params import FeatureConfig
 from tofd.drivers.intrinsics import Intrinsics
+from tofd.errors import UsageError
 
 
 class PatchWarning(UserWarning):
@@ -27,7 +28,7 @@ class BandWarning(UserWarning):
     than measured: its fields are biased there."""
 
 
-class SamplingError(ValueError):
+class SamplingError(UsageError):
     """The pixels at the object's range are too coarse for the band on the NFFT grid (the message says by how much)."""
 
 

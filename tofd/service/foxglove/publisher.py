@@ -169,6 +169,10 @@ class FoxglovePublisher:
     def flush(self) -> None:
         """Nothing waits: each frame is published when it comes."""
 
+    def output_problem(self, logged: int, closing: bool) -> str | None:
+        """None: a live server writes no file."""
+        return None
+
     def close(self, timeout_s: float) -> None:
         """Stop the server (its clients are disconnected) within `timeout_s`: the SDK's stop() waits for every
         client's closing handshake, which a client that does not read never completes, so it runs on a thread

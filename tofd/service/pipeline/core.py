@@ -35,6 +35,7 @@ from tofd.config import Config, config_table
 from tofd.drivers.frame import COUNTER_LIMIT, Frame, frame_problem
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.source import FrameSource
+from tofd.errors import TofdError
 from tofd.service.pipeline import monitor
 from tofd.service.pipeline.capture import GapTracker
 from tofd.service.pipeline.ledger import DropLedger, LedgerSummary
@@ -54,7 +55,7 @@ POLL_S = 0.1  # seconds: how often idle threads re-check the stop/abort flags
 STOP_TIMEOUT_S = 2.0  # seconds close() gives the threads and workers to stop, by default
 
 
-class PipelineError(RuntimeError):
+class PipelineError(TofdError, RuntimeError):
     """The pipeline cannot go on (workers that cannot start or keep dying, a failing source)."""
 
 

@@ -1,40 +1,38 @@
-"""Rerun logging in its own process, behind a bounded hand-off, so that a stalled viewer can be abandoned.
+"""A viewer backend (Rerun: rerun_sink.py; Foxglove: tofd.service.foxglove.publisher) in its own process, behind a
+bounded hand-off, so that a stalled viewer can be abandoned.
 
-Rerun's log and flush calls block for as long as a connected receiver does not read (see
-/work/shared/design/rerun_notes.md), and the SDK offers no "drop instead of block". So the RecordingStream
-lives in a child process (which also keeps its CPU off the feature workers' GIL, and runs at a lower priority
-than they do: VIEWER_NICE): the parent copies each delivered frame into one of `queue_frames` shared-memory
-slots and sends its header (wire.py); the child logs it and frees the slot (a semaphore counts the free ones;
-the child takes frames in order, so the parent fills the slots round-robin). When no slot is free the frame is
-refused (the caller ledgers it as a viewer drop). close() asks the child to flush and exit and SIGKILLs it at
-the deadline: nothing in the parent ever waits on Rerun, and the pipe never fills (at most `queue_frames` small
-headers are in it).
+A viewer's log and flush calls can block for as long as a connected receiver does not read (Rerun offers no
+"drop instead of block"). So the backend lives in a child process (which also keeps its CPU off the feature
+workers' GIL, and runs at a lower priority than they do: VIEWER_NICE): the parent copies each delivered frame
+into one of `queue_frames` shared-memory slots and sends its header (wire.py); the child logs it and frees the
+slot (a semaphore counts the free ones; the child takes frames in order, so the parent fills the slots
+round-robin). When no slot is free the frame is refused (the caller ledgers it as a viewer drop). close() asks
+the child to flush and exit and SIGKILLs it at the deadline: nothing in the parent ever waits on the viewer, and
+the pipe never fills (at most `queue_frames` small headers are in it). This module imports no viewer SDK: the
+child loads only its backend's.
 
 Protocol: parent -> child, one JSON header per frame (wire.py) or b"close"; child -> parent, one JSON
-ViewerStatus once at start (ready, with the web viewer's address, or error), one if a "save" sink's file stops
-being written (failed) and one at the end (closed).
+ViewerStatus once at start (ready, with the web viewer's address, or error), one if the backend's output file
+stops being written (failed) and one at the end (closed).
 """
 
 from __future__ import annotations
 
-import errno
 import json
 import logging
 import multiprocessing as mp
 import os
-import shutil
 import threading
 import time
-import uuid
 from collections.abc import Callable
-from dataclasses import replace
 from multiprocessing.connection import Connection
 from multiprocessing.synchronize import Semaphore
 from pathlib import Path
 from typing import NotRequired, Protocol, TypedDict
 
 from tofd.config import Config, config_from_dict, config_table
-from tofd.outputs import finish_output, temp_path
+from tofd.errors import TofdError
+from tofd.outputs import finish_output
 from tofd.process_setup import child_environment, keep_arrays_on_the_heap
 from tofd.service.lifeline import die_with_parent
 from tofd.service.pipeline.results import FrameResult
@@ -42,27 +40,18 @@ from tofd.service.pipeline.slots import SlotRing
 from tofd.service.signals import children_start, ignore_in_child
 from tofd.service.summary import ViewerReport
 from tofd.service.viewer import wire
-from tofd.service.viewer.logger import RerunLogger
-from tofd.service.viewer.rotation import FileRotation
-from tofd.service.viewer.targets import QUIET_NO_FOOTER, RerunTarget, ViewerError
 
 log = logging.getLogger(__name__)
 
 CLOSE = b"close"
 POLL_S = 0.1  # seconds between checks of a start's `cancelled`
 IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this long without a new frame
-SINK_CHECK_S = 6.0  # seconds between checks that a "save" sink's file grows (Rerun writes it at least every 5 s)
-SINK_FLUSH_TIMEOUT_S = 5.0  # a file sink that cannot write what it was given in this long has failed
-FULL_DISK_BYTES = 1 << 20  # a failed file sink's disk with less free space than this was full
-FILE_SINK_LOG = "re_log_encoding::rrd=off,re_sdk::recording_stream=off"
-"""Added to RUST_LOG (default "warn") of a "save" sink's viewer process: the SDK's own lines about its file are off
-(no warning that a live file has no footer; a failed file is reported by tofd, once)."""
 VIEWER_NICE = 10  # the viewer process's niceness: on busy cores the feature workers go first
 
 
 class ViewerClosed(TypedDict):
     frames: int  # frames logged
-    errors: int  # frames Rerun refused
+    errors: int  # frames the backend refused
 
 
 class ViewerStatus(TypedDict):
@@ -91,37 +80,14 @@ class ViewerBackend(Protocol):
 
     def close(self, timeout_s: float) -> None: ...
 
+    def output_problem(self, logged: int, closing: bool) -> str | None:
+        """Why the backend's output (a file) stopped being written, once it has (None: it has not, or there is
+        none); `logged` frames were logged so far, `closing`: the last check."""
+        ...
 
-class RerunBackend:
-    """The Rerun stream of a viewer process: RerunTarget (where it goes) and RerunLogger (what it shows); a "save"
-    sink with a size or time limit moves on to the next file segment when it is reached (rotation.py). `path`: the
-    file a "save" sink writes now (None for other sinks)."""
 
-    def __init__(self, cfg: Config, sink: str, batch_frames: int, footer: bool):
-        self.cfg, self.sink, self.batch_frames, self.footer = cfg, sink, batch_frames, footer
-        self.rotation = FileRotation(cfg.rerun) if FileRotation.wanted(cfg.rerun, sink) else None
-        self.recording_id = str(uuid.uuid4())  # one recording over every segment
-        self._open(None if self.rotation is None else self.rotation.segment())
-        self.web_url = self.target.web_url
-
-    def _open(self, path: Path | None) -> None:
-        self.target = RerunTarget(self.cfg.rerun, self.sink, self.cfg.intrinsics.shape, footer=self.footer,
-                                  path=None if path is None else str(path), recording_id=self.recording_id)
-        self.logger = RerunLogger(self.target.rec, self.cfg.intrinsics, self.cfg.rerun.point_cloud, self.batch_frames)
-        self.path = None if self.sink != "save" else path or Path(self.cfg.rerun.path)
-
-    def __call__(self, r: FrameResult) -> None:
-        if self.rotation is not None and self.rotation.due():  # before the frame: a segment never ends up empty
-            self.logger.flush()
-            self.target.close(self.cfg.pipeline.shutdown_timeout_s)
-            self._open(self.rotation.advance())
-        self.logger(r)
-
-    def flush(self) -> None:
-        self.logger.flush()
-
-    def close(self, timeout_s: float) -> None:
-        self.target.close(timeout_s)
+class ViewerError(TofdError, RuntimeError):
+    """A viewer that could not be started or reached."""
 
 
 OpenBackend = Callable[[Config, str, int, bool], ViewerBackend]
@@ -148,33 +114,17 @@ def viewer_main(open_backend: OpenBackend, cfg_table: dict, sink: str, batch_fra
         return
     _send_status(status, ViewerStatus(ready=target.web_url))
     logged = errors = 0
-    failed, checked_s, size_seen, logged_seen = False, time.monotonic(), -1, 0
+    failed = False
 
-    rerun_file = target if isinstance(target, RerunBackend) and sink == "save" else None
-
-    def file_sink_failed(closing: bool = False) -> bool:
-        """For a "save" sink, at most every SINK_CHECK_S (and when `closing`): whether Rerun's file writer has
-        stopped. It says so only on its own stderr, so: a file that did not grow while frames were logged, or a
-        full disk, is asked for a bounded flush, and one that cannot finish it has failed; the parent is told."""
-        nonlocal failed, checked_s, size_seen, logged_seen
-        if rerun_file is None or rerun_file.path is None or failed or (
-                not closing and time.monotonic() - checked_s < SINK_CHECK_S):
-            return failed
-        checked_s, path = time.monotonic(), rerun_file.path
-        try:
-            size = os.stat(path).st_size
-            full = shutil.disk_usage(path.parent).free < FULL_DISK_BYTES
-        except OSError:
-            size, full = -1, True
-        stalled = full or (size == size_seen and logged > logged_seen)
-        size_seen, logged_seen = size, logged
-        if not stalled:
-            return False
-        try:
-            rerun_file.target.rec.flush(timeout_sec=SINK_FLUSH_TIMEOUT_S)
-        except RuntimeError:
-            failed = True
-            _send_status(status, ViewerStatus(failed=file_problem(str(path))))
+    def output_failed(closing: bool = False) -> bool:
+        """Whether the backend's output has failed (it is asked at most every so often, and when `closing`); the
+        parent is told once."""
+        nonlocal failed
+        if not failed:
+            problem = target.output_problem(logged, closing)
+            if problem is not None:
+                failed = True
+                _send_status(status, ViewerStatus(failed=problem))
         return failed
 
     def logging_step(what: str, step: Callable[..., None], *args: object) -> bool:
@@ -194,14 +144,14 @@ def viewer_main(open_backend: OpenBackend, cfg_table: dict, sink: str, batch_fra
             if not frames.poll(IDLE_FLUSH_S):
                 if not failed:
                     logging_step("batch", target.flush)
-                file_sink_failed()
+                output_failed()
                 continue
             header = frames.recv_bytes()
         except (EOFError, OSError):
             break
         if header == CLOSE:
             break
-        if file_sink_failed():  # nothing more is logged: it would only pile up in memory
+        if output_failed():  # nothing more is logged: it would only pile up in memory
             errors += 1
         else:
             logged += logging_step("frame", lambda h: target(wire.read(h, ring, cfg.intrinsics)), header)
@@ -209,42 +159,33 @@ def viewer_main(open_backend: OpenBackend, cfg_table: dict, sink: str, batch_fra
     if not failed:
         logging_step("batch", target.flush)
     ring.close()
-    file_sink_failed(closing=True)  # bounded: a stopped file writer would hold target.close's flush
+    output_failed(closing=True)  # bounded: a stopped file writer would hold target.close's flush
     target.close(0.1 if failed else cfg.pipeline.shutdown_timeout_s)  # a failed file takes nothing more
     _send_status(status, ViewerStatus(closed=ViewerClosed(frames=logged, errors=errors)))
 
 
-def file_problem(path: str) -> str:
-    """Why a file output in `path`'s directory most likely stopped (Rerun's file writer does not say)."""
-    directory = Path(path).parent
-    try:
-        if shutil.disk_usage(directory).free < FULL_DISK_BYTES:
-            return os.strerror(errno.ENOSPC)
-    except OSError as exc:
-        return exc.strerror or str(exc)
-    if not os.access(directory, os.W_OK):
-        return os.strerror(errno.EACCES)
-    return "the Rerun file writer stopped"
-
-
 class ViewerProcess:
     """The parent's handle: start the child (raising ViewerError if its sink cannot start), `offer` frames,
-    `close` within a deadline. Use from one thread for offer and one for close. `footer`: whether a "save" sink
-    writes Rerun's footer (targets.file_footer). `open_backend`: what the child runs (Rerun by default);
-    `name` names the child and the viewer's drops ("blocked" for Rerun, "<name>_blocked" for others)."""
+    `close` within a deadline. Use from one thread for offer and one for close. `open_backend`: what the child runs
+    (None: Rerun, rerun_sink.RerunBackend, with its output file, and `footer`: whether a "save" sink writes
+    Rerun's footer, targets.file_footer); `name` names the child and the viewer's drops ("blocked" for Rerun,
+    "<name>_blocked" for others)."""
 
     def __init__(self, cfg: Config, sink: str, batch_frames: int = 1, queue_frames: int = 8,
                  start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True,
-                 open_backend: OpenBackend = RerunBackend, name: str = "rerun"):
+                 open_backend: OpenBackend | None = None, name: str = "rerun"):
+        env: dict[str, str] = {}
+        self.output: Path | None = None  # the backend's output file, once finished
+        self._writing: Path | None = None  # where it grows meanwhile, renamed to `output` when the child finished it
+        if open_backend is None:
+            from tofd.service.viewer.rerun_sink import RerunBackend, rerun_log_env, rerun_output
+
+            open_backend, env = RerunBackend, rerun_log_env(sink, footer)
+            self.output, self._writing, cfg = rerun_output(cfg, sink)
         ctx = mp.get_context("spawn")
         self.queue_frames = queue_frames
-        self.output = Path(cfg.rerun.path) if sink == "save" else None  # the .rrd, once finished
-        # where it grows meanwhile (numbered segments, rotation.py, are written under their own names)
-        self._writing = None if self.output is None or FileRotation.wanted(cfg.rerun, sink) else temp_path(self.output)
         self.failed: str | None = None  # why the output failed, once the child said so
         self._failure_told = False
-        if self._writing is not None:
-            cfg = replace(cfg, rerun=replace(cfg.rerun, path=str(self._writing)))
         self._ring = SlotRing.create(queue_frames, cfg.intrinsics.shape, wire.PLANES, use="viewer")
         self._free: Semaphore | None = ctx.Semaphore(queue_frames)  # slots the child has finished with
         self._next = 0  # the slot the next frame goes to
@@ -255,11 +196,7 @@ class ViewerProcess:
         self.process = ctx.Process(target=viewer_main, name=f"tofd-viewer-{name}", daemon=True,
                                    args=(open_backend, config_table(cfg), sink, batch_frames, footer, os.getpid(),
                                          frames_r, status_w, (self._ring.name, queue_frames), self._free))
-        if sink == "save":
-            quiet = {"RUST_LOG": f"{os.environ.get('RUST_LOG', 'warn')},{FILE_SINK_LOG}"}
-        else:
-            quiet = {} if footer or "RUST_LOG" in os.environ else {"RUST_LOG": QUIET_NO_FOOTER}
-        with child_environment(quiet):
+        with child_environment(env):
             with children_start():
                 self.process.start()
         frames_r.close()
@@ -342,7 +279,7 @@ class ViewerProcess:
         """Let the child log what it was handed, flush and exit; SIGKILL it after `timeout_s` or once `cancelled()`
         (polled) turns true. A summary:
         {"exit": "clean" | "killed" | "cancelled" (stopped while starting), "frames": logged, "errors": frames
-        Rerun refused, "unsent": frames handed over but not logged}."""
+        the backend refused, "unsent": frames handed over but not logged}."""
         if self.report:  # cancelled at start: the child is gone already
             return self.report
         deadline = time.monotonic() + timeout_s
@@ -367,7 +304,7 @@ class ViewerProcess:
         return self.report
 
     def _finish_output(self) -> None:
-        """The .rrd of a "save" sink under its name if the child finished it, else its readable part under
+        """The output file under its name if the child finished it, else its readable part under
         outputs.partial_path (its name in the report's "output", `failed` saying why)."""
         if self.output is None or self._writing is None:
             return

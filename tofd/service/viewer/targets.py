@@ -22,6 +22,7 @@ import rerun as rr
 from tofd.config import RerunConfig
 from tofd.service.lifeline import preexec_die_with_parent
 from tofd.service.viewer.blueprint import build_blueprint
+from tofd.service.viewer.process import ViewerError
 
 APPLICATION_ID = "tofd"
 # A file sink batches large chunks (few seconds, up to 64 MiB of rows) so `rerun rrd stats` finds the .rrd
@@ -42,10 +43,6 @@ def apply_analytics_setting(enabled: bool) -> None:
     the variable under which the Rerun SDK and viewer neither collect nor send usage data."""
     if not enabled:
         os.environ["CI"] = "1"
-
-
-class ViewerError(RuntimeError):
-    """A viewer that could not be started or reached."""
 
 
 def rerun_executable() -> str:

@@ -1,0 +1,1 @@
+"""Intel RealSense depth cameras through librealsense's Python binding (pyrealsense2, the `realsense` extra)."""
