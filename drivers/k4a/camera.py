@@ -98,6 +98,7 @@ class K4aCamera(SdkCamera):
         self._clock0: tuple[int, float] | None = None  # (device us, host monotonic s) of the first capture played
         self._first_us: int | None = None
         self._last_counter = -1
+        self._opened_serial = ""  # the device opened first: a reconnect reopens this one
 
     # ------------------------------------------------------------------------------------------- open
     def _open(self) -> None:
@@ -120,13 +121,15 @@ class K4aCamera(SdkCamera):
                                  settings={"K4A_DEPTH_MODE": self.depth_mode, "K4A_FPS": f"FPS_{self.fps}"})
 
     def _open_device(self) -> None:
+        """The device of request.serial, else the first; after a reconnect the one opened before (its serial)."""
+        wanted = self.request.serial or self._opened_serial
         count = LIBS.k4a.k4a_device_get_installed_count()
         for index in range(count):
             handle = ctypes.c_void_p()
             if LIBS.k4a.k4a_device_open(index, ctypes.byref(handle)) != sdk.RESULT_SUCCEEDED:
                 continue
             serial = (sdk.read_buffer(LIBS.k4a.k4a_device_get_serialnum, handle) or b"").rstrip(b"\0").decode()
-            if self.request.serial and serial != self.request.serial:
+            if wanted and serial != wanted:
                 LIBS.k4a.k4a_device_close(handle)
                 continue
             try:
@@ -134,9 +137,9 @@ class K4aCamera(SdkCamera):
             except DriverError:
                 LIBS.k4a.k4a_device_close(handle)
                 raise
-            self._device = handle
+            self._device, self._opened_serial = handle, serial
             return
-        which = f"serial {self.request.serial}" if self.request.serial else "any"
+        which = f"serial {wanted}" if wanted else "any"
         raise DriverError(f"k4a camera: no Azure Kinect ({which}) could be opened; {count} attached")
 
     def _start(self, handle: ctypes.c_void_p, serial: str) -> None:
@@ -194,7 +197,12 @@ class K4aCamera(SdkCamera):
                         LIBS.k4a.k4a_image_release(image)
                 return None
             timestamp_us = int(LIBS.k4a.k4a_image_get_device_timestamp_usec(depth))
-            depth_mm, ir16 = _image(depth, "depth"), _image(ir, "IR")
+            try:
+                depth_mm = _image(depth, "depth")
+            except DriverError:
+                LIBS.k4a.k4a_image_release(ir)
+                raise
+            ir16 = _image(ir, "IR")
         finally:
             LIBS.k4a.k4a_capture_release(capture)
         if self._first_us is None:
