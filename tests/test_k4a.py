@@ -23,7 +23,7 @@ from tofd.drivers.k4a.mkv import K4aRecordingError, K4aRecordingSource
 from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import iter_frames
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
-from tofd_testing.wide_fov import sphere_before_wall
+from tofd_testing.wide_fov import SPHERE_RADIUS_M, sphere_before_wall
 
 ROOT = Path(__file__).resolve().parents[1]
 RAW = CALIBRATION_JSON.read_bytes()
@@ -245,10 +245,11 @@ def test_imu_and_colour_tracks_leave_the_recording_intact(k4a, tmp_path):
     assert lost == list(range(len(got), lost[-1] + 1)) and lost[-1] >= n - 1
 
 
+@pytest.mark.slow
 def test_wfov_recording_segments_the_near_sphere_in_every_frame(k4a, tmp_path):
     """A WFOV_2X2BINNED recording by libk4arecord (sphere 20 degrees off axis at 0.85-0.95 m, wall at 1.6 m, the
     lens's dark corners as the device writes them, z-depth in millimetres): tofd's foreground of every frame it
-    reads is on the sphere."""
+    reads is on the sphere, and so is the 3-D foreground `tofd replay` logs for each of the 30 frames."""
     mode = "WFOV_2X2BINNED"
     lens = depth_lens(RAW, mode)
     ray_z = lens.intrinsics.unit_rays()[..., 2]
@@ -262,6 +263,16 @@ def test_wfov_recording_segments_the_near_sphere_in_every_frame(k4a, tmp_path):
     for frame, scene in zip(frames, scenes, strict=True):
         mask = segment(frame.range_m, frame.amplitude, SegmentationConfig(), frame.intrinsics)
         assert mask.sum() > 0.2 * scene.sphere.sum() and not (mask & ~scene.sphere).any(), frame.frame_counter
+    out = tmp_path / "out"
+    proc = tofd("replay", path, "--out", out, "--config",
+                bundled_config(tmp_path / "tofd.toml", pipeline=PATIENT_VIEWER))
+    assert proc.returncode == 0, proc.stderr
+    _, table = read_entities(str(out / "wfov.rrd"))["/world/foreground"]
+    clouds = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in table.column("Points3D:positions").to_pylist()]
+    assert len(clouds) == 30
+    for points, scene in zip(clouds, scenes, strict=True):
+        off = np.abs(np.linalg.norm(points - scene.centre, axis=1) - SPHERE_RADIUS_M)
+        assert len(points) > 100 and np.median(off) < 0.002 and off.max() < 0.01, (np.median(off), off.max())
 
 
 def test_unreadable_recordings_are_one_line_and_exit_2(k4a, tmp_path):

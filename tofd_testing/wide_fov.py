@@ -26,11 +26,12 @@ def realsense_like_87deg() -> Intrinsics:
 @dataclass(frozen=True, slots=True)
 class WideScene:
     """Radial range (metres, NaN: no return) and amplitude (0 without a return), (H, W) float32; the pixels that
-    see the sphere, (H, W) bool."""
+    see the sphere, (H, W) bool; the sphere's centre (3,), camera frame, metres."""
 
     range_m: np.ndarray
     amplitude: np.ndarray
     sphere: np.ndarray
+    centre: np.ndarray
 
 
 def sphere_before_wall(intrinsics: Intrinsics, distance_m: float, azimuth_deg: float,
@@ -47,4 +48,4 @@ def sphere_before_wall(intrinsics: Intrinsics, distance_m: float, azimuth_deg: f
     sphere = ball.mask & (ball.range_m <= scene.range_m)
     if lens_valid is not None:
         range_m[~lens_valid], amplitude[~lens_valid], sphere = np.nan, 0.0, sphere & lens_valid
-    return WideScene(range_m, amplitude, sphere)
+    return WideScene(range_m, amplitude, sphere, centre)
