@@ -227,3 +227,17 @@ def test_the_near_sphere_is_the_foreground_on_wide_fields_of_view(mode, frames, 
                                    off_axis_deg)
         mask = segment(scene.range_m, scene.amplitude, SegmentationConfig(), intrinsics)
         assert mask.sum() > 0.2 * scene.sphere.sum() and not (mask & ~scene.sphere).any(), (mode, k, distance)
+
+
+@pytest.mark.parametrize("radius_m", [0.04, 0.06])
+def test_a_small_near_sphere_before_a_lit_wall_is_the_foreground(radius_m):
+    """WFOV_2X2BINNED: a ball of 4 or 6 cm radius at 0.85-0.95 m, under 1% of the pixels above the amplitude
+    threshold (the wall's bright centre passes it too), is still the nearest object and the only foreground."""
+    from tests.k4a_helpers import CALIBRATION_JSON
+    from tofd.drivers.k4a.lens import depth_lens
+
+    lens = depth_lens(CALIBRATION_JSON.read_bytes(), "WFOV_2X2BINNED")
+    for k, distance in enumerate(np.linspace(0.85, 0.95, 12)):
+        scene = sphere_before_wall(lens.intrinsics, float(distance), 45.0 * k, lens.valid_pixels(), radius_m=radius_m)
+        mask = segment(scene.range_m, scene.amplitude, SegmentationConfig(), lens.intrinsics)
+        assert mask.sum() > 0.2 * scene.sphere.sum() and not (mask & ~scene.sphere).any(), (radius_m, k)

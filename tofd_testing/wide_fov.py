@@ -35,13 +35,14 @@ class WideScene:
 
 
 def sphere_before_wall(intrinsics: Intrinsics, distance_m: float, azimuth_deg: float,
-                       lens_valid: np.ndarray | None = None, off_axis_deg: float = OFF_AXIS_DEG) -> WideScene:
-    """A SPHERE_RADIUS_M sphere whose centre is distance_m away, off_axis_deg off the optical axis towards
+                       lens_valid: np.ndarray | None = None, off_axis_deg: float = OFF_AXIS_DEG,
+                       radius_m: float = SPHERE_RADIUS_M) -> WideScene:
+    """A sphere of radius_m whose centre is distance_m away, off_axis_deg off the optical axis towards
     azimuth_deg (0: +x, 90: +y), before a wall facing the camera at WALL_M (same albedo, Lambertian amplitude);
     pixels outside `lens_valid` have no return, as a wide lens's dark corners."""
     off, az = math.radians(off_axis_deg), math.radians(azimuth_deg)
     centre = distance_m * np.array([math.sin(off) * math.cos(az), math.sin(off) * math.sin(az), math.cos(off)])
-    ball = shapes.sphere_at(intrinsics, centre, SPHERE_RADIUS_M)
+    ball = shapes.sphere_at(intrinsics, centre, radius_m)
     wall = shapes.plane(intrinsics, np.array([0.0, 0.0, WALL_M]), np.array([0.0, 0.0, -1.0]))
     scene = ball.over(wall)
     range_m, amplitude = scene.range_m.astype(np.float32), scene.amplitude.astype(np.float32)

@@ -95,11 +95,17 @@ def head_band(mask: np.ndarray, smooth: np.ndarray, cfg: SegmentationConfig,
     (both all of `mask` if that is 0).
 
     Body: step-1 pixels whose filtered depth is within `head_height_m` of the nearest one (not a far object
-    that passed the amplitude step). Rows are converted to metres at the nearest depth (z / fy per row).
+    that passed the amplitude step); the nearest is the `range_percentile` percentile of the step-1 depths, or of
+    those more than `head_height_m` in front of it where there are any (an object too small to move the
+    percentile, such as a head before a wide field of view's lit wall). Rows are converted to metres at the
+    nearest depth (z / fy per row).
     """
     if cfg.head_height_m <= 0:
         return mask, mask
     nearest = float(np.percentile(smooth[mask], cfg.range_percentile))
+    front = mask & (smooth < nearest - cfg.head_height_m)
+    if front.any():  # a small object well in front of the rest (specks are gone in the median filter)
+        nearest = float(np.percentile(smooth[front], cfg.range_percentile))
     body = mask & (smooth <= nearest + cfg.head_height_m)
     rows = np.flatnonzero(body.any(axis=1))
     if len(rows) == 0:
@@ -269,7 +275,7 @@ def _segment(range_m: np.ndarray, amplitude: np.ndarray, cfg: SegmentationConfig
         with np.errstate(invalid="ignore"):
             depth = range_m * along
     reference = float(np.percentile(smooth[head], cfg.range_percentile))
-    if (smooth[head & ~body] < reference).any():  # along a tilted face frame, a far wall off to the side came nearer
+    if (smooth[head & ~body] <= reference).any():  # along a tilted face frame, a far wall off to the side came nearer
         reference = float(np.percentile(smooth[body], cfg.range_percentile))
     cut = reference + cfg.depth_margin_m
     mask &= smooth <= cut
