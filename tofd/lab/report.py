@@ -75,18 +75,19 @@ def answers_table(results: dict[str, VariantResult], per_subject: bool = False) 
 
 
 def results_to_dict(results: dict[str, VariantResult], points: bool = True) -> dict:
-    """Per variant, overall, per distance bin and per identity: the ROC (with its points unless `points` is False)
-    and the answers."""
-    return {
-        name: {
+    """Per variant, overall, per distance bin and (when evaluated so) per identity: the ROC (with its points unless
+    `points` is False) and the answers."""
+    out = {}
+    for name, r in results.items():
+        out[name] = {
             "overall": {**r.overall.to_dict(points), "answers": r.answers.to_dict()},
             "per_distance": {f"{d:.2f}": {**roc.to_dict(points), "answers": r.answers_per_distance[d].to_dict()}
                              for d, roc in sorted(r.per_distance.items())},
-            "per_subject": {s: {**roc.to_dict(points), "answers": r.answers_per_subject[s].to_dict()}
-                            for s, roc in sorted(r.per_subject.items())},
         }
-        for name, r in results.items()
-    }
+        if r.per_subject:
+            out[name]["per_subject"] = {s: {**roc.to_dict(points), "answers": r.answers_per_subject[s].to_dict()}
+                                        for s, roc in sorted(r.per_subject.items())}
+    return out
 
 
 def write_json(path: Path, results: dict[str, VariantResult], **extra: object) -> Path:
