@@ -1,9 +1,11 @@
 """Beyond one box: NFFT scorers learned on many face shapes, measured on identities never trained or tuned on.
 
 Training: the shipped model's subjects plus tofd.lab.faces.SHAPE_TRAIN_SUBJECTS at 0.45-0.70 m; test: static poses
-of HOLDOUT_SUBJECTS at --distance (SR3000 geometry, the training sensor). Features: the NFFT eccentricities of the
-range (and amplitude) at the configured band and at a second, coarser band in metres (--band2, per metre; its
-low-pass sigma scaled alike). Scorers, each on the candidate pixels (config's candidate rule):
+of HOLDOUT_SUBJECTS at --distance (SR3000 geometry, the training sensor). With --train-mesh only the identities on
+that base mesh are trained on and only the held-out ones on the other mesh tested: a head never seen in training.
+Features: the NFFT eccentricities of the range (and amplitude) at the configured band and at a second, coarser
+band in metres (--band2, per metre; its low-pass sigma scaled alike). Scorers, each on the candidate pixels
+(config's candidate rule):
 - box: the paper's box (learn_box, then shape_box on the training frames), range at the configured band;
 - box_2band: the same box on the range at both bands;
 - ellipsoid, ellipsoid_2band, ellipsoid_2band_amp: the Gaussian fit of the nose pixels (tofd.lab.ellipsoid) on the
@@ -26,9 +28,10 @@ from report import add_model_arguments, shown_path, write_json
 
 from tofd.algorithm.detector import Candidates, Margin, learn_box, load_model
 from tofd.config import load_config
+from tofd.drivers.emulator.render import FACE_NAMES
 from tofd.lab.ellipsoid import learn_ellipsoid
 from tofd.lab.evaluation import NOSE_RADIUS_M, PixelTable, extract_samples, has_nose, shape_box, subject_groups
-from tofd.lab.faces import HOLDOUT_SUBJECTS, SHAPE_TRAIN_SUBJECTS, render_frames
+from tofd.lab.faces import HOLDOUT_SUBJECTS, SHAPE_TRAIN_SUBJECTS, SUBJECTS, render_frames
 from tofd.lab.roc import answers_at, margin_scale, roc_from_min_distances
 
 TRAIN_DISTANCES_M = (0.45, 0.50, 0.55, 0.60, 0.65, 0.70)
@@ -70,9 +73,11 @@ def main() -> None:
     parser.add_argument("--train-frames", type=int, default=20, help="training frames per identity")
     parser.add_argument("--distance", type=float, default=0.70, help="test distance of the nose tip, metres")
     parser.add_argument("--band2", type=float, default=15.0, help="second band's tuning frequency, per metre")
+    parser.add_argument("--train-mesh", default="both", choices=("both", *FACE_NAMES),
+                        help="train on this base mesh's identities only, test on the other's (a head never seen)")
     parser.add_argument("--seed", type=int, default=46)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "heldout_scorers.json"))
+    parser.add_argument("--out", default=None, help="JSON (default bench/results/heldout_scorers_<train-mesh>.json)")
     args = parser.parse_args()
     start = time.monotonic()
     cfg = load_config(args.config)
@@ -82,7 +87,9 @@ def main() -> None:
     f1 = cfg.features
     f2 = dataclasses.replace(f1, tuning_frequency_per_m=args.band2,
                              lowpass_sigma_per_m=f1.lowpass_sigma_per_m * args.band2 / f1.tuning_frequency_per_m)
-    train_subjects = tuple(dict.fromkeys((*shipped.training.get("subjects", ()), *SHAPE_TRAIN_SUBJECTS)))
+    train_subjects = tuple(s for s in dict.fromkeys((*shipped.training.get("subjects", ()), *SHAPE_TRAIN_SUBJECTS))
+                           if args.train_mesh in ("both", SUBJECTS[s].mesh))
+    test_subjects = tuple(s for s in HOLDOUT_SUBJECTS if SUBJECTS[s].mesh != args.train_mesh)
     if set(train_subjects) & set(HOLDOUT_SUBJECTS):
         raise SystemExit(f"heldout_scorers: a held-out identity among the training ones ({', '.join(train_subjects)})")
 
@@ -93,7 +100,7 @@ def main() -> None:
         return ds, pixels(bands, candidates)
 
     _, train = render(train_subjects, TRAIN_DISTANCES_M, args.train_frames * len(train_subjects), args.seed)
-    test_ds, test = render(HOLDOUT_SUBJECTS, (args.distance,), args.frames * len(HOLDOUT_SUBJECTS), args.seed + 1)
+    test_ds, test = render(test_subjects, (args.distance,), args.frames * len(test_subjects), args.seed + 1)
     groups = subject_groups(test_ds.subject)
     rows, summary = [], {}
     for name, (kind, _) in SCORERS.items():
@@ -124,12 +131,15 @@ def main() -> None:
         cells = "".join(f"{100 * c['eer']:.1f} | {100 * c['found']:.0f}/{100 * c['wrong']:.0f}".rjust(16)
                         for c in (cell[name, k] for k in keys))
         print(f"{name:<22}{100 * summary[name]['train_eer']:>10.1f}{cells}")
-    write_json(args.out, {"title": "NFFT scorers beyond one box on identities never seen (bench/heldout_scorers.py)",
+    out = args.out or Path(__file__).parent / "results" / f"heldout_scorers_{args.train_mesh}.json"
+    write_json(out, {"title": f"NFFT scorers beyond one box on identities never seen, trained on {args.train_mesh} "
+                            "(bench/heldout_scorers.py)",
                           "about": __doc__.split("\n\n")[1].replace("\n", " "), "distance_m": args.distance,
                           "band1_per_m": f1.tuning_frequency_per_m, "band2_per_m": args.band2,
                           "frames_per_identity": args.frames, "train_frames_per_identity": args.train_frames,
                           "train_distances_m": list(TRAIN_DISTANCES_M), "train_subjects": list(train_subjects),
-                          "heldout_subjects": list(HOLDOUT_SUBJECTS), "model": shown_path(args.model),
+                          "train_mesh": args.train_mesh, "test_subjects": list(test_subjects),
+                          "model": shown_path(args.model),
                           "seed": args.seed, "scorers": [{"scorer": k, **v} for k, v in summary.items()],
                           "rows": rows, "elapsed_s": round(time.monotonic() - start, 1)})
 
