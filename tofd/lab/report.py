@@ -37,7 +37,8 @@ def _table(title: str, results: dict[str, VariantResult], cell: Callable[[Varian
            per_subject: bool = False) -> str:
     """Rows: variants; columns: all test frames (key None), then per distance bin (or per identity); cells
     right-aligned."""
-    keys: list[Key] = sorted({k for r in results.values() for k in (r.per_subject if per_subject else r.per_distance)})
+    groups: list[dict] = [r.per_subject if per_subject else r.per_distance for r in results.values()]
+    keys: list[Key] = sorted({k for g in groups for k in g})
     head = f"{'variant':<16}{'overall':>11}" + "".join(f"{k:>11}" if isinstance(k, str) else f"{k:>10.2f}m"
                                                       for k in keys)
     lines = [title, head, "-" * len(head)]
