@@ -7,6 +7,7 @@ import pytest
 
 from tofd.drivers.emulator.render import load_face
 from tofd.lab.face_shapes import (
+    HEAD_SCALE,
     NOSE_HEIGHT_MM,
     PROTRUSION_MM,
     FaceShape,
@@ -35,14 +36,17 @@ def _front(vertices: np.ndarray, tip: np.ndarray) -> np.ndarray:
 
 
 def test_every_drawn_identity_meets_its_targets_within_the_adult_ranges():
+    """Nose measures as drawn, scaled with the head's size (both within their ranges)."""
     assert len(SHAPED) >= 8
     for subject in SHAPED:
         shape = draw_shape(subject.shape_seed)
         got = measure(make_subject(subject), subject.mesh)
-        assert PROTRUSION_MM[0] <= got.protrusion_mm <= PROTRUSION_MM[1]
-        assert NOSE_HEIGHT_MM[0] <= got.nose_height_mm <= NOSE_HEIGHT_MM[1]
-        assert got.protrusion_mm == pytest.approx(shape.protrusion_mm, abs=0.05)
-        assert got.nose_height_mm == pytest.approx(shape.nose_height_mm, abs=0.05)
+        size = shape.head_scale
+        assert HEAD_SCALE[0] <= size <= HEAD_SCALE[1]
+        assert PROTRUSION_MM[0] <= got.protrusion_mm / size <= PROTRUSION_MM[1]
+        assert NOSE_HEIGHT_MM[0] <= got.nose_height_mm / size <= NOSE_HEIGHT_MM[1]
+        assert got.protrusion_mm == pytest.approx(shape.protrusion_mm * size, abs=0.05)
+        assert got.nose_height_mm == pytest.approx(shape.nose_height_mm * size, abs=0.05)
 
 
 def test_no_identity_is_a_scaled_copy_of_another():
@@ -64,7 +68,7 @@ def test_no_identity_is_a_scaled_copy_of_another():
 @pytest.mark.parametrize("mesh", ["lee_perry_smith", "mediapipe_canonical"])
 def test_the_extreme_shapes_fold_no_triangle_of_the_face(mesh):
     """Smooth fields: at the ranges' corners no front triangle turns over and no edge shrinks or stretches by more
-    than 2.5x."""
+    than 2.5x beyond the head's size."""
     base = load_face(mesh)
     tip = base.vertices[base.nose]
     front = np.all((base.vertices[base.faces] - tip)[..., 2] > -0.05, axis=1)
@@ -77,11 +81,12 @@ def test_the_extreme_shapes_fold_no_triangle_of_the_face(mesh):
     def edges(v: np.ndarray) -> np.ndarray:
         return np.linalg.norm(v[tri] - v[np.roll(tri, 1, axis=1)], axis=-1)
 
-    for p, w, h, sign in itertools.product((15.0, 25.0), (30.0, 40.0), (45.0, 60.0), (-1.0, 1.0)):
-        shape = FaceShape(p, w, h, 3.0 * sign, 5.0 * sign, 3.0 * sign, 7.0 * sign)
+    for p, w, h, sign, size in itertools.product((15.0, 25.0), (30.0, 40.0), (45.0, 60.0), (-1.0, 1.0),
+                                                 HEAD_SCALE):
+        shape = FaceShape(p, w, h, 3.0 * sign, 5.0 * sign, 3.0 * sign, 7.0 * sign, size)
         moved = deform(base, shape, "corner").vertices
         assert np.all((normals(moved) * normals(base.vertices)).sum(axis=1) > 0)
-        ratio = edges(moved) / edges(base.vertices)
+        ratio = edges(moved) / edges(base.vertices) / size  # the head's size apart
         assert 0.4 < ratio.min() and ratio.max() < 2.5
         assert np.argmax(moved[:, 2]) == base.nose  # the tip stays the front-most point
 

@@ -7,7 +7,10 @@ faces span. The ranges follow Farkas' anthropometric norms (L. G. Farkas, Anthro
 ethnic groups/races, J. Craniofac. Surg. 16(4):615-646, 2005), about the adult means +-2 SD:
 - nasal tip protrusion (sn-prn, subnasale to pronasale along the face's depth): 15-25 mm;
 - nose width (al-al, between the alae): 30-40 mm;
-- nose height (n-sn, nasion to subnasale): 45-60 mm.
+- nose height (n-sn, nasion to subnasale): 45-60 mm;
+- head size: face breadth (zy-zy) and height (n-gn) span about +-10 % about the adult means of both sexes, here
+  one isotropic factor 0.90-1.10 about the nose tip, applied last: the nose measures above are those of a head of
+  the base mesh's size and scale with the head.
 Bridge height, cheek, brow and chin projections have no single norm here: they vary by a few millimetres
 (+-3, +-5, +-3, +-7 mm) about the base mesh, the spread of soft-tissue thickness and profile measures in the same
 sources.
@@ -30,6 +33,7 @@ from tofd.drivers.emulator.render import FaceMesh
 PROTRUSION_MM = (15.0, 25.0)  # sn-prn
 NOSE_WIDTH_MM = (30.0, 40.0)  # al-al
 NOSE_HEIGHT_MM = (45.0, 60.0)  # n-sn
+HEAD_SCALE = (0.90, 1.10)  # isotropic, about the nose tip
 BRIDGE_MM, CHEEKS_MM, BROW_MM, CHIN_MM = 3.0, 5.0, 3.0, 7.0  # +- about the base mesh
 BASE_NOSE_WIDTH_MM = 35.0  # al-al taken for both base meshes (the middle of the norm): the width is a ratio to it
 FRONT_DEPTH_MM = 70.0  # fields fade to zero between this and 30 mm more behind the nose tip
@@ -40,8 +44,9 @@ the deepest midline vertices below and above the nose tip."""
 
 @dataclass(frozen=True, slots=True)
 class FaceShape:
-    """An identity's targets: protrusion, nose width and nose height (mm, Farkas' measures) and the bridge,
-    cheek, brow and chin displacements (mm along z, + out of the face) relative to its base mesh."""
+    """An identity's targets: protrusion, nose width and nose height (mm, Farkas' measures), the bridge,
+    cheek, brow and chin displacements (mm along z, + out of the face) relative to its base mesh, and its head size
+    (a factor on the base mesh)."""
 
     protrusion_mm: float
     nose_width_mm: float
@@ -50,6 +55,7 @@ class FaceShape:
     cheeks_mm: float = 0.0
     brow_mm: float = 0.0
     chin_mm: float = 0.0
+    head_scale: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,7 +75,7 @@ def draw_shape(seed: int) -> FaceShape:
         nose_width_mm=float(rng.uniform(*NOSE_WIDTH_MM)),
         nose_height_mm=float(rng.uniform(*NOSE_HEIGHT_MM)),
         bridge_mm=float(BRIDGE_MM * u[0]), cheeks_mm=float(CHEEKS_MM * u[1]), brow_mm=float(BROW_MM * u[2]),
-        chin_mm=float(CHIN_MM * u[3]))
+        chin_mm=float(CHIN_MM * u[3]), head_scale=float(rng.uniform(*HEAD_SCALE)))
 
 
 def measure(mesh: FaceMesh, base: str) -> Profile:
@@ -116,7 +122,9 @@ def _displacement(base: FaceMesh, shape: FaceShape, protrude_mm: float, lengthen
 def deform(base: FaceMesh, shape: FaceShape, name: str) -> FaceMesh:
     """The base mesh (one of LANDMARKS) moved to the shape's protrusion and nose height exactly (as `measure`
     reads them: both are linear in the two fields' amplitudes, solved for), its nose width as a ratio to
-    BASE_NOSE_WIDTH_MM, and its bridge, cheek, brow and chin displacements. Same topology, same tip vertex."""
+    BASE_NOSE_WIDTH_MM, and its bridge, cheek, brow and chin displacements, then scaled by its head size about the
+    nose tip (the nose in proportion: its measures are those of a head of the base mesh's size). Same topology,
+    same tip vertex."""
     if base.name not in LANDMARKS:
         raise ValueError(f"no landmarks for base mesh {base.name!r} (known: {', '.join(LANDMARKS)})")
 
@@ -130,4 +138,6 @@ def deform(base: FaceMesh, shape: FaceShape, name: str) -> FaceMesh:
     at0 = profile(0.0, 0.0)
     jacobian = np.stack([profile(1.0, 0.0) - at0, profile(0.0, 1.0) - at0], axis=1)
     protrude, lengthen = np.linalg.solve(jacobian, np.array([shape.protrusion_mm, shape.nose_height_mm]) - at0)
-    return base.with_vertices(moved(float(protrude), float(lengthen)).vertices, name=name)
+    tip = base.vertices[base.nose]
+    return base.with_vertices(tip + (moved(float(protrude), float(lengthen)).vertices - tip) * shape.head_scale,
+                              name=name)
