@@ -4,19 +4,18 @@ An identity is a FaceShape: how far its nose tip protrudes, how wide and long it
 bridge, and how full its cheeks, brow and chin are, drawn with a fixed seed (`draw_shape`) over the range adult
 faces span. The ranges follow Farkas' anthropometric norms (L. G. Farkas, Anthropometry of the Head and Face,
 2nd ed., Raven Press 1994; Farkas et al., International anthropometric study of facial morphology in various
-ethnic groups/races, J. Craniofac. Surg. 16(4):615-646, 2005), about the adult means +-2 SD:
+ethnic groups/races, J. Craniofac. Surg. 16(4):615-646, 2005), roughly the adult range of both sexes:
 - nasal tip protrusion (sn-prn, subnasale to pronasale along the face's depth): 15-25 mm;
-- nose width (al-al, between the alae): 30-40 mm;
+- nose width (al-al, between the alae): 30-40 mm, applied as a ratio to BASE_NOSE_WIDTH_MM (not measured);
 - nose height (n-sn, nasion to subnasale): 45-60 mm;
 - head size: face breadth (zy-zy) and height (n-gn) span about +-10 % about the adult means of both sexes, here
   one isotropic factor 0.90-1.10 about the nose tip, applied last: the nose measures above are those of a head of
   the base mesh's size and scale with the head.
-Bridge height, cheek, brow and chin projections have no single norm here: they vary by a few millimetres
-(+-3, +-5, +-3, +-7 mm) about the base mesh, the spread of soft-tissue thickness and profile measures in the same
-sources.
+Bridge height, cheek, brow and chin projections follow no norm here: they vary by a few millimetres (+-3, +-5,
++-3, +-7 mm, our choice) about the base mesh.
 
 Every field is a product of Gaussians and smoothsteps in the head frame relative to the nose tip (x right, y up,
-z out of the face, `FIELD_SIGMA_MM` sets their extent), faded out behind the face (`FRONT_DEPTH_MM`), so the
+z out of the face; widths of 7-22 mm), faded out behind the face (`FRONT_DEPTH_MM`), so the
 surface stays smooth and the mesh's topology and nose-tip vertex are kept. `measure` reads a mesh's
 protrusion and nose height at its base mesh's subnasale and nasion vertices; `deform` moves the base mesh to the
 drawn targets.
