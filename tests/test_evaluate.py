@@ -95,6 +95,22 @@ def test_end_to_end_roc(tiny):
         assert r.answers.scale == model.variant(r.variant).operating_scale
 
 
+def test_results_per_identity_add_up_to_the_whole(tiny):
+    """Per identity: each subject's frames alone; the identities' shares, weighted by frames, give the overall."""
+    cfg, _, test, s_train, s_test = tiny
+    model = train_model(s_train, cfg.features, cfg.segmentation)
+    subject = np.where(np.arange(len(test)) % 3 == 0, "a", "b")
+    for r in evaluate_model(model, s_test, test.distance_m, subject=subject).values():
+        assert set(r.per_subject) == set(r.answers_per_subject) == {"a", "b"}
+        assert [r.per_subject[s].n_images for s in "ab"] == [int(np.sum(subject == s)) for s in "ab"]
+        for share in ("found", "wrong"):
+            pooled = sum(getattr(r.answers_per_subject[s], share) * r.per_subject[s].n_images for s in "ab")
+            assert pooled == pytest.approx(getattr(r.answers, share) * len(test))
+        alone = evaluate_model(model, [s_test[i] for i in np.flatnonzero(subject == "a")],
+                               test.distance_m[subject == "a"])[r.variant]
+        assert r.per_subject["a"].eer == alone.overall.eer and r.answers_per_subject["a"] == alone.answers
+
+
 def test_frames_of_unknown_distance_count_overall_and_in_no_distance_bin(tiny):
     """A recording's frame whose nose range is unknown (NaN distance) is evaluated with the others, not binned."""
     cfg, _, test, s_train, s_test = tiny
@@ -149,10 +165,14 @@ def test_cli_renders_the_named_subjects_and_names_unknown_ones(tmp_path, capsys)
     from tofd.cli import main
 
     rc = main(["evaluate", "--train-subjects", "mp_chin", "--train-frames", "2", "--test-subjects",
-               HOLDOUT_SUBJECTS[0], "--test-frames", "2", "--out", str(tmp_path), "--workers", "1"])
+               ",".join(HOLDOUT_SUBJECTS[:2]), "--test-frames", "4", "--out", str(tmp_path), "--workers", "1"])
     assert rc == 0
+    out = capsys.readouterr().out
+    assert "per identity" in out and all(s in out for s in HOLDOUT_SUBJECTS[:2])
     report = json.loads((tmp_path / "evaluation.json").read_text())
-    assert report["test"]["subjects"] == [HOLDOUT_SUBJECTS[0]]
+    assert report["test"]["subjects"] == sorted(HOLDOUT_SUBJECTS[:2])
+    per_subject = report["results"]["nfft_range"]["per_subject"]
+    assert set(per_subject) == set(HOLDOUT_SUBJECTS[:2]) and all(p["n_images"] == 2 for p in per_subject.values())
     assert report["model"]["training"]["subjects"] == ["mp_chin"]
     capsys.readouterr()
     for argv, message in ((["--train-subjects", "mp,nobody"], "unknown subject.*nobody"),

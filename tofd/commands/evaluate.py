@@ -2,8 +2,8 @@
 
 Without --train/--test it renders the default split (train: three subjects at 0.60 m; test: a fourth subject
 at 0.35-0.70 m; --train-subjects / --test-subjects render others). With --model it skips training and
-evaluates that model. Prints the EER table (overall and per distance) and what the pipeline would report (the
-model's operating scale and the config's margin test: nose found / wrong pixel accepted), and writes
+evaluates that model. Prints the EER table and what the pipeline would report (the model's operating scale and
+the config's margin test: nose found / wrong pixel accepted), overall, per distance and per identity, and writes
 DIR/evaluation.json, DIR/roc.png and DIR/model.json.
 """
 
@@ -58,12 +58,15 @@ def main(args: argparse.Namespace) -> int:
     samples = samples_for(test, cfg, args, "test", timing)
     sweep = time.monotonic()
     candidates = Candidates.from_config(cfg.detector, cfg.segmentation)
-    results = evaluate_model(model, samples, test.distance_m, radius_m, candidates, Margin.from_config(cfg.detector))
+    results = evaluate_model(model, samples, test.distance_m, radius_m, candidates, Margin.from_config(cfg.detector),
+                             test.subject)
     timing["roc_sweep_s"] = round(time.monotonic() - sweep, 3)
     timing["total_s"] = round(time.monotonic() - start, 3)
 
     print(eer_table(results))
     print(answers_table(results))
+    print(eer_table(results, per_subject=True))
+    print(answers_table(results, per_subject=True))
     prepare_output_dir(out)
     save_model(model, out / "model.json")
     plot_roc(out / "roc.png", results)

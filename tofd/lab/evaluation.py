@@ -254,14 +254,16 @@ def train_model(samples: list[FrameSamples], features: FeatureConfig, segmentati
 
 @dataclass(slots=True)
 class VariantResult:
-    """One variant's ROC on the whole test set and per distance bin (metres), and its answers at the model's
-    operating scale (what the pipeline reports) likewise."""
+    """One variant's ROC on the whole test set, per distance bin (metres) and per identity (subject name), and
+    its answers at the model's operating scale (what the pipeline reports) likewise."""
 
     variant: str
     overall: RocCurve
     answers: Answers
     per_distance: dict[float, RocCurve] = field(default_factory=dict)
     answers_per_distance: dict[float, Answers] = field(default_factory=dict)
+    per_subject: dict[str, RocCurve] = field(default_factory=dict)
+    answers_per_subject: dict[str, Answers] = field(default_factory=dict)
 
 
 def distance_bins(distance_m: np.ndarray) -> np.ndarray:
@@ -275,6 +277,12 @@ def distance_groups(distance_m: np.ndarray) -> dict[float, np.ndarray]:
     known = np.flatnonzero(np.isfinite(distance_m))
     bins = distance_bins(distance_m[known])
     return {float(b): known[bins == b] for b in np.unique(bins)}
+
+
+def subject_groups(subject: np.ndarray) -> dict[str, np.ndarray]:
+    """Identity (subject name) -> indices of its frames, names sorted."""
+    subject = np.asarray(subject).astype(str)
+    return {str(s): np.flatnonzero(subject == s) for s in np.unique(subject)}
 
 
 @dataclass(slots=True)
@@ -297,26 +305,34 @@ def image_minima(model: NoseModel, samples: list[FrameSamples], radius_m: float 
 
 
 def variant_results(model: NoseModel, minima: ImageMinima, distance_m: np.ndarray,
-                    margin: Margin = PAPER_RULE) -> dict[str, VariantResult]:
+                    margin: Margin = PAPER_RULE, subject: np.ndarray | None = None) -> dict[str, VariantResult]:
     """ROC curves and answers (with the acceptance rule's `margin`) of every variant of the model from the images'
-    minima, overall and per distance bin (distance_m: (F,) nose distance of each image, metres)."""
-    groups = distance_groups(distance_m)
-    has_nose = minima.has_nose
+    minima, overall, per distance bin (distance_m: (F,) nose distance of each image, metres) and, given the
+    images' subject names (F,), per identity."""
+    by_distance = distance_groups(distance_m)
+    by_subject = subject_groups(subject) if subject is not None else {}
     results = {}
     for name, vm in model.variants.items():
-        tmin, fmin, rival = minima.true_min[name], minima.false_min[name], minima.rival[name]
-        res = VariantResult(name, roc_from_min_distances(tmin, fmin, has_nose),
-                            answers_at(tmin, fmin, vm.operating_scale, rival, margin))
-        for b, sel in groups.items():
-            res.per_distance[b] = roc_from_min_distances(tmin[sel], fmin[sel], has_nose[sel])
-            res.answers_per_distance[b] = answers_at(tmin[sel], fmin[sel], vm.operating_scale, rival[sel], margin)
+        part = functools.partial(_roc_and_answers, minima, name, vm.operating_scale, margin)
+        res = VariantResult(name, *part(np.arange(len(minima.has_nose))))
+        for b, sel in by_distance.items():
+            res.per_distance[b], res.answers_per_distance[b] = part(sel)
+        for s, sel in by_subject.items():
+            res.per_subject[s], res.answers_per_subject[s] = part(sel)
         results[name] = res
     return results
 
 
+def _roc_and_answers(minima: ImageMinima, variant: str, scale: float, margin: Margin,
+                     sel: np.ndarray) -> tuple[RocCurve, Answers]:
+    """The ROC and the answers of one variant over the images `sel`."""
+    tmin, fmin, rival = minima.true_min[variant][sel], minima.false_min[variant][sel], minima.rival[variant][sel]
+    return roc_from_min_distances(tmin, fmin, minima.has_nose[sel]), answers_at(tmin, fmin, scale, rival, margin)
+
+
 def evaluate_model(model: NoseModel, samples: list[FrameSamples], distance_m: np.ndarray,
                    radius_m: float = NOSE_RADIUS_M, candidates: Candidates = ALL_FOREGROUND,
-                   margin: Margin = PAPER_RULE) -> dict[str, VariantResult]:
+                   margin: Margin = PAPER_RULE, subject: np.ndarray | None = None) -> dict[str, VariantResult]:
     """ROC curves and answers (acceptance rule: the scale and `margin`) of every variant of the model on test
-    samples, overall and per distance bin."""
-    return variant_results(model, image_minima(model, samples, radius_m, candidates), distance_m, margin)
+    samples, overall, per distance bin and (given the frames' subject names) per identity."""
+    return variant_results(model, image_minima(model, samples, radius_m, candidates), distance_m, margin, subject)

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from tofd.lab.evaluation import VariantResult
+from tofd.lab.roc import Answers, RocCurve
 from tofd.outputs import save_figure, write_text
 
 LABELS = {
@@ -17,47 +18,77 @@ LABELS = {
 }
 
 
-def _distance_table(title: str, results: dict[str, VariantResult],
-                    cell: Callable[[VariantResult, float | None], str]) -> str:
-    """Rows: variants; columns: all test frames (distance None), then per distance bin; cells right-aligned."""
-    distances = sorted({d for r in results.values() for d in r.per_distance})
-    head = f"{'variant':<16}{'overall':>11}" + "".join(f"{d:>10.2f}m" for d in distances)
+Key = float | str | None  # a distance bin (metres), an identity (subject name), or None: all test frames
+
+
+def _roc(r: VariantResult, key: Key) -> RocCurve:
+    if key is None:
+        return r.overall
+    return r.per_subject[key] if isinstance(key, str) else r.per_distance[key]
+
+
+def _answers(r: VariantResult, key: Key) -> Answers:
+    if key is None:
+        return r.answers
+    return r.answers_per_subject[key] if isinstance(key, str) else r.answers_per_distance[key]
+
+
+def _table(title: str, results: dict[str, VariantResult], cell: Callable[[VariantResult, Key], str],
+           per_subject: bool = False) -> str:
+    """Rows: variants; columns: all test frames (key None), then per distance bin (or per identity); cells
+    right-aligned."""
+    groups: list[dict] = [r.per_subject if per_subject else r.per_distance for r in results.values()]
+    keys: list[Key] = sorted({k for g in groups for k in g})
+    head = f"{'variant':<16}{'overall':>11}" + "".join(f"{k:>11}" if isinstance(k, str) else f"{k:>10.2f}m"
+                                                      for k in keys)
     lines = [title, head, "-" * len(head)]
     for name, r in results.items():
-        cells = "".join(f"{cell(r, d) if d in r.per_distance else '-':>11}" for d in distances)
+        known = r.per_subject if per_subject else r.per_distance
+        cells = "".join(f"{cell(r, k) if k in known else '-':>11}" for k in keys)
         lines.append(f"{LABELS.get(name, name):<16}{cell(r, None):>11}{cells}")
     return "\n".join(lines)
 
 
-def eer_table(results: dict[str, VariantResult]) -> str:
-    """Rows: variants; columns: EER in percent overall and per distance bin."""
-    def cell(r: VariantResult, d: float | None) -> str:
-        return f"{100 * (r.overall if d is None else r.per_distance[d]).eer:.1f}"
-
-    return _distance_table("EER % (per-image ROC; columns: all test frames, then per nose distance)", results, cell)
+def _eer_cell(r: VariantResult, key: Key) -> str:
+    return f"{100 * _roc(r, key).eer:.1f}"
 
 
-def answers_table(results: dict[str, VariantResult]) -> str:
-    """Per variant, in percent of the frames: nose found / wrong pixel reported by the detector's acceptance rule."""
-    def cell(r: VariantResult, d: float | None) -> str:
-        a = r.answers if d is None else r.answers_per_distance[d]
-        return f"{100 * a.found:.1f}/{100 * a.wrong:.1f}"
+def _answers_cell(r: VariantResult, key: Key) -> str:
+    a = _answers(r, key)
+    return f"{100 * a.found:.1f}/{100 * a.wrong:.1f}"
 
-    return _distance_table("what the pipeline reports, % of frames: nose found / a wrong pixel accepted (the best "
-                           "candidate pixel, by the operating scale and the margin test)", results, cell)
+
+ANSWERS_TITLE = ("what the pipeline reports, % of frames: nose found / a wrong pixel accepted (the best candidate "
+                 "pixel, by the operating scale and the margin test)")
+
+
+def eer_table(results: dict[str, VariantResult], per_subject: bool = False) -> str:
+    """Rows: variants; columns: EER in percent overall and per distance bin (or per identity)."""
+    columns = "identity" if per_subject else "nose distance"
+    return _table(f"EER % (per-image ROC; columns: all test frames, then per {columns})", results, _eer_cell,
+                  per_subject)
+
+
+def answers_table(results: dict[str, VariantResult], per_subject: bool = False) -> str:
+    """Per variant, in percent of the frames (overall, per distance bin or per identity): nose found / wrong pixel
+    reported by the detector's acceptance rule."""
+    return _table(ANSWERS_TITLE, results, _answers_cell, per_subject)
 
 
 def results_to_dict(results: dict[str, VariantResult], points: bool = True) -> dict:
-    """Per variant, overall and per distance bin: the ROC (with its points unless `points` is False) and the
-    answers."""
-    return {
-        name: {
+    """Per variant, overall, per distance bin and (when evaluated so) per identity: the ROC (with its points unless
+    `points` is False) and the answers."""
+    out = {}
+    for name, r in results.items():
+        out[name] = {
             "overall": {**r.overall.to_dict(points), "answers": r.answers.to_dict()},
             "per_distance": {f"{d:.2f}": {**roc.to_dict(points), "answers": r.answers_per_distance[d].to_dict()}
                              for d, roc in sorted(r.per_distance.items())},
         }
-        for name, r in results.items()
-    }
+        if r.per_subject:
+            out[name]["per_subject"] = {s: {**roc.to_dict(points), "answers": r.answers_per_subject[s].to_dict()}
+                                        for s, roc in sorted(r.per_subject.items())}
+    return out
 
 
 def write_json(path: Path, results: dict[str, VariantResult], **extra: object) -> Path:
