@@ -14,6 +14,7 @@ import time
 from abc import abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Self
 
 import numpy as np
 
@@ -78,6 +79,17 @@ class SdkCamera(FrameSource):
         """Stop streaming and release the device (idempotent; never raises for a vanished device)."""
 
     # ------------------------------------------------------------------------------- the shared loop
+    @classmethod
+    def opened(cls, request: CameraRequest) -> Self:
+        """A camera of this class for `request`, streaming; released again if it cannot start."""
+        camera = cls(request)
+        try:
+            camera.start()
+        except BaseException:
+            camera.close()
+            raise
+        return camera
+
     def start(self) -> None:
         """Open and start streaming now (the first iteration does it otherwise): errors surface at open time."""
         if not self._streaming:

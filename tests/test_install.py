@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import email.parser
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -37,6 +38,7 @@ for name in list(sys.modules):
 
 ALGORITHM = BLOCKER + """
 import json
+import os
 import numpy as np
 import tofd
 from tofd.drivers.intrinsics import Intrinsics
@@ -177,3 +179,21 @@ def test_a_fresh_core_install_brings_none_of_the_heavy_packages_and_runs_the_alg
                             cwd=work, capture_output=True, text=True, timeout=300)
     assert replay.returncode == 2
     assert replay.stderr == "tofd replay: needs the 'service' extra: pip install 'tofd[service]'\n"
+
+
+@pytest.mark.slow
+def test_a_users_type_checker_sees_the_installed_tofds_types(wheel, tmp_path):
+    """mypy on a user's script, with the wheel's files on the path as an installed package (PEP 561: py.typed),
+    sees tofd.Intrinsics as the class it is, not Any."""
+    site = tmp_path / "site"
+    with zipfile.ZipFile(wheel) as zf:
+        zf.extractall(site)
+    script = tmp_path / "user.py"
+    script.write_text("import tofd\n\nlens = tofd.Intrinsics(width=640, height=576, fx=504.0, fy=504.0, cx=320.0, "
+                      "cy=288.0)\nreveal_type(lens)\nreveal_type(lens.unit_rays())\n")
+    mypy = Path(sys.executable).parent / "mypy"
+    proc = subprocess.run([str(mypy), "--no-incremental", str(script)], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600, env={**os.environ, "PYTHONPATH": str(site)})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert 'Revealed type is "tofd.drivers.intrinsics.Intrinsics"' in proc.stdout
+    assert 'Revealed type is "Any"' not in proc.stdout

@@ -283,13 +283,7 @@ class K4aBackend:
         return listings
 
     def open(self, request: CameraRequest) -> K4aCamera:
-        camera = K4aCamera(request)
-        try:
-            camera.start()
-        except BaseException:
-            camera.close()
-            raise
-        return camera
+        return K4aCamera.opened(request)
 
 
 BACKEND = K4aBackend()

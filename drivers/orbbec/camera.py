@@ -344,13 +344,7 @@ class OrbbecBackend:
         return CameraListing("orbbec", name, serial, firmware, connection)
 
     def open(self, request: CameraRequest) -> FrameSource:
-        camera = OrbbecCamera(request)
-        try:
-            camera.start()
-        except BaseException:
-            camera.close()
-            raise
-        return camera
+        return OrbbecCamera.opened(request)
 
 
 BACKEND = OrbbecBackend()

@@ -294,9 +294,7 @@ class RealSenseBackend:
         return [device_listing(d) for d in rs.context().query_devices()]
 
     def open(self, request: CameraRequest) -> RealSenseCamera:
-        camera = RealSenseCamera(request)
-        camera.start()
-        return camera
+        return RealSenseCamera.opened(request)
 
 
 BACKEND = RealSenseBackend()
