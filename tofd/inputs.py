@@ -116,13 +116,18 @@ def open_input(path: Path, bag_options: RangeOptions | None = None) -> tuple[Fra
                                            (("written by", f"tofd {info.software_version}"), ("created", created)))
 
 
+def _count_rejected(source: FrameSource, summary: InputSummary) -> None:
+    for rejected in source.take_rejected():
+        summary.rejected[rejected.reason.split(":")[0]] += rejected.frames
+
+
 def frames_with_rejects(source: FrameSource, summary: InputSummary) -> Iterator[Frame]:
     """The source's frames; the frames it rejects (damage) are counted in summary.rejected on the way, and why
     it stopped early (a replayed recording's stopped_reason) in summary.stopped."""
     for frame in source:
-        summary.rejected.update(r.reason.split(":")[0] for r in source.take_rejected())
+        _count_rejected(source, summary)
         yield frame
-    summary.rejected.update(r.reason.split(":")[0] for r in source.take_rejected())
+    _count_rejected(source, summary)
     summary.counters = {k: v for k, v in source.counters.items() if v}
     reason = getattr(source, "stopped_reason", None)
     if reason not in (None, "end"):

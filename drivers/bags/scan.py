@@ -4,9 +4,12 @@ rosbags reads intact bags through their index (ROS 1) or database (ROS 2 sqlite3
 short loses exactly those (a ROS 1 index sits at the end, a cut sqlite3 file is "malformed"), so when rosbags
 cannot open it, the records are read in file order instead: ROS 1 records one by one (chunks uncompressed,
 bz2 or LZ4), the sqlite3 `messages` table row by row, MCAP messages in stream order. Reading stops at the first
-record that cannot be read and `damage` says where and why. Message definitions come from the bag where it
-has them (ROS 1 always; ROS 2 where recorded), else the latest ROS 2 definitions, registered leniently: a
-vendor's definition that contradicts its bytes (Orbbec's Image) is read by tofd.drivers.bags.ros1_wire instead.
+record that cannot be read and `damage` says where and why. A ROS 1 chunk may decompress to at most
+MAX_CHUNK_BYTES (checked streaming, before rosbags decompresses it whole: a compression bomb is damage where it
+starts), and a cut sqlite3 file is read as the pages it has, whatever page count its header claims. Message
+definitions come from the bag where it has them (ROS 1 always; ROS 2 where recorded), else the latest ROS 2
+definitions, registered leniently: a vendor's definition that contradicts its bytes (Orbbec's Image) is read by
+tofd.drivers.bags.ros1_wire instead.
 """
 
 from __future__ import annotations
@@ -25,6 +28,11 @@ ROS1_MAGIC = b"#ROSBAG V2.0\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 OP_MESSAGE, OP_CHUNK, OP_CONNECTION = 0x02, 0x05, 0x07
+MAX_CHUNK_BYTES = 128 << 20
+"""Most bytes one ROS 1 chunk may decompress to (rosbag writes chunks of about 768 KiB: a few images)."""
+MAX_HEADER_BYTES = 1 << 20
+"""Largest ROS 1 record header read to check a chunk (a chunk's has two short fields)."""
+_PIECE = 1 << 20
 
 
 class BagError(DriverError):
@@ -77,6 +85,8 @@ class BagReader:
         self._reader: Any = None
         try:
             self._reader = _open_rosbags(self.path, self.ros1)
+            if self.ros1:
+                _check_chunks(self.path, [info.pos for info in self._reader.chunk_infos])
             connections = self._reader.connections
             self._connections = {c.id: c for c in connections}
             self.topics = _topics((c.topic, c.msgtype, c.msgcount) for c in connections)
@@ -164,6 +174,47 @@ def _typestore(definitions: list[tuple[str, str]], ros1: bool) -> Any:
     return store
 
 
+def _check_chunks(path: Path, offsets: list[int]) -> None:
+    """ValueError when a ROS 1 chunk at one of `offsets` decompresses to more than MAX_CHUNK_BYTES (decompressed
+    piece by piece and counted, never held whole)."""
+    with open(path, "rb") as f:
+        for pos in offsets:
+            f.seek(pos)
+            (header_len,) = struct.unpack("<I", f.read(4).ljust(4, b"\xff"))
+            if header_len > MAX_HEADER_BYTES:
+                raise ValueError(f"a chunk header of {header_len} bytes at byte {pos}")
+            fields, _, _ = _fields(memoryview(f.read(header_len)), 0, header_len)
+            (data_len,) = struct.unpack("<I", f.read(4).ljust(4, b"\0"))
+            compression = fields.get("compression", b"none").decode()
+            if compression != "none":
+                decompress(compression, f.read(data_len), f"the chunk at byte {pos}", keep=False)
+
+
+def decompress(compression: str, body: bytes | memoryview, where: str, keep: bool = True) -> memoryview:
+    """`body` decompressed (bz2 or lz4) in pieces, as far as it goes (a body cut short gives its complete
+    blocks); ValueError naming `where` past MAX_CHUNK_BYTES. keep=False only counts (returns an empty view)."""
+    if compression == "bz2":
+        decompressor: Any = bz2.BZ2Decompressor()
+    elif compression == "lz4":
+        import lz4.frame
+
+        decompressor = lz4.frame.LZ4FrameDecompressor()
+    else:
+        raise ValueError(f"chunk compression {compression!r} is not none, bz2 or lz4")
+    pieces, total, data = [], 0, bytes(body)
+    while not decompressor.eof:
+        piece = decompressor.decompress(data, max_length=_PIECE)
+        data = b""
+        total += len(piece)
+        if total > MAX_CHUNK_BYTES:
+            raise ValueError(f"{where} decompresses to more than {MAX_CHUNK_BYTES} bytes (a compression bomb?)")
+        if keep:
+            pieces.append(piece)
+        if not piece and decompressor.needs_input:
+            break
+    return memoryview(b"".join(pieces))
+
+
 def _fallback(path: Path, ros1: bool, exc: Exception) -> _Ros1Scan | _SqliteScan | _McapScan:
     """A record-by-record reader of a bag rosbags could not open (chosen by content: a renamed file too), or
     BagError when that cannot read it either."""
@@ -215,7 +266,7 @@ class _Ros1Scan:
             fields, body, end = _record(data, pos)
             op = fields.get("op", b"\xff")[0]
             if op == OP_CHUNK:
-                yield from self._walk(_chunk(fields, body), 0, topics)
+                yield from self._walk(_chunk(fields, body, pos), 0, topics)
             elif end > len(data):
                 raise ValueError(f"truncated at byte {pos} of {len(data)}: a record of {end - pos} bytes")
             elif op == OP_CONNECTION:
@@ -269,26 +320,21 @@ def _fields(data: memoryview, pos: int, length: int) -> tuple[dict[str, bytes], 
     return fields, end, length
 
 
-def _chunk(fields: dict[str, bytes], body: memoryview) -> memoryview:
+def _chunk(fields: dict[str, bytes], body: memoryview, pos: int) -> memoryview:
     """A chunk's records, decompressed (none, bz2 or lz4) with streaming decompressors, so that a chunk cut short
     gives the records of its complete blocks."""
     compression = fields.get("compression", b"none").decode()
     if compression == "none":  # possibly cut short: the walk stops at its first incomplete record
         return body
-    if compression == "bz2":
-        return memoryview(bz2.BZ2Decompressor().decompress(body))
-    if compression == "lz4":
-        import lz4.frame
-
-        return memoryview(lz4.frame.LZ4FrameDecompressor().decompress(bytes(body)))
-    raise ValueError(f"chunk compression {compression!r} is not none, bz2 or lz4")
+    return decompress(compression, body, f"the chunk at byte {pos}")
 
 
 class _SqliteScan:
     """Rows of a rosbag2 sqlite3 file in id order, read with sqlite3 itself (no metadata.yaml needed).
 
-    A file cut short is padded with zero pages up to the page count its header gives (in memory): sqlite then
-    reads every row on the pages that are there and reports the first missing one as malformed.
+    A file cut short is taken as the pages it has (in memory: its last page completed with zeros, the header's page
+    count set to match, never trusted): sqlite then reads every row on the pages that are there and reports the
+    first missing one as malformed.
     """
 
     def __init__(self, path: Path) -> None:
@@ -299,9 +345,11 @@ class _SqliteScan:
             raise BagError(f"{path}: not an sqlite3 file")
         page_size = struct.unpack(">H", data[16:18])[0]
         page_size = 65536 if page_size == 1 else page_size
-        pages = struct.unpack(">I", data[28:32])[0]
+        if page_size < 512 or page_size & (page_size - 1):
+            raise BagError(f"{path}: sqlite3 header: page size {page_size} is not a power of two >= 512")
+        pages = -(-len(data) // page_size)
         self._db = sqlite3.connect(":memory:")
-        self._db.deserialize(data + bytes(max(0, pages * page_size - len(data))))
+        self._db.deserialize(data[:28] + struct.pack(">I", pages) + data[32:] + bytes(pages * page_size - len(data)))
         rows = self._db.execute("SELECT id, name, type FROM topics").fetchall()
         self._names = {tid: name for tid, name, _ in rows}
         self.topics = _topics((name, msgtype, -1) for _, name, msgtype in rows)

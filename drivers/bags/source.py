@@ -183,7 +183,7 @@ class RejectsAfter(FrameSource):
             yield frame
         self._rejected.extend(self.source.take_rejected())
         for item in self._pending:
-            self.reject(item.frame_counter, item.reason)
+            self.reject(item.frame_counter, item.reason, item.frames)
         self._pending.clear()
 
     def close(self) -> None:

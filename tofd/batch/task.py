@@ -83,9 +83,10 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
                 t0 = time.perf_counter()
             lost = source.take_rejected()
             if lost:
-                stats["frames_in"] += len(lost)
-                stats["dropped"]["damaged"] += len(lost)
-                errors.append(f"{len(lost)} frames lost or damaged, the first: {lost[0].reason}")
+                frames = sum(r.frames for r in lost)
+                stats["frames_in"] += frames
+                stats["dropped"]["damaged"] += frames
+                errors.append(f"{frames} frames lost or damaged, the first: {lost[0].reason}")
             stopped = getattr(source, "stopped_reason", None)
             if stopped not in (None, "end"):
                 errors.append(f"{stopped} after frame {getattr(source, 'last_good_counter', None)}: "

@@ -22,14 +22,14 @@ def main(args: argparse.Namespace) -> int:
     from tofd.drivers.recording.replay import ReplaySource
     from tofd.drivers.recording.writer import RecordingWriter
     from tofd.drivers.source import DriverError
-    from tofd.errors import UsageError
+    from tofd.errors import UsageError, input_error
     from tofd.outputs import check_output_file
 
     check_output_file(args.out, "OUT")
     try:
         source = ReplaySource(args.file)
     except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(f"{args.file}: {exc}") from None
+        raise input_error(args.file, exc) from None
     info = source.info
     if info is None:
         raise UsageError(source.header_problem)
@@ -41,7 +41,7 @@ def main(args: argparse.Namespace) -> int:
         os.replace(tmp, args.out)
     finally:
         tmp.unlink(missing_ok=True)
-    left_out = len(source.take_rejected())
+    left_out = source.take_rejected_frames()
     print(f"tofd convert: wrote {args.out}: {writer.frames_written} frames "
           f"(format {info.format_version} -> {FORMAT_VERSION})"
           + (f", {left_out} left out (see the log)" if left_out else "")

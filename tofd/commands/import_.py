@@ -82,7 +82,7 @@ def convert(bag: Path, out: Path, options: RangeOptions, command: str = "import"
                              f"({unpaired or 'its topics are empty'}{why}); nothing written" if fmt.read_as == "bag"
                              else f"{bag}: no frame could be read; nothing written")
     lost_frames = source.take_rejected()
-    lost = len(lost_frames)
+    lost = sum(r.frames for r in lost_frames)
     if rejected is not None:
         rejected.extend(lost_frames)
     skipped = "; ".join(filter(None, [unpaired, f"{lost} frames lost or damaged (see the log)" if lost else ""]))

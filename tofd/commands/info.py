@@ -49,12 +49,12 @@ def describe(summary) -> list[str]:  # noqa: ANN001 (tofd.inputs.InputSummary, i
 
 def main(args: argparse.Namespace) -> int:
     from tofd.drivers.source import DriverError
-    from tofd.errors import UsageError
+    from tofd.errors import input_error
     from tofd.inputs import summarize
 
     try:
         summary = summarize(args.file, arguments.bag_options(args))
     except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(f"{args.file}: {exc}") from None
+        raise input_error(args.file, exc) from None
     print(json.dumps(summary.to_dict(), indent=2) if args.json else "\n".join(describe(summary)))
     return 0

@@ -113,7 +113,7 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list
     from tofd.drivers.bags.source import RejectsAfter
     from tofd.drivers.recording.replay import ReplaySource
     from tofd.drivers.source import DriverError
-    from tofd.errors import UsageError
+    from tofd.errors import UsageError, input_error
 
     cfg = _replay_config(args, load_config(args.config), stem)
     realtime = args.realtime or (args.foxglove is not None and cfg.foxglove.enabled)  # someone watches it live
@@ -121,7 +121,7 @@ def _replay(args: argparse.Namespace, recording: Path, stem: str, rejected: list
         replay = ReplaySource(recording, mode="realtime" if realtime else "lossless", speed=args.speed or 1.0,
                               loop=args.loop, seek=args.seek)
     except (DriverError, OSError, ValueError) as exc:
-        raise UsageError(f"{args.file}: {exc}") from None
+        raise input_error(args.file, exc) from None
     info = replay.info
     if info is None:
         raise UsageError(replay.header_problem)

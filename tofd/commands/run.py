@@ -90,6 +90,6 @@ def main(args: argparse.Namespace) -> int:
     s = result.summary
     by_stage = ", ".join(f"{stage} {n}" for stage, n in s["dropped_by_stage"].items())
     print(f"tofd run: frames in {s['frames_in']}, out {s['frames_out']}, dropped {s['frames_dropped']}"
-          + (f" ({by_stage})" if by_stage else "") + f", device gaps {len(s['gaps'])}, {s['fps']} fps"
+          + (f" ({by_stage})" if by_stage else "") + f", device gaps {s['device_gaps']}, {s['fps']} fps"
           + (f"; error: {s['error']}" if s["error"] else ""), file=sys.stderr)
     return result.exit_code
