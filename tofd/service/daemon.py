@@ -121,14 +121,16 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             start_resource_tracker()
             model_file = read_model_file(cfg)
             identity = run_identity(cfg, model_file.identity)
+            if cfg.foxglove.enabled:  # before any output is started: a busy port must leave earlier outputs alone
+                from tofd.service.foxglove.spec import check_port_free
+
+                check_port_free(cfg.foxglove)
             if cfg.rerun.sink != "none":
                 viewer = ViewerProcess(cfg, cfg.rerun.sink, frames_per_send(cfg.rerun, policy),
                                        cancelled=lambda: bool(stop), footer=file_footer(policy))
             if cfg.foxglove.enabled:
                 from tofd.service.foxglove.publisher import FoxglovePublisher
-                from tofd.service.foxglove.spec import check_port_free
 
-                check_port_free(cfg.foxglove)
                 foxglove = ViewerProcess(cfg, "foxglove", cancelled=lambda: bool(stop),
                                          open_backend=FoxglovePublisher, name="foxglove")
             made: list[Pipeline] = []  # the metrics are one of the pipeline's sinks, so they come first
