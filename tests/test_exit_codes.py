@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from tofd.cli import _run, stop_signal_behind
+from tofd_testing.chaos_helpers import default_stop_signals
 from tofd_testing.pipeline_sources import write_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -28,7 +29,7 @@ def _results_lines(out: Path) -> int:
 def test_an_interrupted_replay_says_so_and_exits_128_plus_the_signal(tmp_path, sig, code):
     proc = subprocess.Popen([sys.executable, "-m", "tofd", "replay", CLIP, "--loop", "--rerun", "none", "--out",
                              tmp_path, "--config", write_config(tmp_path)], cwd=ROOT, stderr=subprocess.PIPE,
-                            text=True, env={**os.environ, "RUST_LOG": "error"})
+                            text=True, env={**os.environ, "RUST_LOG": "error"}, preexec_fn=default_stop_signals)
     try:
         deadline = time.monotonic() + 120
         while _results_lines(tmp_path) < 5 and time.monotonic() < deadline:
@@ -81,3 +82,29 @@ def test_stop_signal_behind_finds_the_signal_only_where_there_is_one():
         _load_a_module_when_interrupted(argparse.Namespace())
     assert isinstance(stop_signal_behind(caught.value), KeyboardInterrupt)
     assert stop_signal_behind(RuntimeError("a real failure")) is None
+
+
+@pytest.mark.parametrize(("args", "line"), [
+    (["run", "--emulate", "--health-port", "99999"], "health.port: 99999 is not a TCP port (--health-port)"),
+    (["run", "--emulate", "--health-port", "-1"], "health.port: -1 is not a TCP port (--health-port)"),
+    (["run", "--emulate", "--rerun", "connect:notaurl"], "rerun.url: 'notaurl' is not a Rerun viewer's address"),
+    (["run", "--emulate", "--rerun", "save:"], "rerun.path: empty"),
+    (["replay", str(CLIP), "--rerun", "save:"], "rerun.path: empty"),
+])
+def test_a_bad_option_is_one_line_naming_the_key_and_the_option_exit_2(tmp_path, args, line):
+    run = subprocess.run([sys.executable, "-m", "tofd", *args, "--config", write_config(tmp_path)], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=300, env={**os.environ, "RUST_LOG": "error"})
+    assert run.returncode == 2, run.stderr
+    (err,) = run.stderr.strip().splitlines()
+    assert err.startswith(f"tofd {args[0]}: config error: ") and line in err, err
+    assert list(tmp_path.glob("*.rrd")) == []
+
+
+def test_the_config_file_and_the_option_say_the_same():
+    from tofd.config import Config, ConfigError, config_from_dict, override
+
+    with pytest.raises(ConfigError) as from_file:
+        config_from_dict({"health": {"port": 99999}})
+    with pytest.raises(ConfigError) as from_option:
+        override(Config(), "health", "--health-port", port=99999)
+    assert str(from_option.value) == f"{from_file.value} (--health-port)"

@@ -11,6 +11,7 @@ import stat
 import tomllib
 import types
 import typing
+import urllib.parse
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -43,6 +44,8 @@ NO_MODEL_PATH = ""  # detector.model_path that chooses to run without nose detec
 
 RERUN_SINKS = ("none", "save", "web", "connect", "spawn")
 """Where the Rerun stream can go: nowhere, an .rrd file, a served web viewer, a running viewer, a desktop viewer."""
+RERUN_URL_SCHEMES = ("rerun+http", "rerun+https", "rerun")
+"""Schemes of a Rerun viewer's gRPC address (the "connect" sink's url)."""
 
 
 def check_seconds(key: str, value: float) -> None:
@@ -148,6 +151,12 @@ class RerunConfig:
         for key in ("grpc_port", "web_port"):
             if not 0 < getattr(self, key) < 65536:
                 raise ValueError(f"{key}: {getattr(self, key)} is not a TCP port")
+        if not self.path:
+            raise ValueError("path: empty (the .rrd file of the \"save\" sink)")
+        url = urllib.parse.urlsplit(self.url)
+        if url.scheme not in RERUN_URL_SCHEMES or not url.hostname:
+            raise ValueError(f"url: {self.url!r} is not a Rerun viewer's address "
+                             f"({' or '.join(RERUN_URL_SCHEMES)}://HOST:PORT/proxy)")
         check_count("batch_frames", self.batch_frames, MAX_QUEUE)
         for key in ("rotate_mb", "rotate_s", "keep_files"):
             if not getattr(self, key) >= 0:
@@ -265,6 +274,19 @@ def _build(cls: type, table: dict, prefix: str) -> object:
         except ValueError as exc:
             raise ConfigError(f"{prefix}.{exc}") from None
     return obj
+
+
+def override(cfg: Config, section: str, option: str, **values: object) -> Config:
+    """`cfg` with keys of [section] set from the command-line `option`, checked as the config file's keys are;
+    ConfigError names the key as the file would, and the option."""
+    try:
+        changed = dataclasses.replace(getattr(cfg, section), **values)
+        validate = getattr(changed, "validate", None)
+        if validate is not None:
+            validate()
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{section}.{exc} ({option})") from None
+    return dataclasses.replace(cfg, **{section: changed})
 
 
 def config_from_dict(table: dict) -> Config:

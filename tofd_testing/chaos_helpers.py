@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -50,7 +51,20 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+TERMINAL_SIGNALS = (signal.SIGHUP, signal.SIGINT, signal.SIGQUIT)
+"""Stop signals a shell starts a job with ignored (SIGHUP under nohup; SIGINT and SIGQUIT in the background)."""
+
+
+def default_stop_signals() -> None:
+    """A child's preexec_fn: TERMINAL_SIGNALS at their default disposition, as under a terminal, however the tests
+    were started (a child inherits an ignored signal, and tofd keeps a stop signal it started with ignored)."""
+    for sig in TERMINAL_SIGNALS:
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def tofd(*args: object, **kwargs: object) -> subprocess.Popen:
+    """A `tofd` child with pipes, the stop signals at their defaults unless `preexec_fn` says otherwise."""
+    kwargs.setdefault("preexec_fn", default_stop_signals)
     env = {**os.environ, "RUST_LOG": "error", **kwargs.pop("env", {})}
     return subprocess.Popen([sys.executable, "-m", "tofd", *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env, **kwargs)

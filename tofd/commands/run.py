@@ -51,7 +51,7 @@ def _raise_stopped(signum: int, _first: bool) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tofd.config import load_config
+    from tofd.config import load_config, override
     from tofd.drivers.source import DriverError
     from tofd.outputs import check_output_file
     from tofd.process_setup import prepare_service_process
@@ -66,7 +66,7 @@ def main(args: argparse.Namespace) -> int:
     if args.serial is not None:
         cfg = replace(cfg, camera=replace(cfg.camera, serial=args.serial))
     if args.health_port is not None:
-        cfg = replace(cfg, health=replace(cfg.health, port=args.health_port))
+        cfg = override(cfg, "health", "--health-port", port=args.health_port)
     if args.summary is not None:
         check_output_file(args.summary, "--summary")
     policy = run_policy(cfg.pipeline.policy, live_source=True)
