@@ -9,12 +9,11 @@ import os
 import signal
 import subprocess
 import time
-import urllib.request
 from pathlib import Path
 
 import pytest
 
-from tofd_testing.chaos_helpers import metric, metrics, tofd
+from tofd_testing.chaos_helpers import healthz, metric, metrics, tofd
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config, write_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -73,8 +72,7 @@ def test_a_live_save_sink_that_fills_its_disk_shows_in_healthz_metrics_and_the_s
         deadline, status = time.monotonic() + 120, {}
         while status.get("status") != "degraded" and time.monotonic() < deadline:
             time.sleep(0.5)
-            with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=5) as resp:
-                code, status = resp.status, json.loads(resp.read())
+            code, status = healthz(port)
         assert code == 200 and status["status"] == "degraded", status
         assert any(str(rrd) in problem and "No space left" in problem for problem in status["problems"]), status
         assert metric(metrics(port), "tofd_output_failed", f'{{output="{rrd}"}}') == 1

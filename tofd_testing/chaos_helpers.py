@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -68,6 +69,15 @@ def tofd(*args: object, **kwargs: object) -> subprocess.Popen:
     env = {**os.environ, "RUST_LOG": "error", **kwargs.pop("env", {})}
     return subprocess.Popen([sys.executable, "-m", "tofd", *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env, **kwargs)
+
+
+def healthz(port: int, timeout_s: float = 5) -> tuple[int, dict]:
+    """The /healthz status code and JSON status of the daemon on `port` (a 503 is an answer too)."""
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=timeout_s) as resp:
+            return resp.status, json.loads(resp.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read())
 
 
 def metrics(port: int) -> str:
