@@ -101,10 +101,13 @@ FORMATS: tuple[InputFormat, ...] = (
 
 
 def identify(path: str | Path) -> InputFormat:
-    """The InputFormat of `path`; ValueError naming the file and why it is none of FORMATS."""
+    """The InputFormat of `path`; ValueError naming the file and why it is none of FORMATS (a FIFO, socket or
+    device is refused before it is opened: reading one would block or never end)."""
     path = Path(path)
     if path.is_dir():
         head = b""
+    elif path.exists() and not path.is_file():
+        raise ValueError(f"{path}: not a regular file (a FIFO, socket or device); tofd reads recordings from files")
     else:
         try:
             with open(path, "rb") as f:

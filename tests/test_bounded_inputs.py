@@ -177,3 +177,16 @@ def test_a_calibration_no_camera_has_is_refused_by_the_rule_every_input_shares(s
         lens_intrinsics(*size, k, None, None, "/camera/camera_info")
     with pytest.raises(ValueError, match=match):  # the recordings', the config's and the library's rule
         Intrinsics(*size, *k)
+
+
+def test_info_on_a_fifo_refuses_it_without_opening_it(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    fifo = tmp_path / "capture.mcap"
+    os.mkfifo(fifo)
+    proc = subprocess.run([sys.executable, "-m", "tofd", "info", str(fifo)], capture_output=True, text=True,
+                          timeout=120)  # a hang guard: opening the FIFO would block without a writer
+    assert proc.returncode == 2 and "not a regular file" in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and str(fifo) in proc.stderr

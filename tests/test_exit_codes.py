@@ -108,3 +108,14 @@ def test_the_config_file_and_the_option_say_the_same():
     with pytest.raises(ConfigError) as from_option:
         override(Config(), "health", "--health-port", port=99999)
     assert str(from_option.value) == f"{from_file.value} (--health-port)"
+
+
+def test_an_experiment_without_its_extra_says_so_before_computing(tmp_path):
+    out = tmp_path / "sphere"
+    code = ("import sys; sys.modules['matplotlib'] = None  # as in an install without the lab extra\n"
+            "from tofd.cli import main; sys.exit(main(sys.argv[1:]))")
+    run = subprocess.run([sys.executable, "-c", code, "experiment", "sphere", "--out", str(out)], cwd=ROOT,
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2 and run.stderr.strip() == "tofd experiment: needs the 'lab' extra: pip install " \
+                                                         "'tofd[lab]'", run.stderr
+    assert not out.exists() and run.stdout == ""  # nothing computed, nothing written
