@@ -190,3 +190,17 @@ def test_info_on_a_fifo_refuses_it_without_opening_it(tmp_path):
                           timeout=120)  # a hang guard: opening the FIFO would block without a writer
     assert proc.returncode == 2 and "not a regular file" in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and str(fifo) in proc.stderr
+
+
+def test_the_library_refuses_a_transfer_stack_beyond_its_bound_before_copying_it():
+    import tofd
+    from tofd.algorithm.features.operators import MAX_OPERATORS
+
+    frame = make_frame(0)
+    before = _peak_rss_mb()
+    with pytest.raises(ValueError, match=f"transfer returned 100000 operators, at most {MAX_OPERATORS}"):
+        tofd.surface_filter(frame.range_m, frame.intrinsics,
+                            lambda kx, ky: np.broadcast_to(np.ones_like(kx), (100_000, *kx.shape)))
+    assert _peak_rss_mb() - before < 100  # gigabytes if the stack were copied
+    with pytest.raises(ValueError, match="image size 8192 x 8192"):  # so no image of that size reaches it either
+        tofd.Intrinsics(8192, 8192, 5000.0, 5000.0, 4095.5, 4095.5)
