@@ -204,3 +204,23 @@ def test_the_library_refuses_a_transfer_stack_beyond_its_bound_before_copying_it
     assert _peak_rss_mb() - before < 100  # gigabytes if the stack were copied
     with pytest.raises(ValueError, match="image size 8192 x 8192"):  # so no image of that size reaches it either
         tofd.Intrinsics(8192, 8192, 5000.0, 5000.0, 4095.5, 4095.5)
+
+
+def test_info_on_a_recording_whose_every_frame_is_damaged_says_nothing_readable(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "all.mcap"
+    write_recording(path, range(4))
+    data = bytearray(path.read_bytes())
+    for _, _, end in frame_spans(path)[1:]:  # every frame but the first, whose span holds the header
+        data[end - 300] ^= 0xFF
+    first_end = frame_spans(path)[0][2]
+    data[first_end - 300] ^= 0xFF
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+    proc = subprocess.run([sys.executable, "-m", "tofd", "info", str(damaged)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "nothing readable: no frame (" in last and "none found" not in proc.stderr + proc.stdout, proc.stderr
