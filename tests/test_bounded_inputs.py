@@ -25,7 +25,7 @@ from tofd.drivers.limits import MAX_IMAGE_PIXELS
 from tofd.drivers.recording.index import frame_index, read_chunks
 from tofd.drivers.recording.replay import ReplaySource
 from tofd.service.pipeline.ledger import LISTED, DropLedger
-from tofd_testing.hostile_bags import png_header, ros1_chunk_bomb, sqlite_page_claim
+from tofd_testing.hostile_bags import mcap_chunk_bomb, png_header, ros1_chunk_bomb, sqlite_page_claim
 from tofd_testing.pipeline_sources import rejected_counters
 from tofd_testing.recording_helpers import frame_spans, make_frame, write_recording
 
@@ -116,6 +116,21 @@ def test_a_ros1_chunk_bomb_is_damage_where_it_starts_and_never_decompressed_whol
         damage = source.bag.damage
     assert got == [f.frame_counter for f in frames[:len(got)]] and len(got) >= 4
     assert lost == [len(got)] and "decompresses to more than 4194304 bytes" in damage
+    assert _peak_rss_mb() - before < 20  # 24 MiB if the chunk were decompressed whole
+
+
+def test_a_ros2_mcap_chunk_bomb_is_damage_where_it_starts_and_never_decompressed_whole(tmp_path, monkeypatch):
+    monkeypatch.setattr(scan, "MAX_CHUNK_BYTES", 4 << 20)
+    frames = [make_frame(c) for c in range(5)]
+    (original,) = write_frames_bag(tmp_path, "mcap", frames).glob("*.mcap")
+    bomb = mcap_chunk_bomb(original, tmp_path / "bomb.mcap", 24 << 20)
+    before = _peak_rss_mb()
+    with RosbagSource(bomb, RangeOptions()) as source:
+        got = [f.frame_counter for f in source]
+        lost = rejected_counters(source)
+        damage = source.bag.damage
+    assert got + lost == [f.frame_counter for f in frames] and len(got) >= 4  # the frames before the bomb
+    assert "decompresses to more than 4194304 bytes" in damage
     assert _peak_rss_mb() - before < 20  # 24 MiB if the chunk were decompressed whole
 
 

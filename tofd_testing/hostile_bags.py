@@ -79,3 +79,29 @@ def png_header(width: int, height: int, bit_depth: int = 16) -> bytes:
     ihdr = struct.pack(">IIBBBBB", width, height, bit_depth, 0, 0, 0, 0)
     rows = zlib.compress(bytes((1 + width * bit_depth // 8) * 4))
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")
+
+
+def mcap_chunk_bomb(bag: Path, out: Path, zeros: int) -> Path:
+    """`out`: the messages of the ROS 2 MCAP bag file `bag` rewritten in zstd chunks of about 1 KiB, then a
+    message of `zeros` zero bytes on a topic of its own (one chunk that decompresses to it)."""
+    from mcap.reader import NonSeekingReader
+    from mcap.writer import CompressionType, Writer
+
+    with open(bag, "rb") as src, open(out, "wb") as dst:
+        writer = Writer(dst, chunk_size=1 << 10, compression=CompressionType.ZSTD)
+        writer.start(profile="ros2", library="tofd_testing")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        last = 0
+        for schema, channel, message in NonSeekingReader(src).iter_messages(log_time_order=False):
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                               schemas[schema.id], channel.metadata)
+            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time)
+            last = message.log_time
+        junk = writer.register_channel("/junk", "cdr", next(iter(schemas.values())))
+        writer.add_message(junk, last + 1, bytes(zeros), last + 1)
+        writer.finish()
+    return out

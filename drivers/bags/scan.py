@@ -4,8 +4,8 @@ rosbags reads intact bags through their index (ROS 1) or database (ROS 2 sqlite3
 short loses exactly those (a ROS 1 index sits at the end, a cut sqlite3 file is "malformed"), so when rosbags
 cannot open it, the records are read in file order instead: ROS 1 records one by one (chunks uncompressed,
 bz2 or LZ4), the sqlite3 `messages` table row by row, MCAP messages in stream order. Reading stops at the first
-record that cannot be read and `damage` says where and why. A ROS 1 chunk may decompress to at most
-MAX_CHUNK_BYTES (checked streaming, before rosbags decompresses it whole: a compression bomb is damage where it
+record that cannot be read and `damage` says where and why. A ROS 1 or ROS 2 MCAP chunk may decompress to at
+most MAX_CHUNK_BYTES (checked streaming, before rosbags decompresses it whole: a compression bomb is damage where it
 starts), and a cut sqlite3 file is read as the pages it has, whatever page count its header claims. Message
 definitions come from the bag where it has them (ROS 1 always; ROS 2 where recorded), else the latest ROS 2
 definitions, registered leniently: a vendor's definition that contradicts its bytes (Orbbec's Image) is read by
@@ -87,6 +87,10 @@ class BagReader:
             self._reader = _open_rosbags(self.path, self.ros1)
             if self.ros1:
                 _check_chunks(self.path, [info.pos for info in self._reader.chunk_infos])
+            else:
+                for storage in [self.path] if self.path.is_file() else sorted(self.path.glob("*.mcap")):
+                    if _starts_with(storage, MCAP_MAGIC):
+                        _check_mcap_chunks(storage)
             connections = self._reader.connections
             self._connections = {c.id: c for c in connections}
             self.topics = _topics((c.topic, c.msgtype, c.msgcount) for c in connections)
@@ -190,9 +194,35 @@ def _check_chunks(path: Path, offsets: list[int]) -> None:
                 decompress(compression, f.read(data_len), f"the chunk at byte {pos}", keep=False)
 
 
-def decompress(compression: str, body: bytes | memoryview, where: str, keep: bool = True) -> memoryview:
-    """`body` decompressed (bz2 or lz4) in pieces, as far as it goes (a body cut short gives its complete
-    blocks); ValueError naming `where` past MAX_CHUNK_BYTES. keep=False only counts (returns an empty view)."""
+def _check_mcap_chunks(path: Path) -> None:
+    """ValueError when a chunk of the MCAP file `path` (by its summary's chunk index) declares or decompresses to
+    more than MAX_CHUNK_BYTES (counted in pieces, never held whole); a file without a summary is left to rosbags."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        try:
+            summary = make_reader(f).get_summary()
+        except Exception:  # noqa: BLE001 (no readable summary: rosbags fails on it, the scan reads it bounded)
+            return
+        for index in [] if summary is None else summary.chunk_indexes:
+            where = f"the chunk at byte {index.chunk_start_offset}"
+            if index.uncompressed_size > MAX_CHUNK_BYTES:
+                raise ValueError(f"{where} declares {index.uncompressed_size} bytes decompressed, more than "
+                                 f"{MAX_CHUNK_BYTES}")
+            if index.compression:
+                f.seek(index.chunk_start_offset + 9 + 40 + len(index.compression))  # records after the header
+                decompress(index.compression, f.read(index.compressed_size), where, keep=False)
+
+
+def _pieces(compression: str, data: bytes) -> Iterator[bytes]:
+    """The decompressed bytes of `data` (bz2, lz4 or zstd) in pieces of at most _PIECE bytes, as far as it goes."""
+    if compression == "zstd":
+        import zstandard
+
+        with zstandard.ZstdDecompressor().stream_reader(data) as reader:
+            while piece := reader.read(_PIECE):
+                yield piece
+        return
     if compression == "bz2":
         decompressor: Any = bz2.BZ2Decompressor()
     elif compression == "lz4":
@@ -200,18 +230,25 @@ def decompress(compression: str, body: bytes | memoryview, where: str, keep: boo
 
         decompressor = lz4.frame.LZ4FrameDecompressor()
     else:
-        raise ValueError(f"chunk compression {compression!r} is not none, bz2 or lz4")
-    pieces, total, data = [], 0, bytes(body)
+        raise ValueError(f"chunk compression {compression!r} is not none, bz2, lz4 or zstd")
     while not decompressor.eof:
         piece = decompressor.decompress(data, max_length=_PIECE)
         data = b""
+        if not piece and decompressor.needs_input:
+            return
+        yield piece
+
+
+def decompress(compression: str, body: bytes | memoryview, where: str, keep: bool = True) -> memoryview:
+    """`body` decompressed (bz2, lz4 or zstd) in pieces, as far as it goes (a body cut short gives its complete
+    blocks); ValueError naming `where` past MAX_CHUNK_BYTES. keep=False only counts (returns an empty view)."""
+    pieces, total = [], 0
+    for piece in _pieces(compression, bytes(body)):
         total += len(piece)
         if total > MAX_CHUNK_BYTES:
             raise ValueError(f"{where} decompresses to more than {MAX_CHUNK_BYTES} bytes (a compression bomb?)")
         if keep:
             pieces.append(piece)
-        if not piece and decompressor.needs_input:
-            break
     return memoryview(b"".join(pieces))
 
 
@@ -373,11 +410,10 @@ class _SqliteScan:
 
 
 class _McapScan:
-    """ROS 2 messages of an MCAP file in stream order (no summary or index needed)."""
+    """ROS 2 messages of an MCAP file in stream order (no summary or index needed; chunks decompressed within
+    MAX_CHUNK_BYTES)."""
 
     def __init__(self, path: Path) -> None:
-        from mcap.reader import NonSeekingReader
-
         self.path = path
         self.damage: str | None = None
         self._file = open(path, "rb")  # noqa: SIM115 (closed by close())
@@ -386,7 +422,7 @@ class _McapScan:
         counts: dict[str, int] = {}
         types: dict[str, str] = {}
         try:
-            for schema, channel, _ in NonSeekingReader(self._file).iter_messages(log_time_order=False):
+            for schema, channel, _ in self._messages():
                 counts[channel.topic] = counts.get(channel.topic, 0) + 1
                 if schema is not None and channel.topic not in types:
                     types[channel.topic] = schema.name
@@ -396,12 +432,40 @@ class _McapScan:
             pass
         self.topics = _topics((t, types[t], n) for t, n in counts.items() if t in types)
 
-    def messages(self, topics: Collection[str]) -> Iterator[RawMessage]:
-        from mcap.reader import NonSeekingReader
+    def _messages(self) -> Iterator[tuple[Any, Any, Any]]:
+        """(schema or None, channel, message) in stream order, each chunk decompressed with `decompress` (its records
+        then read by mcap's breakup_chunk, its CRC checked)."""
+        import dataclasses
 
+        from mcap.records import Channel, Chunk, Message, Schema
+        from mcap.stream_reader import StreamReader, breakup_chunk
+
+        schemas: dict[int, Any] = {}
+        channels: dict[int, Any] = {}
         self._file.seek(0)
+
+        def expanded() -> Iterator[Any]:
+            for record in StreamReader(self._file, emit_chunks=True, record_size_limit=MAX_CHUNK_BYTES).records:
+                if isinstance(record, Chunk):
+                    data = bytes(record.data if not record.compression else decompress(
+                        record.compression, record.data, "a chunk"))
+                    yield from breakup_chunk(dataclasses.replace(record, compression="", data=data,
+                                                                 uncompressed_size=len(data)), validate_crc=True)
+                else:
+                    yield record
+
+        for record in expanded():
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message) and record.channel_id in channels:
+                channel = channels[record.channel_id]
+                yield schemas.get(channel.schema_id), channel, record
+
+    def messages(self, topics: Collection[str]) -> Iterator[RawMessage]:
         try:
-            for _, channel, message in NonSeekingReader(self._file).iter_messages(log_time_order=False):
+            for _, channel, message in self._messages():
                 if not topics or channel.topic in topics:
                     yield RawMessage(channel.topic, message.log_time, message.data)
         except Exception as exc:  # noqa: BLE001 (the first record the stream reader cannot take ends the bag)
