@@ -119,3 +119,23 @@ def test_an_experiment_without_its_extra_says_so_before_computing(tmp_path):
     assert run.returncode == 2 and run.stderr.strip() == "tofd experiment: needs the 'lab' extra: pip install " \
                                                          "'tofd[lab]'", run.stderr
     assert not out.exists() and run.stdout == ""  # nothing computed, nothing written
+
+
+@pytest.mark.slow
+def test_a_busy_health_port_fails_before_the_viewer_replaces_an_earlier_rrd(tmp_path):
+    import socket
+
+    rrd = tmp_path / "live.rrd"
+    rrd.write_bytes(b"an earlier run's complete recording")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        run = subprocess.run([sys.executable, "-m", "tofd", "run", "--emulate", "--frames", "5", "--health-port",
+                              str(port), "--rerun", f"save:{rrd}", "--config", write_config(tmp_path)], cwd=ROOT,
+                             capture_output=True, text=True, timeout=300, env={**os.environ, "RUST_LOG": "error"},
+                             preexec_fn=default_stop_signals)
+    assert run.returncode == 2 and "Traceback" not in run.stderr, run.stderr
+    assert run.stderr.strip().splitlines()[-1].startswith("tofd run: config error: health.port: cannot listen on")
+    assert rrd.read_bytes() == b"an earlier run's complete recording"
+    assert sorted(p.name for p in tmp_path.iterdir() if p.suffix in (".rrd", ".tmp")) == ["live.rrd"]
