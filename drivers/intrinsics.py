@@ -15,10 +15,11 @@ from typing import Literal
 
 import numpy as np
 
+from tofd.drivers.limits import calibration_problem, image_size_problem
+
 SR3000_WIDTH = 176
 SR3000_HEIGHT = 144
 SR3000_FOV_X_DEG = 47.5
-MAX_SIDE_PX = 8192
 
 DistortionModel = Literal["none", "plumb_bob", "rational_polynomial", "equidistant"]
 COEFFICIENT_NAMES: dict[str, tuple[str, ...]] = {
@@ -38,7 +39,8 @@ class Intrinsics:
     """Camera intrinsics in pixels; pixel (u, v) = (column, row), centre of the top-left pixel is (0, 0).
 
     distortion_model and distortion (CameraInfo's D, in its order) describe the lens; "none" is an ideal
-    pinhole. ValueError names the first field that is out of range.
+    pinhole. ValueError names the first field that is out of range: the image size and the calibration must pass
+    tofd.drivers.limits (the same rule wherever intrinsics come from).
     """
 
     width: int = SR3000_WIDTH
@@ -53,16 +55,15 @@ class Intrinsics:
     def __post_init__(self) -> None:
         for name in ("width", "height"):
             value = getattr(self, name)
-            if not isinstance(value, numbers.Integral) or isinstance(value, bool) or not 1 <= int(value) <= MAX_SIDE_PX:
-                raise ValueError(f"intrinsics.{name}: expected an integer in 1..{MAX_SIDE_PX}, got {value!r}")
+            if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"intrinsics.{name}: expected a whole number of pixels >= 1, got {value!r}")
             object.__setattr__(self, name, int(value))
+        if (problem := image_size_problem(self.width, self.height)) is not None:
+            raise ValueError(f"intrinsics.{'width' if self.width >= self.height else 'height'}: {problem}")
+        if (problem := calibration_problem(self.width, self.height, self.fx, self.fy, self.cx, self.cy)) is not None:
+            raise ValueError(f"intrinsics.{problem}")
         for name in ("fx", "fy", "cx", "cy"):
-            value = getattr(self, name)
-            if not isinstance(value, numbers.Real) or isinstance(value, bool) or not math.isfinite(value) \
-                    or (name in ("fx", "fy") and value <= 0):
-                kind = "a finite number > 0" if name in ("fx", "fy") else "a finite number"
-                raise ValueError(f"intrinsics.{name}: expected {kind}, got {value!r}")
-            object.__setattr__(self, name, float(value))
+            object.__setattr__(self, name, float(getattr(self, name)))
         if self.distortion_model not in COEFFICIENT_COUNTS:
             raise ValueError(f"intrinsics.distortion_model: expected one of {', '.join(COEFFICIENT_COUNTS)}, "
                              f"got {self.distortion_model!r}")

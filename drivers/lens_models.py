@@ -50,13 +50,14 @@ def lens_intrinsics(width: int, height: int, k: tuple[float, float, float, float
     """Intrinsics of a camera: size in pixels, (fx, fy, cx, cy) in pixels, a ROS or librealsense distortion model
     name and its coefficients; LensError (naming `where`) when unusable."""
     fx, fy, cx, cy = (float(v) for v in k)
-    if not (fx > 0 and fy > 0 and np.isfinite([fx, fy, cx, cy]).all()) or width < 1 or height < 1:
+    try:
+        base = Intrinsics(int(width), int(height), fx, fy, cx, cy)
+    except ValueError as exc:
         raise LensError(f"{where}: no usable calibration (fx, fy, cx, cy = {[fx, fy, cx, cy]}, {width}x{height}): "
-                        "tofd needs focal lengths > 0 and the image size")
+                        f"{exc}") from None
     d = np.asarray(coefficients if coefficients is not None else (), dtype=np.float64).ravel()
     if not np.isfinite(d).all():
         raise LensError(f"{where}: distortion coefficients {d.tolist()} are not finite")
-    base = Intrinsics(int(width), int(height), fx, fy, cx, cy)
     if not np.any(d):
         return base
     name = model or ""

@@ -74,7 +74,10 @@ def _head(path: Path) -> bytes:
 
 def _recognise(path: Path) -> tuple[InputFormat, BagReader | None]:
     """The format of `path` and, for a bag, the bag open (None when it cannot be read: opening it again says
-    why); ValueError naming the file and why it is none of FORMATS."""
+    why); ValueError naming the file and why it is none of FORMATS (a FIFO, socket or device is refused before it
+    is opened: reading one would block or never end)."""
+    if path.exists() and not path.is_file() and not path.is_dir():
+        raise ValueError(f"{path}: not a regular file (a FIFO, socket or device); tofd reads recordings from files")
     head = _head(path)
     mcap = head.startswith(MCAP0_MAGIC)
     if mcap and _mcap_profile(path) in (TOFD_MCAP_PROFILE, None):

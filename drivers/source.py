@@ -23,10 +23,12 @@ where the reader cannot tell which of the two."""
 
 @dataclass(frozen=True, slots=True)
 class Rejected:
-    """A frame the source had (or knows it lost) but does not deliver: the pipeline ledgers it at capture."""
+    """Frames the source had (or knows it lost) but does not deliver, counters frame_counter to
+    frame_counter + frames - 1 for one reason: the pipeline ledgers them at capture as one range."""
 
     frame_counter: int
     reason: str  # "invalid_frame: ...", "damaged: ...", "duplicate: ..."
+    frames: int = 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,10 +82,13 @@ class FrameSource(ABC):
         """Where and why reading stopped (SourceReport(): not stopped, or a source that does not end)."""
         return SourceReport()
 
-    def reject(self, frame_counter: int, reason: str) -> None:
-        """Record a frame that will not be delivered; counted in counters[reason up to its first ':']."""
-        self._rejected.append(Rejected(frame_counter, reason))
-        self.counters[reason.split(":")[0]] += 1
+    def reject(self, frame_counter: int, reason: str, frames: int = 1) -> None:
+        """Record `frames` frames from counter `frame_counter` on that will not be delivered (one entry however
+        many); counted in counters[reason up to its first ':']."""
+        if frames < 1:
+            raise ValueError(f"frames: expected >= 1, got {frames}")
+        self._rejected.append(Rejected(frame_counter, reason, frames))
+        self.counters[reason.split(":")[0]] += frames
 
     def take_rejected(self) -> list[Rejected]:
         """The rejected frames not taken yet, oldest first (safe against a concurrent `reject`)."""
@@ -91,6 +96,10 @@ class FrameSource(ABC):
         while self._rejected:
             out.append(self._rejected.popleft())
         return out
+
+    def take_rejected_frames(self) -> int:
+        """How many frames the rejected entries not taken yet stand for (takes them)."""
+        return sum(r.frames for r in self.take_rejected())
 
     @abstractmethod
     def __iter__(self) -> Iterator[Frame]: ...

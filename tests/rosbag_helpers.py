@@ -111,14 +111,17 @@ def frame_messages(ts: Any, frame: Frame, encoding: str = "16UC1", unit: str = "
             (TOPICS["camera_info"], camera_info(ts, frame, stamp))]
 
 
-def write_bag(path: Path, kind: BagKind, messages: Iterable[tuple[str, Any]], chunk_bytes: int | None = None) -> Path:
+def write_bag(path: Path, kind: BagKind, messages: Iterable[tuple[str, Any]], chunk_bytes: int | None = None,
+              compression: str | None = None) -> Path:
     """A bag of `kind` with these (topic, message) in order, each received 1 ms after the one before (ROS 1:
-    chunks of about `chunk_bytes`, default rosbags')."""
+    chunks of about `chunk_bytes`, default rosbags', compressed with `compression` "bz2" or "lz4")."""
     ts = typestore(kind)
     writer = Writer1(path) if kind == "ros1" else Writer2(
         path, version=9, storage_plugin=StoragePlugin.SQLITE3 if kind == "sqlite3" else StoragePlugin.MCAP)
     if chunk_bytes is not None and isinstance(writer, Writer1):
         writer.chunk_threshold = chunk_bytes
+    if compression is not None and isinstance(writer, Writer1):
+        writer.set_compression(Writer1.CompressionFormat[compression.upper()])
     serialize = ts.serialize_ros1 if kind == "ros1" else ts.serialize_cdr
     connections: dict[str, Any] = {}
     with writer:

@@ -12,7 +12,7 @@ from tofd.config import Config, load_config
 from tofd.lab.evaluation import frame_samples
 from tofd.service.model import load_detector
 from tofd.service.pipeline import Pipeline
-from tofd_testing.pipeline_sources import RenderedSource, rendered_frames, write_config
+from tofd_testing.pipeline_sources import RenderedSource, dropped_frames, rendered_frames, write_config
 
 R, A, NOSE = rendered_frames(1)[0]
 RNG = np.random.default_rng(1)
@@ -87,7 +87,7 @@ def test_damaged_frames_are_ledgered_and_the_run_goes_on(tmp_path):
     summary = pipeline.close()
     assert pipeline.error is None
     assert summary["consistent"] and summary["frames_in"] == 14
-    drops = {d["seq"]: (d["stage"], d["reason"]) for d in summary["drops"]}
+    drops = {d["seq"]: (d["stage"], d["reason"]) for d in dropped_frames(summary)}
     assert set(drops) == {8, 9}, drops  # the bad-pixel frames were processed, not dropped
     assert drops[8][0] == "capture" and drops[8][1].startswith("invalid_frame: range_m is float32 (10, 10)")
     assert drops[9][0] == "capture" and "frame counter" in drops[9][1]

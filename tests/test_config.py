@@ -38,11 +38,12 @@ def test_missing_file_is_clear(tmp_path):
     ("[camera]\nread_timeout_s = 3600", "camera.read_timeout_s: 3600.0 is not in"),
     ("[health]\nstale_after_s = nan", "health.stale_after_s: nan is not a finite number"),
     ("[intrinsics]\nfx = nan", "intrinsics.fx: nan is not a finite number"),
-    ("[intrinsics]\nfx = -5.0", "intrinsics.fx: expected a finite number > 0, got -5.0"),  # Intrinsics' own check
-    ("[intrinsics]\nwidth = 100000\nheight = 100000", "intrinsics.width: expected an integer in 1..8192"),
-    ("[intrinsics]\nwidth = 0", "intrinsics.width: expected an integer in 1..8192, got 0"),
-    ("[intrinsics]\nwidth = 5000\nheight = 5000", "intrinsics: image size 5000 x 5000"),  # the recordings' bound
-    ("[intrinsics]\ncx = 1e6", "intrinsics: intrinsics cx = 1000000.0"),
+    ("[intrinsics]\nfx = -5.0", "intrinsics.fx: expected a finite focal length in 1.76..176000 pixels, got -5.0"),
+    ("[intrinsics]\nfx = 1e-300", "intrinsics.fx: expected a finite focal length in 1.76..176000 pixels"),
+    ("[intrinsics]\nwidth = 100000\nheight = 100000", "intrinsics.width: image size 100000 x 100000: larger"),
+    ("[intrinsics]\nwidth = 0", "intrinsics.width: expected a whole number of pixels >= 1, got 0"),
+    ("[intrinsics]\nwidth = 5000\nheight = 5000", "intrinsics.width: image size 5000 x 5000"),  # every input's cap
+    ("[intrinsics]\ncx = 1e6", "intrinsics.cx: expected a finite principal point near the image (-176..352)"),
 ])
 def test_out_of_bounds_values_are_config_errors_naming_the_key(tmp_path, toml, key):
     path = tmp_path / "tofd.toml"

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from tofd.cli import _run, stop_signal_behind
+from tofd_testing.chaos_helpers import default_stop_signals
 from tofd_testing.pipeline_sources import write_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -28,7 +29,7 @@ def _results_lines(out: Path) -> int:
 def test_an_interrupted_replay_says_so_and_exits_128_plus_the_signal(tmp_path, sig, code):
     proc = subprocess.Popen([sys.executable, "-m", "tofd", "replay", CLIP, "--loop", "--rerun", "none", "--out",
                              tmp_path, "--config", write_config(tmp_path)], cwd=ROOT, stderr=subprocess.PIPE,
-                            text=True, env={**os.environ, "RUST_LOG": "error"})
+                            text=True, env={**os.environ, "RUST_LOG": "error"}, preexec_fn=default_stop_signals)
     try:
         deadline = time.monotonic() + 120
         while _results_lines(tmp_path) < 5 and time.monotonic() < deadline:
@@ -119,3 +120,60 @@ def test_value_errors_of_the_api_stay_value_errors():
 def test_an_os_error_is_a_runtime_failure_in_one_line(capsys):
     assert _run(argparse.Namespace(command="run", func=_raises(PermissionError(13, "Permission denied", "x")))) == 1
     assert capsys.readouterr().err == "tofd run: [Errno 13] Permission denied: 'x'\n"
+
+
+@pytest.mark.parametrize(("args", "line"), [
+    (["run", "--emulate", "--health-port", "99999"], "health.port: 99999 is not a TCP port (--health-port)"),
+    (["run", "--emulate", "--health-port", "-1"], "health.port: -1 is not a TCP port (--health-port)"),
+    (["run", "--emulate", "--rerun", "connect:notaurl"], "rerun.url: 'notaurl' is not a Rerun viewer's address"),
+    (["run", "--emulate", "--rerun", "save:"], "rerun.path: empty"),
+    (["replay", str(CLIP), "--rerun", "save:"], "rerun.path: empty"),
+])
+def test_a_bad_option_is_one_line_naming_the_key_and_the_option_exit_2(tmp_path, args, line):
+    run = subprocess.run([sys.executable, "-m", "tofd", *args, "--config", write_config(tmp_path)], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=300, env={**os.environ, "RUST_LOG": "error"})
+    assert run.returncode == 2, run.stderr
+    (err,) = run.stderr.strip().splitlines()
+    assert err.startswith(f"tofd {args[0]}: config error: ") and line in err, err
+    assert list(tmp_path.glob("*.rrd")) == []
+
+
+def test_the_config_file_and_the_option_say_the_same():
+    from tofd.config import Config, ConfigError, config_from_dict, override
+
+    with pytest.raises(ConfigError) as from_file:
+        config_from_dict({"health": {"port": 99999}})
+    with pytest.raises(ConfigError) as from_option:
+        override(Config(), "health", "--health-port", port=99999)
+    assert str(from_option.value) == f"{from_file.value} (--health-port)"
+
+
+def test_an_experiment_without_its_extra_says_so_before_computing(tmp_path):
+    out = tmp_path / "sphere"
+    code = ("import sys; sys.modules['matplotlib'] = None  # as in an install without the lab extra\n"
+            "from tofd.cli import main; sys.exit(main(sys.argv[1:]))")
+    run = subprocess.run([sys.executable, "-c", code, "experiment", "sphere", "--out", str(out)], cwd=ROOT,
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2 and run.stderr.strip() == "tofd experiment: needs the 'lab' extra: pip install " \
+                                                         "'tofd[lab]'", run.stderr
+    assert not out.exists() and run.stdout == ""  # nothing computed, nothing written
+
+
+@pytest.mark.slow
+def test_a_busy_health_port_fails_before_the_viewer_replaces_an_earlier_rrd(tmp_path):
+    import socket
+
+    rrd = tmp_path / "live.rrd"
+    rrd.write_bytes(b"an earlier run's complete recording")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        run = subprocess.run([sys.executable, "-m", "tofd", "run", "--emulate", "--frames", "5", "--health-port",
+                              str(port), "--rerun", f"save:{rrd}", "--config", write_config(tmp_path)], cwd=ROOT,
+                             capture_output=True, text=True, timeout=300, env={**os.environ, "RUST_LOG": "error"},
+                             preexec_fn=default_stop_signals)
+    assert run.returncode == 2 and "Traceback" not in run.stderr, run.stderr
+    assert run.stderr.strip().splitlines()[-1].startswith("tofd run: config error: health.port: cannot listen on")
+    assert rrd.read_bytes() == b"an earlier run's complete recording"
+    assert sorted(p.name for p in tmp_path.iterdir() if p.suffix in (".rrd", ".tmp")) == ["live.rrd"]

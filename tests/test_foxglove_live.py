@@ -211,3 +211,26 @@ def test_the_foxglove_viewer_process_does_not_load_the_rerun_sdk():
         assert json.loads(viewer.web_url) == []
     finally:
         viewer.close(10.0)
+
+
+@pytest.mark.slow
+def test_a_replay_on_a_busy_port_fails_before_touching_the_previous_runs_outputs(tmp_path):
+    clip = ROOT / "tests" / "data" / "v1_first3.mcap"
+    out = tmp_path / "out"
+    first = subprocess.run([sys.executable, "-m", "tofd", "replay", str(clip), "--out", str(out), "--config",
+                            write_config(tmp_path, pipeline=PATIENT_VIEWER)], cwd=ROOT, capture_output=True,
+                           text=True, timeout=300)
+    assert first.returncode == 0, first.stderr
+    before = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in out.iterdir()}
+    assert {"v1_first3.rrd", "v1_first3.results.jsonl", "v1_first3.summary.json"} <= set(before)
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        again = subprocess.run([sys.executable, "-m", "tofd", "replay", str(clip), "--out", str(out), "--config",
+                                write_config(tmp_path, pipeline=PATIENT_VIEWER), "--foxglove", f"127.0.0.1:{port}"],
+                               cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 2 and "Traceback" not in again.stderr, again.stderr
+    assert again.stderr.strip().splitlines()[-1].endswith(f"port {port} on 127.0.0.1 is already in use "
+                                                          "(--foxglove HOST:PORT)"), again.stderr
+    assert {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in out.iterdir()} == before

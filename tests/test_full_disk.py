@@ -9,12 +9,11 @@ import os
 import signal
 import subprocess
 import time
-import urllib.request
 from pathlib import Path
 
 import pytest
 
-from tofd_testing.chaos_helpers import metric, metrics, tofd
+from tofd_testing.chaos_helpers import healthz, metric, metrics, tofd
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config, write_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -73,8 +72,7 @@ def test_a_live_save_sink_that_fills_its_disk_shows_in_healthz_metrics_and_the_s
         deadline, status = time.monotonic() + 120, {}
         while status.get("status") != "degraded" and time.monotonic() < deadline:
             time.sleep(0.5)
-            with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=5) as resp:
-                code, status = resp.status, json.loads(resp.read())
+            code, status = healthz(port)
         assert code == 200 and status["status"] == "degraded", status
         assert any(str(rrd) in problem and "No space left" in problem for problem in status["problems"]), status
         assert metric(metrics(port), "tofd_output_failed", f'{{output="{rrd}"}}') == 1
@@ -88,3 +86,35 @@ def test_a_live_save_sink_that_fills_its_disk_shows_in_healthz_metrics_and_the_s
     assert str(rrd) in summary["outputs_failed"] and summary["consistent"], summary
     assert not rrd.exists() and _leftovers(small_disk) == []
     assert (small_disk / "live.partial.rrd").exists()
+
+
+def _fill(disk: Path) -> None:
+    """Write a file that takes every free byte of `disk`."""
+    with open(disk / "filler", "wb") as f:
+        try:
+            while True:
+                f.write(bytes(64 << 10))
+                f.flush()
+        except OSError:
+            pass
+
+
+def test_an_export_onto_a_full_disk_leaves_the_earlier_complete_outputs_intact(small_disk):
+    import numpy as np
+
+    out = small_disk / "out"
+    for to, frames in (("npz", "0:3"), ("ply", "0:1"), ("png", "0:1")):
+        proc = tofd("export", CLIP, "--to", to, "--frames", frames, "--out", out)
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert len(before) == 4  # the .npz, one .ply, a range and an amplitude .png
+    _fill(small_disk)
+    for to, frames in (("npz", "0:60"), ("ply", "0:1"), ("png", "0:1")):
+        proc = tofd("export", CLIP, "--to", to, "--frames", frames, "--out", out)
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 1 and "No space left" in err and "Traceback" not in err, err
+        assert len(err.strip().splitlines()) == 1, err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # nothing replaced, nothing left behind
+    with np.load(out / "emulated_face_035_070.npz") as npz:
+        assert npz["range_m"].shape[0] == 3

@@ -105,3 +105,14 @@ def test_watchdog_interval_is_half_of_watchdog_usec(monkeypatch):
     assert watchdog_interval_s() == 1.5
     monkeypatch.setenv("WATCHDOG_PID", "1")  # meant for another process
     assert watchdog_interval_s() is None
+
+
+def test_healthz_says_starting_with_503_until_the_first_frame():
+    pipeline = Pipeline(Config(), "latest")
+    server = HealthServer("127.0.0.1", 0, pipeline.snapshot, lambda: True, stale_after_s=2.0).start()
+    try:
+        code, body = get(f"http://127.0.0.1:{server.port}/healthz")
+        assert code == 503 and json.loads(body)["status"] == "starting", body
+    finally:
+        pipeline.close()
+        server.close()

@@ -27,7 +27,9 @@ EXPECTED = {"zstd_bomb": "more than a frame of this recording can need", "chunk_
             "metadata_flood": "more than tofd writes (65536)", "attachment_flood": "more than tofd writes",
             "header_4000x4000": "image size 4000 x 4000: larger than any time-of-flight camera sends",
             "header_100000x100000": "image size 100000 x 100000", "header_width_0": "image size 0 x 144",
-            "header_fx_nan": "fx", "attachment_50mb": "more than tofd writes", "deep_json_config": "recursion"}
+            "header_fx_nan": "fx", "header_fx_tiny": "fx: expected a finite focal length",
+            "header_cx_huge": "cx: expected a finite principal point", "attachment_50mb": "more than tofd writes",
+            "deep_json_config": "recursion"}
 
 
 def _peak_rss_mb() -> float:

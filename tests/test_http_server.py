@@ -114,3 +114,72 @@ def test_close_ends_open_connections_and_frees_the_port():
     sock.close()
     with socket.socket() as probe:
         assert probe.connect_ex(("127.0.0.1", port)) != 0
+
+
+def test_waitress_has_what_the_eviction_uses():
+    """Pins the waitress attributes tofd.service.http_server's eviction reads and calls."""
+    from waitress.channel import HTTPChannel
+
+    srv = HttpServer("127.0.0.1", 0, _app, max_connections=4).start()
+    try:
+        sock = socket.create_connection(("127.0.0.1", srv.port))
+        deadline = time.monotonic() + 30
+        while not srv._server.active_channels and time.monotonic() < deadline:
+            time.sleep(0.05)
+        (channel,) = srv._server.active_channels.values()
+        assert isinstance(channel, HTTPChannel) and channel.requests == [] and channel.total_outbufs_len == 0
+        assert isinstance(channel.last_activity, float) and callable(channel.handle_close)
+        sock.close()
+    finally:
+        srv.close()
+
+
+def test_a_flood_of_idle_connections_evicts_the_oldest_and_a_probe_is_answered(server):
+    """At the cap (4 here) each new connection closes the one idle the longest: the first ones are closed long
+    before waitress's idle timeout, and a probe behind 30 idle connections is answered."""
+    held = []
+    try:
+        for _ in range(30):
+            held.append(socket.create_connection(("127.0.0.1", server.port)))
+            time.sleep(0.01)  # an order of arrival
+        assert _get(server.port, timeout=IDLE_TIMEOUT_S) == b"ok\n"  # before any could have timed out
+        assert _closed_by_server(held[0], 0.5)  # evicted, not timed out
+    finally:
+        for sock in held:
+            sock.close()
+
+
+@pytest.mark.slow
+def test_healthz_answers_while_300_idle_connections_are_held_at_a_descriptor_limit_of_300(tmp_path):
+    from tofd_testing.chaos_helpers import default_stop_signals, healthz, tofd
+    from tofd_testing.pipeline_sources import write_config
+
+    def limited() -> None:
+        default_stop_signals()
+        resource.setrlimit(resource.RLIMIT_NOFILE, (300, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+
+    proc = tofd("run", "--emulate", "--config", write_config(tmp_path), "--health-port", "0", "--rerun", "none",
+                preexec_fn=limited)
+    held = []
+    try:
+        lines = []
+        while not any("INFO health:" in line for line in lines):
+            lines.append(proc.stderr.readline())
+            assert lines[-1], "".join(lines)
+        port = int(next(line for line in lines if "INFO health:" in line).split(":")[-1].split("/")[0])
+        deadline = time.monotonic() + 120
+        while healthz(port)[0] != 200 and time.monotonic() < deadline:
+            time.sleep(0.5)
+        for _ in range(300):
+            held.append(socket.create_connection(("127.0.0.1", port)))
+        codes = []
+        for _ in range(5):  # each probe answered before an idle connection could have timed out
+            t0 = time.monotonic()
+            codes.append(healthz(port, timeout_s=IDLE_TIMEOUT_S)[0])
+            print(f"/healthz answered in {time.monotonic() - t0:.3f} s with 300 idle connections held")
+        assert codes == [200] * 5 and proc.poll() is None
+    finally:
+        for sock in held:
+            sock.close()
+        proc.send_signal(15)
+        proc.communicate(timeout=120)

@@ -22,7 +22,7 @@ from tofd.drivers.k4a.lens import DEPTH_MODES, depth_lens
 from tofd.drivers.k4a.mkv import K4aRecordingError, K4aRecordingSource
 from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import iter_frames
-from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config, rejected_counters
 from tofd_testing.wide_fov import SPHERE_RADIUS_M, sphere_before_wall
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -165,7 +165,7 @@ def test_a_damaged_recording_gives_its_intact_captures_and_ledgers_the_rest(k4a,
     source = K4aRecordingSource(cut)
     got = [f.frame_counter for f in source]
     assert got == list(range(len(got))) and 5 <= len(got) < n
-    assert [r.frame_counter for r in source.take_rejected()] == list(range(len(got), n))
+    assert rejected_counters(source) == list(range(len(got), n))
     assert source.stopped_reason == "truncated" and source.last_good_counter == len(got) - 1
 
     garbled = tmp_path / "garbled.mkv"
@@ -173,7 +173,7 @@ def test_a_damaged_recording_gives_its_intact_captures_and_ledgers_the_rest(k4a,
     garbled.write_bytes(data[:start] + np.random.default_rng(1).bytes(stop - start) + data[stop:])
     source = K4aRecordingSource(garbled)
     frames = list(source)
-    lost = [r.frame_counter for r in source.take_rejected()]
+    lost = rejected_counters(source)
     assert lost and sorted([f.frame_counter for f in frames] + lost) == list(range(n))
     assert source.stopped_reason == "end"
     # Matroska blocks carry no checksum: a block whose pixels (not its framing) were hit cannot be told from an
@@ -352,3 +352,73 @@ def test_a_sphere_in_the_distorted_corner_comes_back_on_the_sphere(k4a, tmp_path
     sphere = np.isfinite(frame.range_m) & (np.abs(np.linalg.norm(xyz - centre, axis=-1) - radius) < 0.005)
     wrong = pinhole.backproject(frame.range_m)[sphere]
     assert np.median(np.abs(np.linalg.norm(wrong - centre, axis=1) - radius)) > 0.01
+
+
+def _cluster_starts(data: bytes) -> list[int]:
+    """Byte offsets of the Matroska Cluster elements (ID 1F 43 B6 75) of a recording."""
+    starts, at = [], data.find(b"\x1f\x43\xb6\x75")
+    while at >= 0:
+        starts.append(at)
+        at = data.find(b"\x1f\x43\xb6\x75", at + 1)
+    return starts
+
+
+def test_a_damaged_first_cluster_is_counted_lost_or_is_nothing_readable(k4a, tmp_path):
+    mode = "NFOV_2X2BINNED"
+    h, w = mode_size(mode)
+    n = 8
+    path = record(k4a, tmp_path / "k.mkv", mode, [np.full((h, w), 900 + k, np.uint16) for k in range(n)],
+                  [np.full((h, w), 100 + k, np.uint16) for k in range(n)],
+                  [5_000_000 + PERIOD_US * k for k in range(n)])
+    data = path.read_bytes()
+    first, second = _cluster_starts(data)[:2]
+
+    garbled = tmp_path / "garbled.mkv"  # the first cluster's blocks unreadable, its framing kept
+    garbled.write_bytes(data[:first + 4] + np.random.default_rng(2).bytes(second - first - 4) + data[second:])
+    source = K4aRecordingSource(garbled)
+    frames = list(source)
+    lost = rejected_counters(source)
+    assert sorted([f.frame_counter for f in frames] + lost) == list(range(n)) and lost[0] == 0
+    assert all(np.all(f.amplitude == 100 + f.frame_counter) for f in frames)  # counted from the recording's start
+
+    unreadable = tmp_path / "unreadable.mkv"  # the first cluster's ID gone: the demuxer reads no block at all
+    unreadable.write_bytes(data[:first] + bytes(4) + data[first + 4:])
+    with pytest.raises(K4aRecordingError, match="nothing readable"):
+        K4aRecordingSource(unreadable)
+    proc = tofd("info", unreadable)
+    assert proc.returncode == 2 and "nothing readable" in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+def test_a_long_capture_gap_is_one_rejected_range(k4a, tmp_path):
+    mode = "NFOV_2X2BINNED"
+    h, w = mode_size(mode)
+    stamps = [1_000_000 + PERIOD_US * k for k in range(10)] + [1_000_000 + PERIOD_US * 90_000]
+    path = record(k4a, tmp_path / "k.mkv", mode, [np.full((h, w), 900, np.uint16)] * 11,
+                  [np.full((h, w), 100, np.uint16)] * 11, stamps)
+    source = K4aRecordingSource(path)
+    assert [f.frame_counter for f in source] == [*range(10), 90_000]
+    (gap,) = source.take_rejected()
+    assert (gap.frame_counter, gap.frames) == (10, 90_000 - 10) and gap.reason.startswith("damaged: no capture from")
+
+
+def test_an_oversized_or_unusable_calibration_attachment_is_refused_in_one_line(k4a, tmp_path):
+    mode = "NFOV_2X2BINNED"
+    h, w = mode_size(mode)
+    planes = [np.full((h, w), 900, np.uint16)] * 2
+    big = k4a.write_recording(tmp_path / "big.mkv", mode, planes, planes, [0, PERIOD_US],
+                              calibration=RAW + b" " * (2 << 20), serial=SERIAL)
+    with pytest.raises(K4aRecordingError, match="attachment calibration.json: .* bytes, more than a device"):
+        K4aRecordingSource(big)
+    calibration = json.loads(RAW)
+    cameras = calibration["CalibrationInformation"]["Cameras"]
+    depth = next(c for c in cameras if c["Location"] == "CALIBRATION_CameraLocationD0")
+    depth["Intrinsics"]["ModelParameters"][2] = 1e-300  # fx
+    tiny = k4a.write_recording(tmp_path / "tiny.mkv", mode, planes, planes, [0, PERIOD_US],
+                               calibration=json.dumps(calibration).encode(), serial=SERIAL)
+    nested = k4a.write_recording(tmp_path / "nested.mkv", mode, planes, planes, [0, PERIOD_US],
+                                 calibration=b"[" * 100_000 + b"]" * 100_000, serial=SERIAL)
+    for path, why in ((tiny, "fx: expected a finite focal length"), (nested, "nested too deeply")):
+        proc = tofd("info", path)
+        assert proc.returncode == 2 and why in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr

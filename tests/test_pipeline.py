@@ -17,7 +17,7 @@ from tofd.service.pipeline import DropLedger, Pipeline
 from tofd.service.pipeline.queues import StageQueue
 from tofd.service.pipeline.stages import pipeline_families
 from tofd_testing.chaos_helpers import wait_for
-from tofd_testing.pipeline_sources import RenderedSource, write_config
+from tofd_testing.pipeline_sources import RenderedSource, dropped_frames, write_config
 
 CFG = Config()
 
@@ -39,7 +39,7 @@ def test_ledger_counts_every_frame_once():
     ledger.deliver(2)  # a late report after shutdown is ignored, not double counted
     s = ledger.summary()
     assert (s["frames_in"], s["frames_out"], s["frames_dropped"], s["consistent"]) == (5, 1, 4, True)
-    assert {(d["frame_counter"], d["stage"], d["reason"]) for d in s["drops"]} == {
+    assert {(d["frame_counter"], d["stage"], d["reason"]) for d in dropped_frames(s)} == {
         (101, "features", "worker_died"), (102, "sink", "shutdown"), (103, "capture", "shutdown"),
         (104, "capture", "shutdown")}
 
@@ -142,7 +142,7 @@ def test_a_failing_writer_is_ledgered_as_the_sink_stage_naming_the_writer():
     _, summary, _ = run_pipeline(RenderedSource(5, n_distinct=2), "lossless", sink=writer)
     assert writer.written == [0, 1, 3, 4]
     assert summary["consistent"] and summary["frames_out"] == 4 and summary["dropped_by_stage"] == {"sink": 1}
-    (drop,) = summary["drops"]
+    (drop,) = dropped_frames(summary)
     assert drop["frame_counter"] == 2 and drop["stage"] == "sink"
     assert str(drop["reason"]).startswith("writer_error: ValueError")
     assert summary["viewer_dropped"] == 0  # the viewer is not what failed
@@ -182,7 +182,7 @@ def test_killed_worker_is_ledgered_restarted_and_the_run_finishes():
         os.kill(victim.pid, signal.SIGKILL)
 
     pipeline, summary, sink = run_pipeline(source, "lossless", during=kill_one)
-    lost = [d for d in summary["drops"] if d["reason"] == "worker_died"]
+    lost = [d for d in dropped_frames(summary) if d["reason"] == "worker_died"]
     assert len(lost) >= 1 and all(d["stage"] == "features" for d in lost)
     assert summary["frames_dropped"] == len(lost)
     assert summary["consistent"] and summary["frames_in"] == 40
@@ -220,7 +220,7 @@ def test_live_policy_drops_instead_of_blocking_and_never_goes_back_in_time():
     _, summary, sink = run_pipeline(source, "latest", cfg=cfg, sink=sink, during=while_the_sink_is_stalled)
     assert summary["consistent"] and summary["frames_in"] == 45
     assert summary["frames_dropped"] > 0 and summary["frames_out"] == len(sink.results)
-    assert {d["reason"] for d in summary["drops"]} <= {"queue_full", "superseded", "late"}
+    assert {d["reason"] for d in dropped_frames(summary)} <= {"queue_full", "superseded", "late"}
     assert summary["frames_out"] <= 1 + cfg.pipeline.sink_queue + cfg.pipeline.workers + 1  # bounded backlog
     delivered = [r.frame.frame_counter for r in sink.results]
     assert delivered == sorted(set(delivered))
@@ -248,7 +248,7 @@ def test_a_stopped_worker_does_not_hold_back_live_output():
 
     pipeline, summary, sink = run_pipeline(source, "latest", cfg=cfg, during=stop_one)
     held = stopped[0][1]
-    late = {d["seq"] for d in summary["drops"] if d["reason"] == "late"}
+    late = {d["seq"] for d in dropped_frames(summary) if d["reason"] == "late"}
     assert held and held <= late  # the frame the stopped worker held was dropped as late, not waited for
     assert summary["consistent"] and summary["frames_in"] == 150
     assert max(backlog) <= pipeline.pool.ring.n_slots  # finished frames never pile up behind the stopped one

@@ -18,6 +18,7 @@ from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import ReplaySource
 from tofd.drivers.recording.writer import RecordingWriter
 from tofd.drivers.source import DriverError, Rejected, SourceReport
+from tofd_testing.pipeline_sources import dropped_frames
 from tofd_testing.recording_helpers import (
     RECORDING_FAULTS,
     SMALL_INTRINSICS,
@@ -201,7 +202,7 @@ def test_damaged_replay_through_the_pipeline_ledgers_each_lost_and_invalid_frame
     assert data  # the original is untouched
     assert [r.frame.frame_counter for r in results] == [0, 1, 2, 3, 4, 6, 8, 9, 10, 11]
     assert summary["consistent"] and summary["frames_in"] == 12 and summary["frames_dropped"] == 2
-    assert [(d["frame_counter"], d["stage"], d["reason"].split(":")[0]) for d in summary["drops"]] == [
+    assert [(d["frame_counter"], d["stage"], d["reason"].split(":")[0]) for d in dropped_frames(summary)] == [
         (5, "capture", "damaged"), (7, "capture", "damaged")]
     assert summary["gaps"] == []
 
@@ -278,8 +279,8 @@ def test_replay_command_ledgers_each_faulty_frame_and_replays_the_rest(tmp_path)
     assert proc.returncode == 0 and "Traceback" not in err, err
     summary = json.loads((tmp_path / "out" / f"{path.stem}.summary.json").read_text())
     assert summary["consistent"] and summary["frames_in"] == summary["frames_out"] + summary["frames_dropped"]
-    drops = sorted((d["frame_counter"], d["stage"], d["reason"].split(":")[0]) for d in summary["drops"])
+    drops = sorted((d["frame_counter"], d["stage"], d["reason"].split(":")[0]) for d in dropped_frames(summary))
     assert drops == sorted((c, "capture", RECORDING_FAULTS[f]) for f, c in faulty.items()), drops
     assert summary["frames_out"] == 14 - 3  # the duplicate's original is replayed once
-    zero_crc = next(d for d in summary["drops"] if d["frame_counter"] == faulty["zero_crc_frames"])
+    zero_crc = next(d for d in dropped_frames(summary) if d["frame_counter"] == faulty["zero_crc_frames"])
     assert "no CRC" in zero_crc["reason"]

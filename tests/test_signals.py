@@ -8,9 +8,18 @@ import time
 
 import pytest
 
+from tofd.service import signals
 from tofd.service.signals import StopSignals
 from tofd_testing.chaos_helpers import alive, tofd, workers_of
 from tofd_testing.pipeline_sources import write_config
+
+
+@pytest.fixture(autouse=True)
+def as_under_a_terminal(monkeypatch):
+    """StopSignals in this process handles every stop signal, as when started from a terminal, however pytest was
+    started (under nohup SIGHUP is ignored, in the background SIGINT and SIGQUIT: kept ignored by design)."""
+    monkeypatch.setattr(signals, "_IGNORED_AT_START", frozenset())
+    monkeypatch.setattr(StopSignals, "SIGNALS", signals.STOP_SIGNALS)
 
 
 def test_signals_are_recorded_passed_on_and_the_previous_handlers_come_back():

@@ -11,6 +11,7 @@ import stat
 import tomllib
 import types
 import typing
+import urllib.parse
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -18,8 +19,8 @@ from pathlib import Path
 from tofd.algorithm.params import DetectorConfig, FeatureConfig, SegmentationConfig
 from tofd.drivers.cameras import CAMERA_KINDS, CameraRequest, StreamMode
 from tofd.drivers.frame import DEFAULT_REGISTER_VALUES
-from tofd.drivers.intrinsics import MAX_SIDE_PX, Intrinsics
-from tofd.drivers.recording.bounds import intrinsics_problem
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.limits import MAX_IMAGE_SIDE
 from tofd.errors import ConfigError
 
 
@@ -49,6 +50,8 @@ NO_MODEL_PATH = ""  # detector.model_path that chooses to run without nose detec
 
 RERUN_SINKS = ("none", "save", "web", "connect", "spawn")
 """Where the Rerun stream can go: nowhere, an .rrd file, a served web viewer, a running viewer, a desktop viewer."""
+RERUN_URL_SCHEMES = ("rerun+http", "rerun+https", "rerun")
+"""Schemes of a Rerun viewer's gRPC address (the "connect" sink's url)."""
 
 
 def check_seconds(key: str, value: float) -> None:
@@ -111,7 +114,7 @@ class CameraConfig:
             raise ValueError(f"int_time_code: {self.int_time_code} is not in 0..255")
         if not 0 <= self.mod_freq_index <= 4:
             raise ValueError(f"mod_freq_index: {self.mod_freq_index} is not in 0..4")
-        for key, top in (("width", MAX_SIDE_PX), ("height", MAX_SIDE_PX), ("fps", MAX_FPS),
+        for key, top in (("width", MAX_IMAGE_SIDE), ("height", MAX_IMAGE_SIDE), ("fps", MAX_FPS),
                          ("exposure_us", MAX_EXPOSURE_US)):
             if not 0 <= getattr(self, key) <= top:
                 raise ValueError(f"{key}: {getattr(self, key)} is not in 0..{top} (0: the device's default)")
@@ -200,6 +203,12 @@ class RerunConfig:
         for key in ("grpc_port", "web_port"):
             if not 0 < getattr(self, key) < 65536:
                 raise ValueError(f"{key}: {getattr(self, key)} is not a TCP port")
+        if not self.path:
+            raise ValueError("path: empty (the .rrd file of the \"save\" sink)")
+        url = urllib.parse.urlsplit(self.url)
+        if url.scheme not in RERUN_URL_SCHEMES or not url.hostname:
+            raise ValueError(f"url: {self.url!r} is not a Rerun viewer's address "
+                             f"({' or '.join(RERUN_URL_SCHEMES)}://HOST:PORT/proxy)")
         check_count("batch_frames", self.batch_frames, MAX_QUEUE)
         for key in ("rotate_mb", "rotate_s", "keep_files"):
             if not getattr(self, key) >= 0:
@@ -319,13 +328,23 @@ def _build(cls: type, table: dict, prefix: str) -> object:
     return obj
 
 
+def override(cfg: Config, section: str, option: str, **values: object) -> Config:
+    """`cfg` with keys of [section] set from the command-line `option`, checked as the config file's keys are;
+    ConfigError names the key as the file would, and the option."""
+    try:
+        changed = dataclasses.replace(getattr(cfg, section), **values)
+        validate = getattr(changed, "validate", None)
+        if validate is not None:
+            validate()
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{section}.{exc} ({option})") from None
+    return dataclasses.replace(cfg, **{section: changed})
+
+
 def config_from_dict(table: dict) -> Config:
     """Build a Config from a parsed TOML table, rejecting unknown keys, wrong types, numbers that are not finite
-    or out of their bounds, and intrinsics no camera has (tofd.drivers.recording.bounds.intrinsics_problem)."""
-    cfg = typing.cast(Config, _build(Config, table, ""))
-    if (problem := intrinsics_problem(cfg.intrinsics)) is not None:
-        raise ConfigError(f"intrinsics: {problem}")
-    return cfg
+    or out of their bounds, and intrinsics no camera has (tofd.drivers.limits, checked by Intrinsics itself)."""
+    return typing.cast(Config, _build(Config, table, ""))
 
 
 def config_table(cfg: Config) -> dict:

@@ -20,3 +20,10 @@ class UsageError(TofdError, ValueError):
 class ConfigError(UsageError):
     """A config file that cannot be used; the message names the offending key. `tofd` prints
     `tofd <command>: config error: <message>`."""
+
+
+def input_error(path: object, exc: BaseException) -> UsageError:
+    """A UsageError for input file `path` that could not be read because of `exc`, naming the path once (a
+    reader's message usually names it already)."""
+    text = str(exc)
+    return UsageError(text if str(path) in text else f"{path}: {text}")

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 from tofd.drivers.frame import DeviceInfo, Frame, Registers, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.source import FrameSource
+from tofd.errors import input_error
 
 if TYPE_CHECKING:
     from tofd.drivers.bags.driver_bag import RangeOptions
@@ -27,7 +28,6 @@ if TYPE_CHECKING:
     from tofd.drivers.recording.reader import RecordingInfo
     from tofd.drivers.recording.replay import ReplaySource
     from tofd.drivers.source import Rejected
-    from tofd.errors import UsageError
     from tofd.progress import Progress
 
 
@@ -126,13 +126,18 @@ def describe_input(path: Path, fmt: InputFormat, source: FrameSource) -> InputDe
                             (("written by", f"tofd {info.software_version}"), ("created", created)))
 
 
+def _count_rejected(source: FrameSource, summary: InputSummary) -> None:
+    for rejected in source.take_rejected():
+        summary.rejected[rejected.reason.split(":")[0]] += rejected.frames
+
+
 def frames_with_rejects(source: FrameSource, summary: InputSummary) -> Iterator[Frame]:
     """The source's frames; the frames it rejects (damage) are counted in summary.rejected on the way, and why
     it stopped early (the source's report) in summary.stopped."""
     for frame in source:
-        summary.rejected.update(r.reason.split(":")[0] for r in source.take_rejected())
+        _count_rejected(source, summary)
         yield frame
-    summary.rejected.update(r.reason.split(":")[0] for r in source.take_rejected())
+    _count_rejected(source, summary)
     summary.counters = {k: v for k, v in source.counters.items() if v}
     report = source.report
     if report.stopped_early:
@@ -149,14 +154,6 @@ def summarize(path: Path, bag_options: RangeOptions) -> InputSummary:
     return summary
 
 
-def _unusable(path: Path, exc: Exception) -> UsageError:
-    """A UsageError of an input that cannot be read, naming it once."""
-    from tofd.errors import UsageError
-
-    why = str(exc)
-    return UsageError(why if why.startswith(str(path)) else f"{path}: {why}")
-
-
 def open_reader(path: Path, bag_options: RangeOptions) -> tuple[InputFormat, FrameSource]:
     """The format of `path` and a lossless FrameSource on it (tofd.drivers.opener.open_input); UsageError names an
     input that cannot be read, and ROS bag options given for another kind of file."""
@@ -167,10 +164,10 @@ def open_reader(path: Path, bag_options: RangeOptions) -> tuple[InputFormat, Fra
     try:
         fmt, source = open_input(path, bag_options)
     except (DriverError, OSError, ValueError) as exc:
-        raise _unusable(path, exc) from None
+        raise input_error(path, exc) from None
     if fmt.read_as != "bag" and bag_options != RangeOptions():
         source.close()
-        raise _unusable(path, ValueError(f"a {fmt.description}: the ROS bag options are for ROS bags"))
+        raise input_error(path, ValueError(f"a {fmt.description}: the ROS bag options are for ROS bags"))
     return fmt, source
 
 
@@ -183,10 +180,10 @@ def open_recording(path: Path, **replay: Any) -> tuple[ReplaySource, RecordingIn
     try:
         source = ReplaySource(path, **replay)
     except (DriverError, OSError, ValueError) as exc:
-        raise _unusable(path, exc) from None
+        raise input_error(path, exc) from None
     if source.info is None:
         source.close()
-        raise _unusable(path, ValueError(source.header_problem))
+        raise input_error(path, ValueError(source.header_problem))
     return source, source.info
 
 
@@ -227,7 +224,7 @@ def convert(path: Path, fmt: InputFormat, source: FrameSource, bag_options: Rang
                              f"({unpaired or 'its topics are empty'}{why}); nothing written" if fmt.read_as == "bag"
                              else f"{path}: no frame could be read; nothing written")
     lost_frames = source.take_rejected()
-    lost = len(lost_frames)
+    lost = sum(r.frames for r in lost_frames)
     if rejected is not None:
         rejected.extend(lost_frames)
     skipped = "; ".join(filter(None, [unpaired, f"{lost} frames lost or damaged (see the log)" if lost else ""]))

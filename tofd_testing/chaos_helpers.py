@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -50,10 +52,32 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+TERMINAL_SIGNALS = (signal.SIGHUP, signal.SIGINT, signal.SIGQUIT)
+"""Stop signals a shell starts a job with ignored (SIGHUP under nohup; SIGINT and SIGQUIT in the background)."""
+
+
+def default_stop_signals() -> None:
+    """A child's preexec_fn: TERMINAL_SIGNALS at their default disposition, as under a terminal, however the tests
+    were started (a child inherits an ignored signal, and tofd keeps a stop signal it started with ignored)."""
+    for sig in TERMINAL_SIGNALS:
+        signal.signal(sig, signal.SIG_DFL)
+
+
 def tofd(*args: object, **kwargs: object) -> subprocess.Popen:
+    """A `tofd` child with pipes, the stop signals at their defaults unless `preexec_fn` says otherwise."""
+    kwargs.setdefault("preexec_fn", default_stop_signals)
     env = {**os.environ, "RUST_LOG": "error", **kwargs.pop("env", {})}
     return subprocess.Popen([sys.executable, "-m", "tofd", *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env, **kwargs)
+
+
+def healthz(port: int, timeout_s: float = 5) -> tuple[int, dict]:
+    """The /healthz status code and JSON status of the daemon on `port` (a 503 is an answer too)."""
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=timeout_s) as resp:
+            return resp.status, json.loads(resp.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read())
 
 
 def metrics(port: int) -> str:

@@ -142,6 +142,14 @@ def header_fx_nan(work: Path) -> Path:
     return _header_only(work, "header_fx_nan", _intrinsics(fx="nan"))
 
 
+def header_fx_tiny(work: Path) -> Path:
+    return _header_only(work, "header_fx_tiny", _intrinsics(fx="1e-300"))
+
+
+def header_cx_huge(work: Path) -> Path:
+    return _header_only(work, "header_cx_huge", _intrinsics(cx="1e300"))
+
+
 def attachment_50mb(work: Path) -> Path:
     return _header_only(work, "attachment_50mb", _intrinsics(), b"{" + b" " * (50 << 20) + b"}")
 
@@ -176,6 +184,8 @@ RECORDING_CASES: dict[str, tuple[Callable[[Path], Path], str]] = {
     "header_100000x100000": (header_100000x100000, "image <= 4096 a side"),
     "header_width_0": (header_width_0, "image size > 0"),
     "header_fx_nan": (header_fx_nan, "focal length finite > 0"),
+    "header_fx_tiny": (header_fx_tiny, "focal length within 0.01..1000 image sides"),
+    "header_cx_huge": (header_cx_huge, "principal point near the image"),
     "attachment_50mb": (attachment_50mb, "attachment <= 1 MiB"),
     "deep_json_config": (deep_json_config, "JSON nesting"),
 }

@@ -117,3 +117,15 @@ class ModulesReportingFoxglove:
         publisher = FoxglovePublisher(*args, **kwargs)  # type: ignore[arg-type]
         publisher.web_url = json.dumps(sorted(m for m in sys.modules if m.split(".")[0] == "rerun"))
         return publisher
+
+
+def dropped_frames(summary: dict) -> list[dict]:
+    """Each frame of a run summary's listed drop ranges as {frame_counter, seq, stage, reason} (a range's frames
+    have consecutive counters and, unless a source rejected them at once, consecutive sequence numbers)."""
+    return [{"frame_counter": d["frame_counter"] + i, "seq": d["seq"] + i, "stage": d["stage"], "reason": d["reason"]}
+            for d in summary["drops"] for i in range(d["frames"])]
+
+
+def rejected_counters(source: FrameSource) -> list[int]:
+    """The frame counters of every frame `source` rejected and nobody took yet (takes them), in order."""
+    return [r.frame_counter + i for r in source.take_rejected() for i in range(r.frames)]

@@ -4,9 +4,12 @@ rosbags reads intact bags through their index (ROS 1) or database (ROS 2 sqlite3
 short loses exactly those (a ROS 1 index sits at the end, a cut sqlite3 file is "malformed"), so when rosbags
 cannot open it, the records are read in file order instead: ROS 1 records one by one (chunks uncompressed,
 bz2 or LZ4), the sqlite3 `messages` table row by row, MCAP messages in stream order. Reading stops at the first
-record that cannot be read and `damage` says where and why. Message definitions come from the bag where it
-has them (ROS 1 always; ROS 2 where recorded), else the latest ROS 2 definitions, registered leniently: a
-vendor's definition that contradicts its bytes (Orbbec's Image) is read by tofd.drivers.bags.ros1_wire instead.
+record that cannot be read and `damage` says where and why. A ROS 1 or ROS 2 MCAP chunk may decompress to at
+most MAX_CHUNK_BYTES (checked streaming, before rosbags decompresses it whole: a compression bomb is damage where it
+starts), and a cut sqlite3 file is read as the pages it has, whatever page count its header claims. Message
+definitions come from the bag where it has them (ROS 1 always; ROS 2 where recorded), else the latest ROS 2
+definitions, registered leniently: a vendor's definition that contradicts its bytes (Orbbec's Image) is read by
+tofd.drivers.bags.ros1_wire instead.
 """
 
 from __future__ import annotations
@@ -26,6 +29,11 @@ from tofd.drivers.source import DriverError
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 OP_MESSAGE, OP_CHUNK, OP_CONNECTION = 0x02, 0x05, 0x07
+MAX_CHUNK_BYTES = 128 << 20
+"""Most bytes one ROS 1 chunk may decompress to (rosbag writes chunks of about 768 KiB: a few images)."""
+MAX_HEADER_BYTES = 1 << 20
+"""Largest ROS 1 record header read to check a chunk (a chunk's has two short fields)."""
+_PIECE = 1 << 20
 
 
 class BagError(DriverError):
@@ -78,6 +86,12 @@ class BagReader:
         self._reader: Any = None
         try:
             self._reader = _open_rosbags(self.path, self.ros1)
+            if self.ros1:
+                _check_chunks(self.path, [info.pos for info in self._reader.chunk_infos])
+            else:
+                for storage in [self.path] if self.path.is_file() else sorted(self.path.glob("*.mcap")):
+                    if _starts_with(storage, MCAP0_MAGIC):
+                        _check_mcap_chunks(storage)
             connections = self._reader.connections
             self._connections = {c.id: c for c in connections}
             self.topics = _topics((c.topic, c.msgtype, c.msgcount) for c in connections)
@@ -165,6 +179,80 @@ def _typestore(definitions: list[tuple[str, str]], ros1: bool) -> Any:
     return store
 
 
+def _check_chunks(path: Path, offsets: list[int]) -> None:
+    """ValueError when a ROS 1 chunk at one of `offsets` decompresses to more than MAX_CHUNK_BYTES (decompressed
+    piece by piece and counted, never held whole)."""
+    with open(path, "rb") as f:
+        for pos in offsets:
+            f.seek(pos)
+            (header_len,) = struct.unpack("<I", f.read(4).ljust(4, b"\xff"))
+            if header_len > MAX_HEADER_BYTES:
+                raise ValueError(f"a chunk header of {header_len} bytes at byte {pos}")
+            fields, _, _ = _fields(memoryview(f.read(header_len)), 0, header_len)
+            (data_len,) = struct.unpack("<I", f.read(4).ljust(4, b"\0"))
+            compression = fields.get("compression", b"none").decode()
+            if compression != "none":
+                decompress(compression, f.read(data_len), f"the chunk at byte {pos}", keep=False)
+
+
+def _check_mcap_chunks(path: Path) -> None:
+    """ValueError when a chunk of the MCAP file `path` (by its summary's chunk index) declares or decompresses to
+    more than MAX_CHUNK_BYTES (counted in pieces, never held whole); a file without a summary is left to rosbags."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        try:
+            summary = make_reader(f).get_summary()
+        except Exception:  # noqa: BLE001 (no readable summary: rosbags fails on it, the scan reads it bounded)
+            return
+        for index in [] if summary is None else summary.chunk_indexes:
+            where = f"the chunk at byte {index.chunk_start_offset}"
+            if index.uncompressed_size > MAX_CHUNK_BYTES:
+                raise ValueError(f"{where} declares {index.uncompressed_size} bytes decompressed, more than "
+                                 f"{MAX_CHUNK_BYTES}")
+            if index.compression:
+                f.seek(index.chunk_start_offset + 9 + 40 + len(index.compression))  # records after the header
+                decompress(index.compression, f.read(index.compressed_size), where, keep=False)
+
+
+def _pieces(compression: str, data: bytes) -> Iterator[bytes]:
+    """The decompressed bytes of `data` (bz2, lz4 or zstd) in pieces of at most _PIECE bytes, as far as it goes."""
+    if compression == "zstd":
+        import zstandard
+
+        with zstandard.ZstdDecompressor().stream_reader(data) as reader:
+            while piece := reader.read(_PIECE):
+                yield piece
+        return
+    if compression == "bz2":
+        decompressor: Any = bz2.BZ2Decompressor()
+    elif compression == "lz4":
+        import lz4.frame
+
+        decompressor = lz4.frame.LZ4FrameDecompressor()
+    else:
+        raise ValueError(f"chunk compression {compression!r} is not none, bz2, lz4 or zstd")
+    while not decompressor.eof:
+        piece = decompressor.decompress(data, max_length=_PIECE)
+        data = b""
+        if not piece and decompressor.needs_input:
+            return
+        yield piece
+
+
+def decompress(compression: str, body: bytes | memoryview, where: str, keep: bool = True) -> memoryview:
+    """`body` decompressed (bz2, lz4 or zstd) in pieces, as far as it goes (a body cut short gives its complete
+    blocks); ValueError naming `where` past MAX_CHUNK_BYTES. keep=False only counts (returns an empty view)."""
+    pieces, total = [], 0
+    for piece in _pieces(compression, bytes(body)):
+        total += len(piece)
+        if total > MAX_CHUNK_BYTES:
+            raise ValueError(f"{where} decompresses to more than {MAX_CHUNK_BYTES} bytes (a compression bomb?)")
+        if keep:
+            pieces.append(piece)
+    return memoryview(b"".join(pieces))
+
+
 def _fallback(path: Path, ros1: bool, exc: Exception) -> _Ros1Scan | _SqliteScan | _McapScan:
     """A record-by-record reader of a bag rosbags could not open (chosen by content: a renamed file too), or
     BagError when that cannot read it either."""
@@ -216,7 +304,7 @@ class _Ros1Scan:
             fields, body, end = _record(data, pos)
             op = fields.get("op", b"\xff")[0]
             if op == OP_CHUNK:
-                yield from self._walk(_chunk(fields, body), 0, topics)
+                yield from self._walk(_chunk(fields, body, pos), 0, topics)
             elif end > len(data):
                 raise ValueError(f"truncated at byte {pos} of {len(data)}: a record of {end - pos} bytes")
             elif op == OP_CONNECTION:
@@ -270,26 +358,21 @@ def _fields(data: memoryview, pos: int, length: int) -> tuple[dict[str, bytes], 
     return fields, end, length
 
 
-def _chunk(fields: dict[str, bytes], body: memoryview) -> memoryview:
+def _chunk(fields: dict[str, bytes], body: memoryview, pos: int) -> memoryview:
     """A chunk's records, decompressed (none, bz2 or lz4) with streaming decompressors, so that a chunk cut short
     gives the records of its complete blocks."""
     compression = fields.get("compression", b"none").decode()
     if compression == "none":  # possibly cut short: the walk stops at its first incomplete record
         return body
-    if compression == "bz2":
-        return memoryview(bz2.BZ2Decompressor().decompress(body))
-    if compression == "lz4":
-        import lz4.frame
-
-        return memoryview(lz4.frame.LZ4FrameDecompressor().decompress(bytes(body)))
-    raise ValueError(f"chunk compression {compression!r} is not none, bz2 or lz4")
+    return decompress(compression, body, f"the chunk at byte {pos}")
 
 
 class _SqliteScan:
     """Rows of a rosbag2 sqlite3 file in id order, read with sqlite3 itself (no metadata.yaml needed).
 
-    A file cut short is padded with zero pages up to the page count its header gives (in memory): sqlite then
-    reads every row on the pages that are there and reports the first missing one as malformed.
+    A file cut short is taken as the pages it has (in memory: its last page completed with zeros, the header's page
+    count set to match, never trusted): sqlite then reads every row on the pages that are there and reports the
+    first missing one as malformed.
     """
 
     def __init__(self, path: Path) -> None:
@@ -300,9 +383,11 @@ class _SqliteScan:
             raise BagError(f"{path}: not an sqlite3 file")
         page_size = struct.unpack(">H", data[16:18])[0]
         page_size = 65536 if page_size == 1 else page_size
-        pages = struct.unpack(">I", data[28:32])[0]
+        if page_size < 512 or page_size & (page_size - 1):
+            raise BagError(f"{path}: sqlite3 header: page size {page_size} is not a power of two >= 512")
+        pages = -(-len(data) // page_size)
         self._db = sqlite3.connect(":memory:")
-        self._db.deserialize(data + bytes(max(0, pages * page_size - len(data))))
+        self._db.deserialize(data[:28] + struct.pack(">I", pages) + data[32:] + bytes(pages * page_size - len(data)))
         rows = self._db.execute("SELECT id, name, type FROM topics").fetchall()
         self._names = {tid: name for tid, name, _ in rows}
         self.topics = _topics((name, msgtype, -1) for _, name, msgtype in rows)
@@ -326,11 +411,10 @@ class _SqliteScan:
 
 
 class _McapScan:
-    """ROS 2 messages of an MCAP file in stream order (no summary or index needed)."""
+    """ROS 2 messages of an MCAP file in stream order (no summary or index needed; chunks decompressed within
+    MAX_CHUNK_BYTES)."""
 
     def __init__(self, path: Path) -> None:
-        from mcap.reader import NonSeekingReader
-
         self.path = path
         self.damage: str | None = None
         self._file = open(path, "rb")  # noqa: SIM115 (closed by close())
@@ -339,7 +423,7 @@ class _McapScan:
         counts: dict[str, int] = {}
         types: dict[str, str] = {}
         try:
-            for schema, channel, _ in NonSeekingReader(self._file).iter_messages(log_time_order=False):
+            for schema, channel, _ in self._messages():
                 counts[channel.topic] = counts.get(channel.topic, 0) + 1
                 if schema is not None and channel.topic not in types:
                     types[channel.topic] = schema.name
@@ -349,12 +433,40 @@ class _McapScan:
             pass
         self.topics = _topics((t, types[t], n) for t, n in counts.items() if t in types)
 
-    def messages(self, topics: Collection[str]) -> Iterator[RawMessage]:
-        from mcap.reader import NonSeekingReader
+    def _messages(self) -> Iterator[tuple[Any, Any, Any]]:
+        """(schema or None, channel, message) in stream order, each chunk decompressed with `decompress` (its records
+        then read by mcap's breakup_chunk, its CRC checked)."""
+        import dataclasses
 
+        from mcap.records import Channel, Chunk, Message, Schema
+        from mcap.stream_reader import StreamReader, breakup_chunk
+
+        schemas: dict[int, Any] = {}
+        channels: dict[int, Any] = {}
         self._file.seek(0)
+
+        def expanded() -> Iterator[Any]:
+            for record in StreamReader(self._file, emit_chunks=True, record_size_limit=MAX_CHUNK_BYTES).records:
+                if isinstance(record, Chunk):
+                    data = bytes(record.data if not record.compression else decompress(
+                        record.compression, record.data, "a chunk"))
+                    yield from breakup_chunk(dataclasses.replace(record, compression="", data=data,
+                                                                 uncompressed_size=len(data)), validate_crc=True)
+                else:
+                    yield record
+
+        for record in expanded():
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message) and record.channel_id in channels:
+                channel = channels[record.channel_id]
+                yield schemas.get(channel.schema_id), channel, record
+
+    def messages(self, topics: Collection[str]) -> Iterator[RawMessage]:
         try:
-            for _, channel, message in NonSeekingReader(self._file).iter_messages(log_time_order=False):
+            for _, channel, message in self._messages():
                 if not topics or channel.topic in topics:
                     yield RawMessage(channel.topic, message.log_time, message.data)
         except Exception as exc:  # noqa: BLE001 (the first record the stream reader cannot take ends the bag)

@@ -189,7 +189,7 @@ class RejectsAfter(FrameSource):
         self._rejected.extend(self.source.take_rejected())
         self.intrinsics, self.settings = self.source.intrinsics, self.source.settings
         for item in self._pending:
-            self.reject(item.frame_counter, item.reason)
+            self.reject(item.frame_counter, item.reason, item.frames)
         self._pending.clear()
 
     def close(self) -> None:

@@ -62,7 +62,7 @@ def _depth_camera(calibration: dict) -> dict:
     try:
         cameras = calibration["CalibrationInformation"]["Cameras"]
         return next(c for c in cameras if c.get("Location") == DEPTH_CAMERA_LOCATION)
-    except (KeyError, TypeError, StopIteration):
+    except (KeyError, TypeError, AttributeError, StopIteration):
         raise ValueError(f"calibration.json: no CalibrationInformation.Cameras entry with Location "
                          f"{DEPTH_CAMERA_LOCATION!r} (the depth camera)") from None
 
@@ -75,8 +75,8 @@ def depth_lens(calibration_json: bytes | str, depth_mode: str) -> DepthLens:
         raise ValueError(f"K4A_DEPTH_MODE {depth_mode!r} has no depth image geometry (known: {', '.join(DEPTH_MODES)})")
     try:
         calibration = json.loads(calibration_json)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise ValueError(f"calibration.json is not JSON: {exc}") from None
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+        raise ValueError(f"calibration.json is not JSON (or nested too deeply): {exc}") from None
     camera = _depth_camera(calibration)
     try:
         intrinsics = camera["Intrinsics"]

@@ -9,8 +9,9 @@ Each capture (a DEPTH and an IR block of one timestamp) becomes a Frame:
   (tofd.drivers.k4a.lens), in metres; NaN for 0 and for pixels outside the lens's metric radius;
 - amplitude: the IR image (active IR brightness in sensor units; passive IR in PASSIVE_IR recordings);
 - timestamp_us: the device timestamp (block time + K4A_START_OFFSET_NS); the device has no frame counter, so the
-  counter is the frame's index in time, round((t - t_first) / frame period), with the period the median spacing
-  of the first timestamps: dropped captures leave gaps, which are rejected ("damaged: ...") in their place;
+  counter is the frame's index in time, round((t - t_start) / frame period) from the recording's start (block time
+  0), with the period the median spacing of the first timestamps: dropped captures (at the start too) leave gaps,
+  which are rejected ("damaged: ...") in their place;
 - other tracks (COLOR, IMU: k4arecorder records the IMU at 1.6 kHz by default) are read past, not decoded; they
   only show how far the file goes, since they may end after the last depth capture;
 - host times: the recording's creation time (Matroska DateUTC) plus the time since the first frame;
@@ -48,6 +49,8 @@ MATROSKA_MAGIC = b"\x1a\x45\xdf\xa3"
 DEPTH_TRACK, IR_TRACK = "DEPTH", "IR"
 CALIBRATION_ATTACHMENT = "calibration.json"
 GREY16_FOURCC = "b16g"
+MAX_CALIBRATION_BYTES = 1 << 20
+"""Largest calibration.json attachment read (a device's is about 10 kB)."""
 MAX_LOST_FRAMES = 100_000
 """A larger gap between two captures is not counted as lost frames (a clock jump, not a drop)."""
 
@@ -63,8 +66,15 @@ class _Capture:
     ir: bytes | None
 
 
+def _metadata(calibration: dict) -> dict:
+    """The calibration's CalibrationInformation.Metadata, {} where it has none (or not as a table)."""
+    info = calibration.get("CalibrationInformation")
+    metadata = info.get("Metadata") if isinstance(info, dict) else None
+    return metadata if isinstance(metadata, dict) else {}
+
+
 def device_model(calibration: dict) -> str:
-    name = str(calibration.get("CalibrationInformation", {}).get("Metadata", {}).get("DeviceName", ""))
+    name = str(_metadata(calibration).get("DeviceName", ""))
     return "Orbbec Femto" if "femto" in name.lower() or "orbbec" in name.lower() else "Azure Kinect"
 
 
@@ -90,8 +100,10 @@ class K4aRecordingSource(FrameSource):
         self.frame_period_us: float | None = None
         """Median spacing of the first captures' timestamps (microseconds), known once iteration started."""
         first = self._captures()
-        if next(first, None) is None and self.stopped_reason not in (None, "end"):
-            raise self._fail("tracks DEPTH/IR", f"no capture readable: {self.stop_detail}")
+        if next(first, None) is None:
+            why = self.stop_detail or ("the file is damaged where its first cluster starts" if self._last_us else
+                                       "the tracks hold no block")
+            raise self._fail("tracks DEPTH/IR", f"nothing readable: no capture ({why})")
         first.close()
         self.stopped_reason = None
 
@@ -118,7 +130,10 @@ class K4aRecordingSource(FrameSource):
         if name not in attachments:
             raise self._fail(f"attachment {name}", "missing: the recording has no device calibration, so its "
                              "pixels have no rays")
-        raw = bytes(attachments[name].data)
+        raw = attachments[name].data
+        if len(raw) > MAX_CALIBRATION_BYTES:
+            raise self._fail(f"attachment {name}", f"{len(raw)} bytes, more than a device calibration has "
+                                                   f"({MAX_CALIBRATION_BYTES})")
         try:
             lens = depth_lens(raw, mode)
             calibration = json.loads(raw)
@@ -141,8 +156,7 @@ class K4aRecordingSource(FrameSource):
             self._start_offset_ns = int(tags.get("K4A_START_OFFSET_NS", "0"))
         except ValueError:
             raise self._fail("tag K4A_START_OFFSET_NS", f"{tags['K4A_START_OFFSET_NS']!r} is not an integer") from None
-        serial = tags.get("K4A_DEVICE_SERIAL_NUMBER") or str(
-            calibration.get("CalibrationInformation", {}).get("Metadata", {}).get("SerialId", ""))
+        serial = tags.get("K4A_DEVICE_SERIAL_NUMBER") or str(_metadata(calibration).get("SerialId", ""))
         self.device = DeviceInfo(serial=serial, firmware=tags.get("K4A_DEPTH_FIRMWARE_VERSION", ""),
                                  backend="k4a-mkv", model=device_model(calibration))
         self.settings = {k: str(v) for k, v in (tags | depth_tags).items() if k.startswith("K4A_")}
@@ -236,7 +250,10 @@ class K4aRecordingSource(FrameSource):
         self.sensor = SensorInfo(depth_unit_m=1e-3, amplitude="ir", invalid_value=0, amplitude_full_scale=65535.0,
                                  frame_period_s=None if self.frame_period_us is None else self.frame_period_us / 1e6,
                                  settings=self.settings)
-        t0, last = head[0].timestamp_us, None
+        t0 = self._start_offset_ns // 1000  # block time 0: captures lost before the first readable one are counted
+        last: int | None = -1
+        if head[0].timestamp_us < t0 or self.frame_period_us is None:
+            t0, last = head[0].timestamp_us, None
         for capture in (*head, *captures):
             counter = 0 if self.frame_period_us is None else round((capture.timestamp_us - t0) / self.frame_period_us)
             if last is not None and counter <= last:
@@ -245,9 +262,10 @@ class K4aRecordingSource(FrameSource):
                 self.stopped_reason, self.stop_detail = "end", f"frame counter reached 2**32 at {capture.timestamp_us}"
                 break
             if last is not None and 1 < counter - last <= MAX_LOST_FRAMES:
-                for lost in range(last + 1, counter):
-                    self.reject(lost, f"damaged: no capture near {t0 + round(lost * (self.frame_period_us or 0))} us "
-                                      f"(between {last} and {counter})")
+                period = self.frame_period_us or 0
+                self.reject(last + 1, f"damaged: no capture from {t0 + round((last + 1) * period)} us to "
+                                      f"{t0 + round((counter - 1) * period)} us (between {last} and {counter})",
+                            counter - last - 1)
             last = counter
             problem = self._problem(capture)
             if problem is not None:
@@ -278,8 +296,7 @@ class K4aRecordingSource(FrameSource):
             self.stopped_reason = "truncated"
             self.stop_detail = f"the file ends at {t0_us + round(last * self.frame_period_us)} us, its duration at " \
                                f"{self._last_us} us"
-        for lost in range(last + 1, final + 1):
-            self.reject(lost, f"damaged: {self.stopped_reason} file ({self.stop_detail})")
+        self.reject(last + 1, f"damaged: {self.stopped_reason} file ({self.stop_detail})", final - last)
 
     @property
     def fps(self) -> float | None:

@@ -31,6 +31,7 @@ from mcap.writer import MCAP0_MAGIC
 
 from tofd.drivers.frame import DeviceInfo, Frame, Registers, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
+from tofd.drivers.limits import image_size_problem
 from tofd.drivers.recording import bounds, format_v1
 from tofd.drivers.recording import format as fmt
 from tofd.drivers.recording.bounds import MAX_RECORD_BYTES
@@ -73,7 +74,7 @@ def channel_role(channel: Channel) -> str | None:
 def frames_of(messages: list[tuple[str, bytes]]) -> list[Frame]:
     """The frames that (role, message data) pairs of one chunk, in file order, make: a format-1 frame message
     each, or a format-2 header followed by its range and amplitude images (FormatError for any other mix, or
-    for a frame whose intrinsics are out of bounds.intrinsics_problem's bounds)."""
+    for a frame whose intrinsics are out of tofd.drivers.limits' bounds)."""
     frames: list[Frame] = []
     parts: dict[str, bytes] = {}
     for role, data in messages:
@@ -92,9 +93,6 @@ def frames_of(messages: list[tuple[str, bytes]]) -> list[Frame]:
                 parts = {}
     if parts:
         raise fmt.FormatError("frame header without its images")
-    for frame in frames:
-        if (problem := bounds.intrinsics_problem(frame.intrinsics)) is not None:
-            raise fmt.FormatError(f"frame {frame.frame_counter}: {problem}")
     return frames
 
 
@@ -162,11 +160,13 @@ class RecordingInfo:
 
 @dataclass(frozen=True, slots=True)
 class Damage:
-    """A damaged stretch of a recording that the reader skipped: bytes [start, end) and what was wrong."""
+    """A damaged stretch of a recording that the reader skipped: bytes [start, end), what was wrong, and how many
+    chunk records start in it (at least 1: the record that failed; tofd writes one frame per chunk)."""
 
     start: int
     end: int
     detail: str
+    chunks: int = 1
 
 
 class _Bad(Exception):
@@ -285,11 +285,9 @@ class RecordingReader:
             self.metadata[meta.name] = fmt.check_metadata(meta.name, meta.metadata)
             if meta.name == fmt.META_INTRINSICS:
                 raw = self.metadata[meta.name]  # the size bound first: Intrinsics' own check has no file context
-                if (problem := bounds.image_size_problem(_whole(raw.get("width")), _whole(raw.get("height")))):
+                if (problem := image_size_problem(_whole(raw.get("width")), _whole(raw.get("height")))):
                     raise fmt.FormatError(f"metadata {meta.name!r}: {problem}")
                 intrinsics = fmt.from_metadata(Intrinsics, raw)
-                if (problem := bounds.intrinsics_problem(intrinsics)) is not None:  # type: ignore[arg-type]
-                    raise fmt.FormatError(f"metadata {meta.name!r}: {problem}")
                 self.chunk_limit = bounds.frame_chunk_limit(intrinsics)  # type: ignore[arg-type]
         elif opcode == Opcode.ATTACHMENT:
             crc = struct.unpack("<I", body[-4:])[0]
@@ -347,6 +345,15 @@ class RecordingReader:
             pos = hit + 1
         return None
 
+    def _chunk_starts(self, start: int, end: int) -> int:
+        """Chunk records (their opcode and tofd's compression field, intact) starting in bytes [start, end), at
+        least 1."""
+        found, pos = 0, start + CHUNK_COMPRESSION_AT
+        while 0 <= (hit := self._data.find(ZSTD_FIELD, pos, end + CHUNK_COMPRESSION_AT)):
+            found += self._data[hit - CHUNK_COMPRESSION_AT] == Opcode.CHUNK
+            pos = hit + 1
+        return max(found, 1)
+
     def frames(self) -> Iterator[Frame | Damage]:
         """Frames in file order, a Damage before the frames read after each damaged stretch, until the end of
         data, the end of the file or damage with no intact chunk after it."""
@@ -381,7 +388,7 @@ class RecordingReader:
                 if resume is None:
                     self.reason, self.detail = bad.reason, bad.detail
                     return []
-                damage = Damage(self.offset, resume, bad.detail)
+                damage = Damage(self.offset, resume, bad.detail, self._chunk_starts(self.offset, resume))
                 self.damage.append(damage)
                 self.offset, self._previous_opcode = resume, None
                 return [damage]
@@ -474,8 +481,6 @@ def recording_info(reader: RecordingReader) -> RecordingInfo:
         info = _info_from(reader)
     except (ValueError, TypeError, KeyError, RecursionError) as exc:  # FormatError and JSON errors: ValueErrors
         raise DriverError(f"{reader.path}: damaged recording header: {exc}") from None
-    if info.intrinsics is not None and (problem := bounds.intrinsics_problem(info.intrinsics)) is not None:
-        raise DriverError(f"{reader.path}: damaged recording header: {problem}")
     if first is not None and info.intrinsics is not None and info.intrinsics != first.intrinsics:
         raise DriverError(f"{reader.path}: damaged recording header: intrinsics metadata {info.intrinsics} "
                           f"disagrees with the first frame's {first.intrinsics}")

@@ -29,8 +29,6 @@ from tofd.drivers.source import DriverError, FrameSource, SourceReport, StopReas
 
 log = logging.getLogger(__name__)
 
-MAX_LOST_FRAMES = 1 << 20
-"""Most frames one damaged stretch is taken to have destroyed (a larger counter jump is not a loss count)."""
 
 
 def _check_counter(name: str, value: int | None) -> None:
@@ -158,15 +156,19 @@ class ReplaySource(FrameSource):
             self._report(reader)
 
     def _reject_lost(self, last: int | None, counter: int, damage: Damage, seek: int | None) -> None:
-        """Reject the frames between counter `last` and `counter` that `damage` destroyed."""
-        if last is None or not 0 < counter - last - 1 <= MAX_LOST_FRAMES:
+        """Reject, as one range, the frames after counter `last` that `damage` destroyed: one per chunk record it
+        held (a tofd recording has one frame per chunk), at most the counters between `last` and `counter` (the
+        rest of a larger jump is a device gap, as it is to a reader of the chunk index)."""
+        if last is None or counter - last - 1 < 1:
             log.warning("%s: frames lost to the damage at byte %d cannot be counted (counters %s -> %d)",
                         self.path, damage.start, last, counter)
             self.counters["damaged_uncounted"] += 1
             return
-        for lost in range(last + 1, counter):
-            if (seek is None or lost >= seek) and self._in_range(lost):
-                self.reject(lost, f"damaged: bytes {damage.start}-{damage.end}: {damage.detail}")
+        first, end = last + 1, last + 1 + min(damage.chunks, counter - last - 1)
+        first = max(first, seek or 0, self.start or 0)
+        end = min(end, self.stop if self.stop is not None else end)
+        if first < end:
+            self.reject(first, f"damaged: bytes {damage.start}-{damage.end}: {damage.detail}", end - first)
 
     def _report(self, reader: RecordingReader) -> None:
         self.stopped_reason, self.stop_detail = reader.reason, reader.detail

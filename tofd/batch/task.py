@@ -82,9 +82,10 @@ def _frames(part: Partition, stats: dict, errors: list[str]) -> Iterator[tuple[F
                 t0 = time.perf_counter()
             lost = source.take_rejected()
             if lost:
-                stats["frames_in"] += len(lost)
-                stats["dropped"]["damaged"] += len(lost)
-                errors.append(f"{len(lost)} frames lost or damaged, the first: {lost[0].reason}")
+                frames = sum(r.frames for r in lost)
+                stats["frames_in"] += frames
+                stats["dropped"]["damaged"] += frames
+                errors.append(f"{frames} frames lost or damaged, the first: {lost[0].reason}")
             if source.report.stopped_early:
                 errors.append(source.report.line())
         return

@@ -33,7 +33,7 @@ def main(args: argparse.Namespace) -> int:
         os.replace(tmp, args.out)
     finally:
         tmp.unlink(missing_ok=True)
-    left_out = len(source.take_rejected())
+    left_out = source.take_rejected_frames()
     print(f"tofd convert: wrote {args.out}: {writer.frames_written} frames "
           f"(format {info.format_version} -> {FORMAT_VERSION})"
           + (f", {left_out} left out (see the log)" if left_out else "")

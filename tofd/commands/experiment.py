@@ -19,6 +19,8 @@ def main(args: argparse.Namespace) -> int:
     from tofd.outputs import prepare_output_dir, write_text
 
     cfg = load_config(args.config)
+    import matplotlib  # noqa: F401 (the plot's: without the lab extra, stop here, not after the computation)
+
     out = prepare_output_dir(args.out)
     points = experiment_sphere.run(cfg.intrinsics, cfg.features)
     print(experiment_sphere.table(points))

@@ -6,7 +6,9 @@ binary little-endian, the valid pixels back-projected through the intrinsics: x,
 frame (x right, y down, z forward) and the amplitude. --to npz: one <stem>.npz (no pickle) with range_m and
 amplitude (N, H, W) float32, frame_counter and timestamp_us (N,) int64, and the intrinsics (fx, fy, cx, cy,
 width, height). --frames A:B takes the frames at positions A to B-1 in the file (0-based, either end may be left
-out, as a Python slice). Damaged frames are left out and counted.
+out, as a Python slice). Damaged frames are left out and counted. Every file is written under a temporary name and
+renamed into place when complete (tofd.outputs), so a full disk never leaves a truncated file or spoils an
+earlier export at the same path.
 """
 
 from __future__ import annotations
@@ -52,15 +54,22 @@ def range_mm(range_m: np.ndarray) -> np.ndarray:
 
 
 def write_png(path: Path, plane: np.ndarray) -> None:
-    """A 16-bit greyscale PNG of a uint16 (H, W) plane."""
+    """A 16-bit greyscale PNG of a uint16 (H, W) plane (written atomically)."""
     import cv2
 
-    if not cv2.imwrite(str(path), plane):
-        raise OSError(f"cannot write {path}")
+    from tofd.outputs import write_bytes
+
+    ok, png = cv2.imencode(".png", plane)
+    if not ok:
+        raise OSError(f"cannot encode {path} as PNG")
+    write_bytes(path, png.tobytes())
 
 
 def write_ply(path: Path, frame) -> int:  # noqa: ANN001 (tofd.drivers.frame.Frame)
-    """The frame's valid pixels as a binary PLY point cloud (x, y, z metres, amplitude); the number of points."""
+    """The frame's valid pixels as a binary PLY point cloud (x, y, z metres, amplitude), written atomically; the
+    number of points."""
+    from tofd.outputs import AtomicFile
+
     points = frame.intrinsics.backproject(frame.range_m).reshape(-1, 3)
     valid = np.isfinite(frame.range_m).reshape(-1) & (frame.range_m.reshape(-1) > 0)
     rows = np.empty(int(valid.sum()), np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("amplitude", "<f4")]))
@@ -70,7 +79,7 @@ def write_ply(path: Path, frame) -> int:  # noqa: ANN001 (tofd.drivers.frame.Fra
     header = (f"ply\nformat binary_little_endian 1.0\ncomment tofd export: metres, camera frame (x right, y down, "
               f"z forward)\nelement vertex {len(rows)}\nproperty float x\nproperty float y\nproperty float z\n"
               f"property float amplitude\nend_header\n")
-    with open(path, "wb") as f:
+    with AtomicFile(path, "wb") as f:
         f.write(header.encode("ascii"))
         f.write(rows.tobytes())
     return len(rows)
@@ -79,7 +88,7 @@ def write_ply(path: Path, frame) -> int:  # noqa: ANN001 (tofd.drivers.frame.Fra
 def main(args: argparse.Namespace) -> int:
     from tofd.errors import UsageError
     from tofd.inputs import InputSummary, describe_input, frames_with_rejects, open_reader
-    from tofd.outputs import prepare_output_dir
+    from tofd.outputs import AtomicFile, prepare_output_dir
 
     fmt, source = open_reader(args.file, arguments.bag_options(args))
     try:
@@ -115,7 +124,8 @@ def main(args: argparse.Namespace) -> int:
                                       "frame_counter": np.asarray(arrays["frame_counter"], np.int64),
                                       "timestamp_us": np.asarray(arrays["timestamp_us"], np.int64),
                                       **{k: np.asarray(v) for k, v in intrinsics.to_dict().items()}}
-        np.savez_compressed(out / f"{stem}.npz", allow_pickle=False, **npz)
+        with AtomicFile(out / f"{stem}.npz", "wb") as f:
+            np.savez_compressed(f.file, allow_pickle=False, **npz)
         written.append(f"{stem}.npz")
     if not summary.frames:
         raise UsageError(f"{args.file}: no frame at positions {sel.start or 0}:{'' if sel.stop is None else sel.stop}")

@@ -4,6 +4,7 @@ Reads FILE to its end and prints its format and version, frames, duration and ra
 intrinsics (pixels; (0, 0) is the centre of the top-left pixel, as in ROS CameraInfo), the lens model and its
 coefficients, the depth unit (metres per raw depth value in the file) and the damage found
 (frames the reader could not deliver, and where a truncated or corrupt file ends). --json prints the same as JSON.
+A file with no readable frame is a data error (exit 2) saying so and what was lost, never "0 frames".
 """
 
 from __future__ import annotations
@@ -27,6 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the description as JSON")
 
 
+def damage_found(summary) -> list[str]:  # noqa: ANN001 (tofd.inputs.InputSummary, imported lazily)
+    """What an InputSummary says was lost: frames by reason, and where reading stopped early."""
+    lost = [f"{n} frame(s) {reason}" for reason, n in sorted(summary.rejected.items())]
+    return lost + ([f"reading stopped early, {summary.stopped}"] if summary.stopped else [])
+
+
 def describe(summary) -> list[str]:  # noqa: ANN001 (tofd.inputs.InputSummary, imported lazily)
     """The lines `tofd info` prints for an InputSummary."""
     s = summary
@@ -48,9 +55,7 @@ def describe(summary) -> list[str]:  # noqa: ANN001 (tofd.inputs.InputSummary, i
     if s.depth_unit_m is not None:
         lines.append(("depth unit", f"{s.depth_unit_m:.6g} m per raw value"
                                     + (" (float metres)" if s.depth_unit_m == 1.0 else "")))
-    damage = [f"{n} frame(s) {reason}" for reason, n in sorted(s.rejected.items())]
-    damage += [f"reading stopped early, {s.stopped}"] if s.stopped else []
-    lines.append(("damage", "; ".join(damage) or "none found"))
+    lines.append(("damage", "; ".join(damage_found(s)) or "none found"))
     faults = ", ".join(f"{k} {v}" for k, v in sorted(s.counters.items()) if k not in (*s.rejected, "frames"))
     if faults:
         lines.append(("reader counts", faults))
@@ -59,8 +64,12 @@ def describe(summary) -> list[str]:  # noqa: ANN001 (tofd.inputs.InputSummary, i
 
 
 def main(args: argparse.Namespace) -> int:
+    from tofd.errors import UsageError
     from tofd.inputs import summarize
 
     summary = summarize(args.file, arguments.bag_options(args))
+    if not summary.frames:
+        lost = "; ".join(damage_found(summary)) or "the file holds none"
+        raise UsageError(f"{args.file}: nothing readable: no frame ({lost})")
     print(json.dumps(summary.to_dict(), indent=2) if args.json else "\n".join(describe(summary)))
     return 0

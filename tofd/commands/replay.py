@@ -183,7 +183,8 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
     outputs = {"results.jsonl": results_path, "summary.json": out / f"{stem}.summary.json"}
     if cfg.rerun.sink == "save":
         outputs["rrd"] = Path(cfg.rerun.path)
-    written = [name for name, path in outputs.items() if str(path) not in failed]
+    written = [name for name, path in outputs.items() if str(path) not in failed and path == out / f"{stem}.{name}"]
+    elsewhere = [str(path) for name, path in outputs.items() if str(path) not in failed and name not in written]
     not_written = [name for name, path in outputs.items() if str(path) in failed]
     skipped = source.counters["replay_dropped"]
     loops = source.counters["replay_loops"]
@@ -193,6 +194,7 @@ def _serve(args: argparse.Namespace, cfg: Config, source: FrameSource, intrinsic
           + (f", {skipped} skipped to keep the recorded pace" if skipped else "")
           + (f", {loops + 1} passes" if args.loop else "")
           + f", {s['fps']} fps; wrote " + (f"{out}/{stem}.{{{','.join(written)}}}" if written else "nothing")
+          + "".join(f" and {path}" for path in elsewhere)
           + (f"; failed: {', '.join(not_written)}" if not_written else ""), file=sys.stderr)
     if stopped_by:  # the outputs hold what was done; no golden check of a part
         print(f"tofd replay: interrupted by {stopped_by} after {s['frames_out']}"

@@ -52,7 +52,7 @@ def _raise_stopped(signum: int, _first: bool) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from tofd.config import load_config
+    from tofd.config import load_config, override
     from tofd.outputs import check_output_file
     from tofd.process_setup import prepare_service_process
     from tofd.service.camera import open_camera
@@ -63,7 +63,7 @@ def main(args: argparse.Namespace) -> int:
     cfg = parse_foxglove_spec(args.foxglove, parse_rerun_spec(args.rerun, load_config(args.config)))
     cfg = replace(cfg, camera=arguments.camera_config(cfg.camera, args))
     if args.health_port is not None:
-        cfg = replace(cfg, health=replace(cfg.health, port=args.health_port))
+        cfg = override(cfg, "health", "--health-port", port=args.health_port)
     if args.summary is not None:
         check_output_file(args.summary, "--summary")
     policy = run_policy(cfg.pipeline.policy, live_source=True)
@@ -81,6 +81,6 @@ def main(args: argparse.Namespace) -> int:
     s = result.summary
     by_stage = ", ".join(f"{stage} {n}" for stage, n in s["dropped_by_stage"].items())
     print(f"tofd run: frames in {s['frames_in']}, out {s['frames_out']}, dropped {s['frames_dropped']}"
-          + (f" ({by_stage})" if by_stage else "") + f", device gaps {len(s['gaps'])}, {s['fps']} fps"
+          + (f" ({by_stage})" if by_stage else "") + f", device gaps {s['device_gaps']}, {s['fps']} fps"
           + (f"; error: {s['error']}" if s["error"] else ""), file=sys.stderr)
     return result.exit_code

@@ -58,17 +58,18 @@ def run_identity(cfg: Config, model: ModelIdentity) -> dict[str, str]:
     return {"model_path": model.path, "model_sha256": model.sha256, "config_sha256": config_digest(cfg)}
 
 
-def _health(cfg: Config, pipeline: Pipeline, metrics: ServiceMetrics) -> HealthServer | None:
+def _health(cfg: Config, made: list[Pipeline], metrics: ServiceMetrics) -> HealthServer | None:
+    """The health server, listening but not serving yet (made before any output starts: a busy port is a config
+    error that leaves earlier outputs alone); it reports the pipeline `made` will hold."""
     if not cfg.health.enabled:
         return None
     try:
-        health = HealthServer(cfg.health.bind, cfg.health.port, pipeline.snapshot, lambda: pipeline.running,
-                              cfg.health.stale_after_s, metrics, cfg.health.max_connections).start()
+        return HealthServer(cfg.health.bind, cfg.health.port, lambda: made[0].snapshot(),
+                            lambda: bool(made) and made[0].running, cfg.health.stale_after_s, metrics,
+                            cfg.health.max_connections)
     except OSError as exc:
         raise ConfigError(f"health.port: cannot listen on {cfg.health.bind}:{cfg.health.port}: "
                           f"{exc.strerror}") from None
-    log.info("health: http://%s:%d/healthz and /metrics", health.bind, health.port)
-    return health
 
 
 def _close(shutdown: Shutdown, pipeline: Pipeline | None, health: HealthServer | None,
@@ -121,25 +122,30 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             start_resource_tracker()
             model_file = read_model_file(cfg)
             identity = run_identity(cfg, model_file.identity)
+            if cfg.foxglove.enabled:  # before any output is started: a busy port must leave earlier outputs alone
+                from tofd.service.foxglove.spec import check_port_free
+
+                check_port_free(cfg.foxglove)
+            made: list[Pipeline] = []  # the metrics are one of the pipeline's sinks, so they come first
+            metrics = ServiceMetrics(lambda: made[0].snapshot(), identity)
+            health = _health(cfg, made, metrics)
             if cfg.rerun.sink != "none":
                 viewer = ViewerProcess(cfg, cfg.rerun.sink, frames_per_send(cfg.rerun, policy),
                                        cancelled=lambda: bool(stop), footer=file_footer(policy))
             if cfg.foxglove.enabled:
                 from tofd.service.foxglove.publisher import FoxglovePublisher
-                from tofd.service.foxglove.spec import check_port_free
 
-                check_port_free(cfg.foxglove)
                 foxglove = ViewerProcess(cfg, "foxglove", cancelled=lambda: bool(stop),
                                          open_backend=FoxglovePublisher, name="foxglove")
-            made: list[Pipeline] = []  # the metrics are one of the pipeline's sinks, so they come first
-            metrics = ServiceMetrics(lambda: made[0].snapshot(), identity)
             model = service_model(cfg, model_file)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe), model=model,
                                 live_source=live_source, live_viewers=() if foxglove is None else (foxglove,),
                                 result_maps=maps_read(viewer is not None or foxglove is not None,
                                                       writers_read_maps))
             made.append(pipeline)
-            health = _health(cfg, pipeline, metrics)
+            if health is not None:
+                health.start()
+                log.info("health: http://%s:%d/healthz and /metrics", health.bind, health.port)
             pipeline.start(source, max_frames, cancelled=lambda: bool(stop))
             started_s = time.monotonic()
             sd_notify("READY=1")

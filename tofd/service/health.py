@@ -2,9 +2,10 @@
 (sd_notify).
 
 /healthz answers 200 while the pipeline runs, has no fatal error and delivered a frame within
-`stale_after_s` (or is still starting), else 503; the body is a small JSON status (HEAD answers the same status
-without it): "ok", "unhealthy", or "degraded" (still 200) while an output has failed (a full disk, a permission;
-named in its problems and in tofd_output_failed). /metrics is ServiceMetrics through prometheus_client.
+`stale_after_s`, else 503; the body is a small JSON status (HEAD answers the same status without it): "ok",
+"starting" (503: no frame delivered yet, so a probe does not call a camera that never sent one healthy),
+"unhealthy", or "degraded" (still 200) while an output has failed (a full disk, a permission; named in its problems
+and in tofd_output_failed). /metrics is ServiceMetrics through prometheus_client.
 sd_notify writes READY=1 / WATCHDOG=1 / STATUS= / STOPPING=1 datagrams to $NOTIFY_SOCKET with a plain socket;
 without that variable it does nothing.
 """
@@ -199,8 +200,9 @@ def health_status(snap: PipelineSnapshot, running: bool, stale_after_s: float) -
     if age is not None and age > stale_after_s:
         problems.append(f"no frame delivered for {age:.1f} s")
     failed = [f"output {output} failed: {why}" for output, why in sorted(snap.outputs_failed.items())]
-    status = "unhealthy" if problems else "degraded" if failed else "ok"
-    return not problems, {"status": status, "problems": problems + failed,
+    starting = not problems and snap.frames_out == 0
+    status = "unhealthy" if problems else "starting" if starting else "degraded" if failed else "ok"
+    return not problems and not starting, {"status": status, "problems": problems + failed,
                           "fps": round(snap.fps, 2), "frames_out": snap.frames_out,
                           "last_frame_age_s": None if age is None else round(age, 3)}
 

@@ -3,9 +3,11 @@
 waitress (Pylons' pure-Python WSGI server) parses requests in one asynchronous loop and answers complete ones from
 a fixed pool of threads, so what the network does is bounded by its settings rather than by code of ours: a
 connection that sends nothing for IDLE_TIMEOUT_S (an idle keep-alive, a request line never finished) is closed;
-at most `max_connections` are open at once (beyond that the listening socket is left in the kernel's backlog,
-not polled, so nothing spins), never more than the descriptors left after RESERVED_FDS, which stay free for the
-pipeline (worker restarts, shared memory, files); request headers are capped at MAX_HEADER_BYTES; a client that
+at most `max_connections` are open at once, never more than the descriptors left after RESERVED_FDS, which stay
+free for the pipeline (worker restarts, shared memory, files). A new connection at that cap evicts the connection
+idle the longest (none waiting for its answer), so a flood of idle connections never keeps a health probe waiting
+in the kernel's backlog; only when every connection has a request in progress is the listening socket left
+there, not polled, so nothing spins. Request headers are capped at MAX_HEADER_BYTES; a client that
 leaves before its answer costs no line of log (waitress's socket-error and disconnect messages are silenced; its
 connection-limit warning comes at most once a minute).
 """
@@ -17,6 +19,7 @@ import resource
 import threading
 import time
 from collections.abc import Callable, Iterable
+from typing import Any
 
 from waitress import wasyncore
 from waitress.server import create_server
@@ -71,17 +74,37 @@ def connection_limit(wanted: int) -> int:
     return max(1, min(wanted, soft - RESERVED_FDS))
 
 
+def _evict_idle_at_the_cap(server: Any, limit: int) -> None:
+    """Make waitress's server `server` accept a connection at `limit` open ones by closing the one idle the longest
+    (no request in progress, no answer being sent; oldest last_activity), in its own loop thread, just before it
+    accepts. Uses waitress's public attributes active_channels, channel.requests / total_outbufs_len /
+    last_activity / handle_close() and server.handle_accept, pinned by tests/test_http_server.py."""
+    accept = server.handle_accept
+
+    def handle_accept() -> None:
+        if len(server.active_channels) >= limit:
+            idle = [channel for channel in server.active_channels.values()
+                    if not channel.requests and not channel.total_outbufs_len]
+            if idle:
+                min(idle, key=lambda channel: channel.last_activity).handle_close()
+        accept()
+
+    server.handle_accept = handle_accept
+
+
 class HttpServer:
     """Serves `app` on (bind, port) from a thread (port 0: a free port, see .port); OSError if it cannot listen."""
 
     def __init__(self, bind: str, port: int, app: WsgiApp, max_connections: int) -> None:
         self._map: dict = {}
         self.max_connections = connection_limit(max_connections)
-        self._server = create_server(
-            app, map=self._map, host=bind, port=port, threads=THREADS, connection_limit=self.max_connections,
+        self._server = create_server(  # waitress's own limit counts its listener and trigger, and one more connection
+            # than ours: at ours, the eviction makes room before it accepts
+            app, map=self._map, host=bind, port=port, threads=THREADS, connection_limit=self.max_connections + 3,
             channel_timeout=IDLE_TIMEOUT_S, cleanup_interval=CHECK_INTERVAL_S, backlog=BACKLOG,
             max_request_header_size=MAX_HEADER_BYTES, max_request_body_size=0, log_socket_errors=False,
             expose_tracebacks=False, asyncore_use_poll=True, ident="tofd")
+        _evict_idle_at_the_cap(self._server, self.max_connections)
         self.bind, self.port = str(self._server.effective_host), int(self._server.effective_port)
         self._thread = threading.Thread(target=self._server.run, name="tofd-http", daemon=True)
 

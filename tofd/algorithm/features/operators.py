@@ -18,6 +18,8 @@ from tofd.algorithm.features.transfer import transfer_functions
 from tofd.algorithm.params import FeatureConfig
 
 Transfer = Callable[[np.ndarray, np.ndarray], np.ndarray]
+MAX_OPERATORS = 64
+"""Most operators one transfer may return (each costs a field of the image's size per frame)."""
 
 
 def eccentricity_transfer(cfg: FeatureConfig) -> Transfer:
@@ -65,6 +67,8 @@ def _call(transfer: Transfer, kx: np.ndarray, ky: np.ndarray) -> tuple[np.ndarra
     if values.ndim != kx.ndim + 1 or values.shape[1:] != kx.shape or len(values) == 0:
         raise ValueError(f"transfer must return an array of shape {kx.shape} or (K, *{kx.shape}) for frequency arrays "
                          f"of shape {kx.shape}, got {values.shape}")
+    if len(values) > MAX_OPERATORS:  # before any copy: a broadcast stack costs nothing until it is copied
+        raise ValueError(f"transfer returned {len(values)} operators, at most {MAX_OPERATORS} are applied at once")
     if not np.issubdtype(values.dtype, np.number) or np.issubdtype(values.dtype, np.bool_):
         raise ValueError(f"transfer must return numbers, got dtype {values.dtype}")
     values = values.astype(np.complex128 if np.iscomplexobj(values) else np.float64, copy=False)

@@ -287,11 +287,10 @@ class Pipeline:
         """Admit and drop at capture the frames the source rejected; the next seq. A rejected frame with a valid
         counter was received, so it is no device gap."""
         for rejected in source.take_rejected():
-            self.ledger.admit(seq, rejected.frame_counter)
-            self.ledger.drop(seq, "capture", rejected.reason)
+            self.ledger.lost(seq, rejected.frame_counter, rejected.frames, rejected.reason)
             self.order.gone(seq)
             seq += 1
-            counter = rejected.frame_counter
+            counter = rejected.frame_counter + rejected.frames - 1
             if 0 <= counter < COUNTER_LIMIT and (gaps.last_counter is None or counter > gaps.last_counter):
                 gaps.last_counter = counter
         return seq

@@ -40,7 +40,7 @@ def snapshot(ledger: DropLedger, stats: PipelineStats, pool: WorkerPool, queue_d
     """The snapshot of the pipeline's parts now."""
     return PipelineSnapshot(
         frames_in=ledger.frames_in, frames_out=ledger.frames_out, frames_dropped=ledger.frames_dropped,
-        drops=ledger.drops_by(), viewer_drops=ledger.viewer_drops_by(), gaps=len(ledger.gaps), fps=stats.fps(),
+        drops=ledger.drops_by(), viewer_drops=ledger.viewer_drops_by(), gaps=ledger.gap_count, fps=stats.fps(),
         timings_ms=stats.quantiles_ms(), queue_depth={**queue_depth, "workers": pool.inflight},
         workers_alive=pool.alive(), worker_restarts=pool.restarts, device_events=dict(device_events),
         last_delivery_age_s=stats.last_delivery_age_s(), error=error, track=track,
