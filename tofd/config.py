@@ -162,7 +162,7 @@ class FoxgloveConfig:
     enabled: bool = False  # serve the live stream to Foxglove (also: --foxglove HOST:PORT)
     bind: str = "127.0.0.1"  # listen address
     port: int = 8765  # TCP port (0 = any free port)
-    backlog_messages: int = 64  # messages queued per client before its oldest are dropped (a stalled client)
+    backlog_messages: int = 16  # messages queued per client before its oldest are dropped (about one frame)
 
     def validate(self) -> None:
         if not 0 <= self.port < 65536:
