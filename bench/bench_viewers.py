@@ -4,17 +4,21 @@ the replay rate with and without each viewer, from one run.
     python bench/bench_viewers.py                      # sr3000 (the bundled clip) and 640x576
     python bench/bench_viewers.py --replay-frames 300 --runs 3 --live-seconds 10
 
-Per camera (bench/cameras.py): the SR3000's bundled clip (replay_data/emulated_face_035_070.mcap) and a clip of
-the emulator's face rendered in the Azure Kinect NFOV geometry (640x576) as a millimetre camera delivers it
-(z-depth in whole mm, amplitude in whole units). Lossless replay of --replay-frames frames (the clip looped) through
-the real pipeline, --runs times each of: no viewer, the daemon's Rerun viewer process saving an .rrd (batched, as
-a replay does), and the Foxglove viewer process with one client subscribed to every channel (reading as fast as it
-can); runs interleaved, fps is the median run's, ratios against no viewer in the same run. The .rrd of the last
-Rerun run gives bytes per frame on disk (Rerun's LZ4 chunks) and per view the bytes its rows hold (an encoded
-image's PNG, a raw image's pixels, the points) before that compression. Then --live-seconds of the clip replayed in
-real time (30 fps, looped, latest-wins, bench/cameras.MemoryCamera) with the Foxglove viewer and a client
-subscribed to every channel: bytes per message and MB/s received per topic. Rerun's live rate is its bytes per
-frame times 30 fps. Prints tables, writes bench/results/bench_viewers.json.
+Per camera (bench/cameras.py): the SR3000's bundled clip (replay_data/emulated_face_035_070.mcap) and a clip of the
+emulator's face rendered in the Azure Kinect NFOV geometry (640x576) as a millimetre camera delivers it (z-depth in
+whole mm, amplitude in whole units), once per --conditions sensor model (tofd.lab.conditions: the training sensor's
+noise, which grows as the amplitude falls, and a constant 4 mm): lossless PNG shrinks a plane to about its noise's
+entropy, so the sizes follow the noise. Lossless replay of --replay-frames frames (the clip looped) through the real
+pipeline, --runs times each of: no viewer, the daemon's Rerun viewer process saving an .rrd (batched, as a replay
+does), and the Foxglove viewer process with one client subscribed to every channel (reading as fast as it can); runs
+interleaved, fps is the median run's, ratios against no viewer in the same run. The .rrd of the last Rerun run gives
+bytes per frame on disk (Rerun's LZ4 chunks) and per view the bytes its rows hold (an encoded image's PNG, a raw
+image's pixels, the points) before that compression. Then --live-seconds of the clip replayed in real time (30 fps,
+looped, latest-wins, bench/cameras.MemoryCamera) with the Foxglove viewer and a client subscribed to every channel:
+bytes per message and MB/s received per topic. Rerun's live rate is its bytes per frame times 30 fps; with the
+config's file rotation ([rerun] rotate_mb x (keep_files + 1): the most a live .rrd takes on disk), the hours of
+recording that budget keeps. Prints tables,
+writes bench/results/bench_viewers.json.
 """
 
 from __future__ import annotations
@@ -32,12 +36,13 @@ from pathlib import Path
 
 import numpy as np
 import websocket
-from bench_pipeline import CLIP, with_detector
+from bench_pipeline import CLIP, Latencies, with_detector
 from cameras import CAMERAS, FRAME_PERIOD_US, MemoryCamera, write_face_clip
 from report import write_json
 
 from tofd.config import load_config
 from tofd.drivers.recording.replay import ReplaySource
+from tofd.lab.conditions import CONDITIONS, TRAIN_CONDITION
 from tofd.process_setup import prepare_service_process
 from tofd.service.foxglove.publisher import FoxglovePublisher
 from tofd.service.model import load_service_model
@@ -118,8 +123,10 @@ def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: flo
     rrd = tmp / f"{kind}-{time.monotonic_ns()}.rrd"
     viewer, foxglove = viewers(cfg, kind, policy, rrd)
     client = CountingClient(foxglove.web_url) if foxglove is not None and foxglove.web_url else None
-    pipeline = Pipeline(cfg, policy, viewer=viewer, model=load_service_model(cfg), live_source=policy == "latest",
-                        live_viewers=() if foxglove is None else (foxglove,), result_maps=maps_read(kind != "none"))
+    lat = Latencies(max(1, (frames or 300) // 10), dict)  # steady fps: after the first tenth
+    pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(lat,), model=load_service_model(cfg),
+                        live_source=policy == "latest", live_viewers=() if foxglove is None else (foxglove,),
+                        result_maps=maps_read(kind != "none"))
     pipeline.start(source, frames)
     if client is not None:
         client.reset()
@@ -131,7 +138,7 @@ def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: flo
     elapsed = time.monotonic() - t0
     summary = pipeline.close()
     out: dict = {"frames_out": summary["frames_out"], "seconds": round(elapsed, 2),
-                 "fps": round(summary["frames_out"] / elapsed, 2)}
+                 "fps": round(lat.steady_fps() or summary["frames_out"] / elapsed, 2)}
     if client is not None:
         counted_s = client.close()
         out["client"] = {"seconds": round(counted_s, 2), "messages": client.messages, "bytes": client.bytes}
@@ -156,7 +163,8 @@ def rrd_views(path: Path, frames: int) -> dict:
                                       if b / frames >= 100}}
 
 
-def compare(cfg, name: str, clip: Path, replay_frames: int, runs: int, live_s: float, tmp: Path) -> dict:
+def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs: int, live_s: float, tmp: Path
+            ) -> dict:
     """Replay rates with each viewer, the .rrd's and the live Foxglove stream's sizes, of one camera's clip."""
     cam_cfg = replace(cfg, intrinsics=CAMERAS[name])
     each: dict[str, list[dict]] = {kind: [] for kind in KINDS}
@@ -173,35 +181,44 @@ def compare(cfg, name: str, clip: Path, replay_frames: int, runs: int, live_s: f
     fox_topics = {topic: {"bytes_per_message": round(client["bytes"][topic] / n),
                           "MB_per_s": round(client["bytes"][topic] / seconds / 1e6, 3)}
                   for topic, n in sorted(client["messages"].items())}
+    frame_bytes = sum(t["bytes_per_message"] for t in fox_topics.values())
+    rerun_mb_s = rrd["file_bytes_per_frame"] * LIVE_FPS / 1e6
+    budget_gb = cfg.rerun.rotate_mb * (cfg.rerun.keep_files + 1) / 1e3  # the kept segments and the one written
     return {
-        "camera": name, "pixels": f"{CAMERAS[name].width}x{CAMERAS[name].height}",
+        "camera": name, "sensor_model": condition, "pixels": f"{CAMERAS[name].width}x{CAMERAS[name].height}",
         "replay_fps": {kind: round(v, 1) for kind, v in fps.items()},
         "replay_fps_each": {kind: [r["fps"] for r in rows] for kind, rows in each.items()},
         "rerun_over_none": round(fps["rerun"] / fps["none"], 3),
         "foxglove_over_none": round(fps["foxglove"] / fps["none"], 3),
         "rerun_MB_per_frame": round(rrd["file_bytes_per_frame"] / 1e6, 4),
-        "rerun_live_MB_per_s_at_30fps": round(rrd["file_bytes_per_frame"] * LIVE_FPS / 1e6, 2),
+        "rerun_live_MB_per_s_at_30fps": round(rerun_mb_s, 2),
+        "rerun_live_GB_per_day": round(rerun_mb_s * 86400 / 1e3),
+        "rerun_rotation_budget_GB": round(budget_gb, 1),
+        "rerun_hours_kept_in_budget": round(budget_gb * 1e3 / rerun_mb_s / 3600, 1) if budget_gb else None,
         "rerun_views_bytes_per_frame": rrd["views_bytes_per_frame"],
         "foxglove_live_fps": live["fps"],
         "foxglove_MB_per_s": round(sum(client["bytes"].values()) / seconds / 1e6, 2),
-        "foxglove_bytes_per_frame": round(sum(client["bytes"].values()) / max(live["frames_out"], 1)),
+        "foxglove_frame_bytes": frame_bytes,  # a published frame: every topic's mean message
+        "foxglove_MB_per_s_at_30fps": round(frame_bytes * LIVE_FPS / 1e6, 2),
         "foxglove_topics": fox_topics,
     }
 
 
 def print_tables(rows: list[dict]) -> None:
-    print(f"{'camera':>8} {'fps none':>9} {'rerun':>7} {'ratio':>6} {'foxglove':>9} {'ratio':>6} "
-          f"{'rrd MB/frame':>13} {'rrd MB/s@30':>12} {'fox MB/s':>9} {'fox kB/frame':>13}")
+    print(f"{'camera':>8} {'sensor model':>14} {'fps none':>9} {'rerun':>7} {'ratio':>6} {'foxglove':>9} {'ratio':>6} "
+          f"{'rrd MB/frame':>13} {'rrd MB/s@30':>12} {'fox MB/s':>9} {'fox kB/frame':>13} {'fox MB/s@30':>12}")
     for r in rows:
         f = r["replay_fps"]
-        print(f"{r['camera']:>8} {f['none']:>9} {f['rerun']:>7} {r['rerun_over_none']:>6} {f['foxglove']:>9} "
-              f"{r['foxglove_over_none']:>6} {r['rerun_MB_per_frame']:>13} {r['rerun_live_MB_per_s_at_30fps']:>12} "
-              f"{r['foxglove_MB_per_s']:>9} {r['foxglove_bytes_per_frame'] / 1e3:>13.1f}")
+        print(f"{r['camera']:>8} {r['sensor_model']:>14} {f['none']:>9} {f['rerun']:>7} {r['rerun_over_none']:>6} "
+              f"{f['foxglove']:>9} {r['foxglove_over_none']:>6} {r['rerun_MB_per_frame']:>13} "
+              f"{r['rerun_live_MB_per_s_at_30fps']:>12} "
+              f"{r['foxglove_MB_per_s']:>9} {r['foxglove_frame_bytes'] / 1e3:>13.1f} "
+              f"{r['foxglove_MB_per_s_at_30fps']:>12}")
     for r in rows:
-        print(f"\n{r['camera']}: Rerun bytes per frame per view (before LZ4)")
+        print(f"\n{r['camera']} ({r['sensor_model']}): Rerun bytes per frame per view (before LZ4)")
         for entity, b in r["rerun_views_bytes_per_frame"].items():
             print(f"  {entity:40s} {b:>10}")
-        print(f"{r['camera']}: Foxglove per topic (live, {r['foxglove_live_fps']} fps)")
+        print(f"{r['camera']} ({r['sensor_model']}): Foxglove per topic (live, {r['foxglove_live_fps']} fps)")
         for topic, t in r["foxglove_topics"].items():
             print(f"  {topic:40s} {t['bytes_per_message']:>10} B  {t['MB_per_s']:>8} MB/s")
 
@@ -214,12 +231,17 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="replay runs per viewer kind (interleaved; the median)")
     ap.add_argument("--camera-frames", type=int, default=60, help="frames of a rendered clip")
     ap.add_argument("--live-seconds", type=float, default=10.0, help="seconds of the real-time Foxglove run")
+    ap.add_argument("--conditions", type=lambda text: text.split(","), default=[TRAIN_CONDITION, "noise_constant"],
+                    help=f"sensor models the rendered clips are made with (of: {', '.join(CONDITIONS)})")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_viewers.json")
     args = ap.parse_args()
     prepare_service_process()  # as `tofd run` / `tofd replay` set up their process
     unknown = [c for c in args.cameras if c not in CAMERAS]
     if unknown:
         ap.error(f"--cameras: unknown {', '.join(unknown)} (known: {', '.join(CAMERAS)})")
+    unknown = [c for c in args.conditions if c not in CONDITIONS]
+    if unknown:
+        ap.error(f"--conditions: unknown {', '.join(unknown)} (known: {', '.join(CONDITIONS)})")
     results: dict = {
         "title": "Viewer data rates (Rerun, Foxglove) and replay rate with each viewer",
         "about": (f"bench/bench_viewers.py: lossless replay of {args.replay_frames} frames, {args.runs} runs per "
@@ -234,10 +256,13 @@ def main() -> None:
         cfg = with_detector(load_config(), tmp_path)
         rows = []
         for name in args.cameras:
-            clip = CLIP if name == "sr3000" else write_face_clip(tmp_path / f"{name}.mcap", CAMERAS[name],
-                                                                 args.camera_frames, millimetres=True)
-            rows.append(compare(cfg, name, clip, args.replay_frames, args.runs, args.live_seconds, tmp_path))
-            print(json.dumps(rows[-1]))
+            for condition in ["bundled clip"] if name == "sr3000" else args.conditions:
+                clip = CLIP if name == "sr3000" else write_face_clip(
+                    tmp_path / f"{name}-{condition}.mcap", CAMERAS[name], args.camera_frames, millimetres=True,
+                    model=CONDITIONS[condition])
+                rows.append(compare(cfg, name, condition, clip, args.replay_frames, args.runs, args.live_seconds,
+                                    tmp_path))
+                print(json.dumps(rows[-1]))
     results["rows"] = rows
     print_tables(rows)
     write_json(args.out, results)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tofd.drivers.emulator.render import load_face, render_face
+from tofd.drivers.emulator.render import SensorModel, load_face, render_face
 from tofd.drivers.emulator.scene import Motion
 from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
@@ -36,19 +36,21 @@ def as_millimetre_camera(range_m: np.ndarray, amplitude: np.ndarray, intrinsics:
     return radial, np.clip(np.rint(np.nan_to_num(amplitude, nan=0.0)), 0, 65535).astype(np.float32)
 
 
-def write_face_clip(path: Path, intrinsics: Intrinsics, frames: int, seed: int = 1, millimetres: bool = False) -> Path:
+def write_face_clip(path: Path, intrinsics: Intrinsics, frames: int, seed: int = 1, millimetres: bool = False,
+                    model: SensorModel | None = None) -> Path:
     """A recording (tofd's MCAP, tofd.drivers.recording.writer) of `frames` rendered noisy frames of the emulator's face
     going from 0.35 m to 0.70 m (half a cycle of tofd.drivers.emulator.scene.Motion, its sideways drift scaled from the
     SR3000's pixels to these), with ground truth; noise seeded per frame; received every FRAME_PERIOD_US (host
     times), so a realtime replay plays it at 30 fps. millimetres: as a millimetre camera delivers them
-    (as_millimetre_camera, with SensorInfo saying so), else float planes as rendered."""
+    (as_millimetre_camera, with SensorInfo saying so), else float planes as rendered; `model`: the sensor's
+    effects (default: the emulator's)."""
     motion = Motion(n_poses=2 * (frames - 1), drift_px=Motion().drift_px * intrinsics.fx / Intrinsics().fx)
     face = load_face("lee_perry_smith")
     device = DeviceInfo(serial="00000000", backend="emulated", model=f"rendered {intrinsics.width}x{intrinsics.height}")
     sensor = SensorInfo(depth_unit_m=1e-3, amplitude="ir", amplitude_full_scale=65535) if millimetres else None
     with RecordingWriter(path, config={"rendered": {"face": face.name, "frames": frames, "seed": seed}}) as writer:
         for i in range(frames):
-            r = render_face(face, motion.pose(i, intrinsics), intrinsics, np.random.default_rng((seed, i)))
+            r = render_face(face, motion.pose(i, intrinsics), intrinsics, np.random.default_rng((seed, i)), model)
             range_m, amplitude = (as_millimetre_camera(r.range_m, r.amplitude, intrinsics) if millimetres
                                   else (r.range_m, r.amplitude))
             writer.write(Frame(range_m, amplitude, i, i * FRAME_PERIOD_US, i * FRAME_PERIOD_US / 1e6, 0.0,

@@ -1,8 +1,8 @@
 """Publishes FrameResults over the Foxglove WebSocket protocol (foxglove-sdk's server); runs in a viewer process.
 
 The server is the SDK's own (Rust, its own threads): a log call encodes the message (protobuf) and queues it for
-each subscribed client, at most `[foxglove] backlog_messages` per client (about one frame's messages), dropping
-the client's oldest when its queue is full, so a slow client gets the latest frame, not a backlog; a log call
+each subscribed client, at most `[foxglove] backlog_messages` per client (about three frames' messages), dropping
+the client's oldest when its queue is full, so a slow client gets the latest frames, not a backlog; a log call
 never waits for a client. A message is only made for a channel some client subscribed to (Channel.has_sinks).
 The viewer process around it (tofd.service.viewer.process) keeps the pipeline from ever waiting on this one.
 
@@ -70,12 +70,12 @@ def _png(stamp: Timestamp, plane: np.ndarray) -> CompressedImage:
     return CompressedImage(timestamp=stamp, frame_id=t.CAMERA_FRAME, data=png(plane), format="png")
 
 
-def feature_u16(values: np.ndarray) -> np.ndarray:
-    """(H, W) uint16 of a feature map (>= 0, NaN outside the foreground -> 0), 65535 its largest value: Foxglove
-    shows images of integers, and only the map's shape matters to the eye."""
-    finite = np.nan_to_num(values, nan=0.0)
+def feature_u8(values: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 of a feature map (>= 0, NaN outside the foreground -> 0), 255 its largest value: Foxglove
+    shows it colour-mapped, where only the map's shape matters to the eye (Rerun keeps the float values)."""
+    finite = np.fmax(values, np.float32(0))  # fmax drops NaN
     top = float(finite.max(initial=0.0))
-    return np.zeros(values.shape, np.uint16) if top <= 0 else np.rint(finite * (65535 / top)).astype(np.uint16)
+    return np.zeros(values.shape, np.uint8) if top <= 0 else np.rint(finite * (255 / top)).astype(np.uint8)
 
 
 def _image(stamp: Timestamp, plane: np.ndarray, encoding: str) -> RawImage:
@@ -135,24 +135,25 @@ class FoxglovePublisher:
         if self.range is None:
             self._open_range(r)
         assert self.range is not None
+        # in rising importance: a slow client's full queue drops its oldest messages first
         if self.transform.has_sinks():
             self.transform.log(FrameTransform(
                 timestamp=stamp, parent_frame_id=t.WORLD_FRAME, child_frame_id=t.CAMERA_FRAME,
                 translation=Vector3(x=0, y=0, z=0),
                 rotation=Quaternion(**dict(zip("xyzw", t.OPTICAL_IN_WORLD, strict=True)))), log_time=ns)
-        if self.calibration.has_sinks():
-            self.calibration.log(calibration(self.intrinsics, stamp), log_time=ns)
-        if self.range.has_sinks():
-            self._log_range(r, stamp, ns)
-        if self.images[t.AMPLITUDE].has_sinks():
-            self.images[t.AMPLITUDE].log(_png(stamp, amplitude_u16(frame.amplitude)), log_time=ns)
-        if self.images[t.MASK].has_sinks():
-            self.images[t.MASK].log(_png(stamp, np.where(r.mask, np.uint8(255), np.uint8(0))), log_time=ns)
         for name, channel in self.features.items():
             if channel.has_sinks():
-                channel.log(_png(stamp, feature_u16(r.features[name])), log_time=ns)
+                channel.log(_png(stamp, feature_u8(r.features[name])), log_time=ns)
         if self.cloud.has_sinks():
             self.cloud.log(self._foreground(r, stamp), log_time=ns)
+        if self.images[t.MASK].has_sinks():
+            self.images[t.MASK].log(_png(stamp, np.where(r.mask, np.uint8(255), np.uint8(0))), log_time=ns)
+        if self.calibration.has_sinks():
+            self.calibration.log(calibration(self.intrinsics, stamp), log_time=ns)
+        if self.images[t.AMPLITUDE].has_sinks():
+            self.images[t.AMPLITUDE].log(_png(stamp, amplitude_u16(frame.amplitude)), log_time=ns)
+        if self.range.has_sinks():
+            self._log_range(r, stamp, ns)
         if self.nose.has_sinks():
             self.nose.log(self._nose(r, stamp), log_time=ns)
         if self.track.has_sinks():

@@ -24,10 +24,10 @@ NOSE_TRACK = "/camera/nose_track"  # foxglove.ImageAnnotations: the confirmed no
 FOREGROUND = "/foreground"  # foxglove.PointCloud: foreground points (x, y, z metres, NFFT eps0) in CAMERA_FRAME
 TRANSFORM = "/tf"  # foxglove.FrameTransform: WORLD_FRAME -> CAMERA_FRAME
 FEATURES = {name: "/features/" + name.removeprefix("range_").replace("_", "/") for name in VIEWED_MAPS}
-"""Feature map name -> topic (range_fft_eps0 -> /features/fft/eps0): foxglove.CompressedImage, a 16-bit PNG of
-the whole image, 0 outside the foreground's box (which PNG stores in a few bytes), 65535 the frame's largest
-value (FEATURE_METADATA)."""
-FEATURE_METADATA = {"scale": "per frame: 65535 is the frame's largest value, 0 none"}
+"""Feature map name -> topic (range_fft_eps0 -> /features/fft/eps0): foxglove.CompressedImage, an 8-bit PNG of
+the whole image, 0 outside the foreground (which PNG stores in a few bytes), 255 the frame's largest value
+(FEATURE_METADATA)."""
+FEATURE_METADATA = {"scale": "per frame: 255 is the frame's largest value, 0 none"}
 
 SCHEMAS = {RANGE: "foxglove.CompressedImage | foxglove.RawImage", AMPLITUDE: "foxglove.CompressedImage",
            MASK: "foxglove.CompressedImage", CALIBRATION: "foxglove.CameraCalibration",

@@ -99,7 +99,7 @@ class RerunBackend:
 
     def __init__(self, cfg: Config, sink: str, batch_frames: int, footer: bool):
         self.cfg, self.sink, self.batch_frames, self.footer = cfg, sink, batch_frames, footer
-        self.rotation = FileRotation(cfg.rerun) if FileRotation.wanted(cfg.rerun, sink) else None
+        self.rotation = FileRotation(cfg.rerun) if FileRotation.wanted(cfg.rerun, sink, footer) else None
         self.recording_id = str(uuid.uuid4())  # one recording over every segment
         self._open(None if self.rotation is None else self.rotation.segment())
         self.web_url = self.target.web_url
@@ -240,7 +240,8 @@ class ViewerProcess:
         self.queue_frames = queue_frames
         self.output = Path(cfg.rerun.path) if sink == "save" else None  # the .rrd, once finished
         # where it grows meanwhile (numbered segments, rotation.py, are written under their own names)
-        self._writing = None if self.output is None or FileRotation.wanted(cfg.rerun, sink) else temp_path(self.output)
+        self._writing = (None if self.output is None or FileRotation.wanted(cfg.rerun, sink, footer)
+                         else temp_path(self.output))
         self.failed: str | None = None  # why the output failed, once the child said so
         self._failure_told = False
         if self._writing is not None:
