@@ -17,7 +17,8 @@ image's pixels, the points) before that compression. Then --live-seconds of the 
 looped, latest-wins, bench/cameras.MemoryCamera) with the Foxglove viewer and a client subscribed to every channel:
 bytes per message and MB/s received per topic. Rerun's live rate is its bytes per frame times 30 fps; with the
 config's file rotation ([rerun] rotate_mb x (keep_files + 1): the most a live .rrd takes on disk), the hours of
-recording that budget keeps. Prints tables,
+recording that budget keeps; and per camera the least bytes a lossless coder predicting from the left neighbour
+gets the first frame's depth and amplitude to (the entropy of their row differences). Prints tables,
 writes bench/results/bench_viewers.json.
 """
 
@@ -47,6 +48,7 @@ from tofd.process_setup import prepare_service_process
 from tofd.service.foxglove.publisher import FoxglovePublisher
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline, maps_read
+from tofd.service.viewer.encoding import amplitude_u16, in_units, source_unit_m, z_depth_m
 from tofd.service.viewer.logger import frames_per_send
 from tofd.service.viewer.process import ViewerProcess
 from tofd.service.viewer.targets import file_footer
@@ -163,6 +165,25 @@ def rrd_views(path: Path, frames: int) -> dict:
                                       if b / frames >= 100}}
 
 
+def delta_entropy_bytes(plane: np.ndarray) -> int:
+    """Bytes of a (H, W) integer plane at the entropy of its differences along rows (bits per pixel times pixels):
+    about the least a lossless coder that predicts from the left neighbour (PNG's SUB filter) gets it to."""
+    _, counts = np.unique(np.diff(plane.astype(np.int64), axis=1), return_counts=True)
+    p = counts / counts.sum()
+    return round(float(-(p * np.log2(p)).sum()) * plane.size / 8)
+
+
+def lossless_bounds(clip: Path) -> dict:
+    """delta_entropy_bytes of the clip's first frame's depth (in its source's unit, when whole) and amplitude."""
+    with ReplaySource(clip) as source:
+        frame = next(iter(source))
+    unit = source_unit_m(frame)
+    z = z_depth_m(frame.range_m, frame.intrinsics.unit_rays()[..., 2].astype(np.float32))
+    units = in_units(z, unit) if unit is not None else None
+    return {"depth": delta_entropy_bytes(units[0]) if units is not None and units[1] else None,
+            "amplitude": delta_entropy_bytes(amplitude_u16(frame.amplitude))}
+
+
 def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs: int, live_s: float, tmp: Path
             ) -> dict:
     """Replay rates with each viewer, the .rrd's and the live Foxglove stream's sizes, of one camera's clip."""
@@ -196,6 +217,7 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
         "rerun_rotation_budget_GB": round(budget_gb, 1),
         "rerun_hours_kept_in_budget": round(budget_gb * 1e3 / rerun_mb_s / 3600, 1) if budget_gb else None,
         "rerun_views_bytes_per_frame": rrd["views_bytes_per_frame"],
+        "lossless_bound_bytes": lossless_bounds(clip),
         "foxglove_live_fps": live["fps"],
         "foxglove_MB_per_s": round(sum(client["bytes"].values()) / seconds / 1e6, 2),
         "foxglove_frame_bytes": frame_bytes,  # a published frame: every topic's mean message
@@ -218,6 +240,7 @@ def print_tables(rows: list[dict]) -> None:
         print(f"\n{r['camera']} ({r['sensor_model']}): Rerun bytes per frame per view (before LZ4)")
         for entity, b in r["rerun_views_bytes_per_frame"].items():
             print(f"  {entity:40s} {b:>10}")
+        print(f"  lossless bound (entropy of row differences): {r['lossless_bound_bytes']}")
         print(f"{r['camera']} ({r['sensor_model']}): Foxglove per topic (live, {r['foxglove_live_fps']} fps)")
         for topic, t in r["foxglove_topics"].items():
             print(f"  {topic:40s} {t['bytes_per_message']:>10} B  {t['MB_per_s']:>8} MB/s")
