@@ -72,9 +72,12 @@ def depth_at(tables, row):
 
 
 def amplitude_at(tables, row):
-    """The (H, W) uint16 amplitude image at `row` (a PNG: EncodedImage)."""
-    assert static_value(tables, bp.AMPLITUDE, "EncodedImage:media_type") == "image/png"
-    return unpng(blob_at(tables[bp.AMPLITUDE][1], "EncodedImage", row))
+    """The (H, W) uint16 amplitude image at `row`: a PNG (EncodedImage) or raw pixels (Image)."""
+    table = tables[bp.AMPLITUDE][1]
+    if "EncodedImage:blob" in table.column_names:
+        assert static_value(tables, bp.AMPLITUDE, "EncodedImage:media_type") == "image/png"
+        return unpng(blob_at(table, "EncodedImage", row))
+    return image_at(table, "Image", row)
 
 
 def feature_map_at(table, row, shape):

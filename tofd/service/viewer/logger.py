@@ -1,13 +1,13 @@
 """Logs FrameResults to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
 
-Per frame: z-depth under the Pinhole (what Rerun's depth images mean, so the 3-D projection is right; the
-camera's radial range is it over each ray's z) as a 16-bit PNG in the source's unit where that is exact, else
-float32 metres (tofd.service.viewer.encoding), amplitude as a 16-bit PNG, the mask (Rerun's chunk compression
-shrinks it to a few kB), four feature maps cropped to the foreground's bounding box (they are 0 outside it) with
-the translation that puts the crop where it lies in the image, the foreground cloud (at most pixels.CLOUD_POINTS
-points, an even subsample of a large foreground), the detected nose in 2-D and 3-D,
-beside it the confirmed nose track (a box of pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its
-3-D point) and the track's confidence, one scalar per stage timing.
+Per frame: z-depth under the Pinhole (what Rerun's depth images mean, so the 3-D projection is right; the camera's
+radial range is it over each ray's z) as a 16-bit PNG in the source's unit where that is exact, else float32 metres
+(tofd.service.viewer.encoding), amplitude as uint16 (a PNG from encoding.PNG_MIN_PIXELS pixels on), the mask
+(Rerun's chunk compression shrinks it to a few kB), four feature maps cropped to the foreground's bounding box (they
+are 0 outside it) with the translation that puts the crop where it lies in the image, the foreground cloud (at most
+pixels.CLOUD_POINTS points, an even subsample of a large foreground), the detected nose in 2-D and 3-D, beside it
+the confirmed nose track (a box of pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D
+point) and the track's confidence, one scalar per stage timing.
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
 
 Everything per frame goes out as columns (Rerun's send_columns), `batch_frames` frames per send: a log call
@@ -46,7 +46,15 @@ from tofd.service.viewer.columns import (
     offsets_of,
     row_columns,
 )
-from tofd.service.viewer.encoding import PNG_MEDIA_TYPE, amplitude_u16, in_units, png, source_unit_m, z_depth_m
+from tofd.service.viewer.encoding import (
+    PNG_MEDIA_TYPE,
+    PNG_MIN_PIXELS,
+    amplitude_u16,
+    in_units,
+    png,
+    source_unit_m,
+    z_depth_m,
+)
 from tofd.service.viewer.pixels import cloud_pixels, corner_origin, track_box_px
 from tofd.service.viewer.wire import OWN_TIMINGS
 
@@ -187,7 +195,11 @@ class RerunLogger:
         feature_style = rr.DepthImage.from_fields(colormap="viridis")
         self._images = {bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8)}  # raw planes (and a float depth)
         # PNG planes: archetype; the depth's joins at the first frame if its unit is exact
-        self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage}
+        self._encoded: dict[str, type] = {}
+        if intrinsics.width * intrinsics.height >= PNG_MIN_PIXELS:
+            self._encoded[bp.AMPLITUDE] = rr.EncodedImage
+        else:
+            self._images[bp.AMPLITUDE] = ImageEntity(rr.Image, np.uint16, color_model="L")
         self._depth_unit_m: float | None = None  # the depth's unit when it goes as PNG
         self._depth_chosen = False
         self._crop = ImageEntity(rr.DepthImage, np.float32, feature_style)  # every feature map's
@@ -207,7 +219,8 @@ class RerunLogger:
                 static=True)
         styles = {**{path: image.style for path, image in self._images.items()},
                   **dict.fromkeys(bp.FEATURES.values(), self._crop.style),
-                  bp.AMPLITUDE: rr.EncodedImage.from_fields(media_type=PNG_MEDIA_TYPE),
+                  **({bp.AMPLITUDE: rr.EncodedImage.from_fields(media_type=PNG_MEDIA_TYPE)}
+                     if bp.AMPLITUDE in self._encoded else {}),
                   **{path: style for path, (_, style) in PARTS.items()}}
         for path, style in styles.items():
             if style is not None:
@@ -251,7 +264,8 @@ class RerunLogger:
             self._send_shown()
 
     def _add_planes(self, r: FrameResult, row: int) -> None:
-        """The frame's depth (z-depth: PNG in the source's unit or float32 metres), amplitude (PNG) and mask."""
+        """The frame's depth (z-depth: PNG in the source's unit or float32 metres), amplitude (uint16: PNG from
+        PNG_MIN_PIXELS pixels on) and mask."""
         shown = self._shown
         if not self._depth_chosen:
             self._choose_depth(r)
@@ -260,7 +274,11 @@ class RerunLogger:
         else:
             units, _ = in_units(z_depth_m(r.frame.range_m, self._ray_z, out=self._z), self._depth_unit_m)
             shown.encoded.setdefault(bp.RANGE, []).append(png(units))
-        shown.encoded.setdefault(bp.AMPLITUDE, []).append(png(amplitude_u16(r.frame.amplitude)))
+        amplitude = amplitude_u16(r.frame.amplitude)
+        if bp.AMPLITUDE in self._encoded:
+            shown.encoded.setdefault(bp.AMPLITUDE, []).append(png(amplitude))
+        else:
+            shown.images[bp.AMPLITUDE][row] = amplitude
         shown.images[bp.MASK][row] = r.mask
 
     def _choose_depth(self, r: FrameResult) -> None:
