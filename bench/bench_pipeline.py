@@ -185,7 +185,8 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     rrd = tmp / f"{policy}-{time.monotonic_ns()}.rrd"
     if rerun:  # the daemon's viewer process, sending as it would to a connected viewer (live: frame by frame)
         sends = frames_per_send(replace(cfg.rerun, sink="connect"), policy)
-        viewer = ViewerProcess(replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd))), "save", sends,
+        one_file = replace(cfg.rerun, sink="save", path=str(rrd), rotate_mb=0.0, rotate_s=0.0)  # read back whole
+        viewer = ViewerProcess(replace(cfg, rerun=one_file), "save", sends,
                                footer=file_footer(policy))
     pipeline: Pipeline
     warmup = max(1, (max_frames or 300) // 10)

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tofd.drivers.emulator.render import load_face, render_face
+from tofd.drivers.emulator.render import SensorModel, load_face, render_face
 from tofd.drivers.emulator.scene import Motion
-from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth
+from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.recording.replay import ReplaySource
 from tofd.drivers.recording.writer import RecordingWriter
@@ -25,19 +25,36 @@ CAMERAS = {label: LAB_CAMERAS[name] for label, name in (("sr3000", "sr3000"), ("
 FRAME_PERIOD_US = 33_333  # 30 fps
 
 
-def write_face_clip(path: Path, intrinsics: Intrinsics, frames: int, seed: int = 1) -> Path:
+def as_millimetre_camera(range_m: np.ndarray, amplitude: np.ndarray, intrinsics: Intrinsics
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """(range_m, amplitude) as a camera measuring z-depth in whole millimetres (Azure Kinect, Orbbec, RealSense)
+    delivers them through its tofd driver: the z-depth rounded to millimetres (0 = no return -> NaN) and turned
+    into radial range the way the Azure Kinect driver does, the amplitude rounded to whole units (0-65535)."""
+    ray_z = intrinsics.unit_rays()[..., 2].astype(np.float32)
+    z_mm = np.rint(np.nan_to_num(range_m * ray_z, nan=0.0) * 1000)
+    radial = np.where(z_mm > 0, z_mm * (np.float32(1e-3) / ray_z), np.nan).astype(np.float32)
+    return radial, np.clip(np.rint(np.nan_to_num(amplitude, nan=0.0)), 0, 65535).astype(np.float32)
+
+
+def write_face_clip(path: Path, intrinsics: Intrinsics, frames: int, seed: int = 1, millimetres: bool = False,
+                    model: SensorModel | None = None) -> Path:
     """A recording (tofd's MCAP, tofd.drivers.recording.writer) of `frames` rendered noisy frames of the emulator's face
     going from 0.35 m to 0.70 m (half a cycle of tofd.drivers.emulator.scene.Motion, its sideways drift scaled from the
     SR3000's pixels to these), with ground truth; noise seeded per frame; received every FRAME_PERIOD_US (host
-    times), so a realtime replay plays it at 30 fps."""
+    times), so a realtime replay plays it at 30 fps. millimetres: as a millimetre camera delivers them
+    (as_millimetre_camera, with SensorInfo saying so), else float planes as rendered; `model`: the sensor's
+    effects (default: the emulator's)."""
     motion = Motion(n_poses=2 * (frames - 1), drift_px=Motion().drift_px * intrinsics.fx / Intrinsics().fx)
     face = load_face("lee_perry_smith")
     device = DeviceInfo(serial="00000000", backend="emulated", model=f"rendered {intrinsics.width}x{intrinsics.height}")
+    sensor = SensorInfo(depth_unit_m=1e-3, amplitude="ir", amplitude_full_scale=65535) if millimetres else None
     with RecordingWriter(path, config={"rendered": {"face": face.name, "frames": frames, "seed": seed}}) as writer:
         for i in range(frames):
-            r = render_face(face, motion.pose(i, intrinsics), intrinsics, np.random.default_rng((seed, i)))
-            writer.write(Frame(r.range_m, r.amplitude, i, i * FRAME_PERIOD_US, i * FRAME_PERIOD_US / 1e6, 0.0,
-                               intrinsics, device,
+            r = render_face(face, motion.pose(i, intrinsics), intrinsics, np.random.default_rng((seed, i)), model)
+            range_m, amplitude = (as_millimetre_camera(r.range_m, r.amplitude, intrinsics) if millimetres
+                                  else (r.range_m, r.amplitude))
+            writer.write(Frame(range_m, amplitude, i, i * FRAME_PERIOD_US, i * FRAME_PERIOD_US / 1e6, 0.0,
+                               intrinsics, device, sensor=sensor,
                                ground_truth=GroundTruth(nose_px=r.nose_px, visible=r.nose_visible,
                                                         nose_xyz_m=r.nose_xyz_m)))
     return path

@@ -108,7 +108,8 @@ class Daemon:
 
     def __init__(self, work: Path, *extra: object):
         self.summary = work / "summary.json"
-        self.proc = tofd("run", "--emulate", "--config", write_config(work), "--health-port", "0", "--rerun",
+        config = write_config(work, rerun={"rotate_mb": 0.0})  # a "save" sink writes one file, not segments
+        self.proc = tofd("run", "--emulate", "--config", config, "--health-port", "0", "--rerun",
                          "none", "--summary", self.summary, *extra, start_new_session=True)
         self.peak = PeakRss(self.proc.pid, interval_s=0.1)
         self.lines: list[str] = []

@@ -53,6 +53,15 @@ class Client:
             elif msg["op"] == "advertise":
                 self.channels.update({c["id"]: c for c in msg["channels"]})
 
+    def wait_for(self, topics: set[str], seconds: float | None = None) -> None:
+        """Read advertisements until every topic of `topics` is advertised (a channel opened at the first frame)."""
+        deadline = time.monotonic() + (seconds or self.timeout_s)
+        while missing := topics - {c["topic"] for c in self.channels.values()}:
+            assert time.monotonic() < deadline, f"not advertised: {missing}"
+            msg = self.ws.recv()
+            if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
+                self.channels.update({c["id"]: c for c in json.loads(msg)["channels"]})
+
     def subscribe(self, topics: list[str] | None = None) -> None:
         """Subscribe to `topics` (all advertised when None); subscription id = channel id."""
         ids = [cid for cid, c in self.channels.items() if topics is None or c["topic"] in topics]

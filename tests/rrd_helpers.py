@@ -8,6 +8,8 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from tofd.service.viewer import blueprint as bp
+from tofd.service.viewer.encoding import unpng
+from tofd.service.viewer.pixels import cloud_pixels
 
 PER_FRAME = [bp.RANGE, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(),
              f"{bp.TIMINGS}/nfft", f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]
@@ -43,6 +45,41 @@ def image_at(table, archetype, row):
                                                                                               fmt["width"])
 
 
+def blob_at(table, archetype, row):
+    """The bytes of an encoded image's blob at `row`."""
+    return table.column(f"{archetype}:blob")[row].values[0].values.to_numpy(zero_copy_only=False).tobytes()
+
+
+def static_value(tables, entity, column):
+    """The one value of a component logged statically on `entity` (e.g. "EncodedDepthImage:meter")."""
+    for chunk in tables[entity][0]:
+        batch = chunk.to_record_batch()
+        if column in batch.schema.names:
+            return batch.column(column)[0].as_py()[0]
+    raise KeyError(f"{column} is not logged statically on {entity}")
+
+
+def depth_at(tables, row):
+    """The z-depth image at `row` as the viewer shows it, in metres (float64), and the stored pixels: a 16-bit PNG
+    in the source's unit (EncodedDepthImage, its static meter) or float32 metres (DepthImage)."""
+    table = tables[bp.RANGE][1]
+    if "EncodedDepthImage:blob" in table.column_names:
+        assert static_value(tables, bp.RANGE, "EncodedDepthImage:media_type") == "image/png"
+        stored = unpng(blob_at(table, "EncodedDepthImage", row))
+        return stored / float(static_value(tables, bp.RANGE, "EncodedDepthImage:meter")), stored
+    stored = image_at(table, "DepthImage", row)
+    return stored.astype(np.float64) / float(static_value(tables, bp.RANGE, "DepthImage:meter")), stored
+
+
+def amplitude_at(tables, row):
+    """The (H, W) uint16 amplitude image at `row`: a PNG (EncodedImage) or raw pixels (Image)."""
+    table = tables[bp.AMPLITUDE][1]
+    if "EncodedImage:blob" in table.column_names:
+        assert static_value(tables, bp.AMPLITUDE, "EncodedImage:media_type") == "image/png"
+        return unpng(blob_at(table, "EncodedImage", row))
+    return image_at(table, "Image", row)
+
+
 def feature_map_at(table, row, shape):
     """A feature entity's map at `row` as the viewer draws it: its crop placed at its translation in an (H, W)
     image of zeros."""
@@ -69,18 +106,27 @@ def check_rrd(path, counters, results_by_counter=None):
     assert np.all(np.diff(device_time) > 0)
     if results_by_counter:
         c = counters[-1]
-        depth = image_at(tables[bp.RANGE][1], "DepthImage", len(counters) - 1)
+        last = len(counters) - 1
+        depth_m, stored = depth_at(tables, last)
         frame = results_by_counter[c].frame
         ray_z = frame.intrinsics.unit_rays().astype(np.float32)[..., 2]
-        np.testing.assert_array_equal(depth, np.nan_to_num(frame.range_m, nan=0.0) * ray_z)  # z-depth of the range
-        amplitude = image_at(tables[bp.AMPLITUDE][1], "Image", len(counters) - 1)
+        z_m = np.nan_to_num(frame.range_m, nan=0.0) * ray_z  # z-depth of the range
+        if stored.dtype == np.float32:
+            np.testing.assert_array_equal(stored, z_m)
+        else:  # whole units of the source: the source's own integers
+            assert stored.dtype == np.uint16
+            unit = frame.sensor.depth_unit_m
+            np.testing.assert_array_equal(stored, np.rint(z_m / unit))
+            np.testing.assert_allclose(depth_m, z_m, atol=unit * 0.05)
+        amplitude = amplitude_at(tables, last)
         assert amplitude.dtype == np.uint16
         np.testing.assert_array_equal(amplitude, np.rint(results_by_counter[c].frame.amplitude))
         cloud = tables[bp.FOREGROUND][1].column("Points3D:positions")[len(counters) - 1]
-        assert len(cloud) == int(results_by_counter[c].mask.sum())
+        at = cloud_pixels(results_by_counter[c].mask)
+        assert len(cloud) == len(at)
         # coloured by NFFT eps0 on viridis: the smallest point value dark blue, the largest yellow
         colours = tables[bp.FOREGROUND][1].column("Points3D:colors")[len(counters) - 1].values.to_numpy()
-        eps0 = results_by_counter[c].features["range_nfft_eps0"][results_by_counter[c].mask]
+        eps0 = results_by_counter[c].features["range_nfft_eps0"].reshape(-1)[at]
         assert len(colours) == len(eps0)
         rgb = [(int(colours[i]) >> 24, int(colours[i]) >> 16 & 0xFF, int(colours[i]) >> 8 & 0xFF)
                for i in (np.nanargmin(eps0), np.nanargmax(eps0))]

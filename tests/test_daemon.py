@@ -37,7 +37,7 @@ def test_run_emulated_sigterm_drains_and_exits_zero(tmp_path):
     env = {key: value for key, value in os.environ.items() if key != "RUST_LOG"}
     env.update(NOTIFY_SOCKET=str(notify), WATCHDOG_USEC="400000")
     rrd, summary_path = tmp_path / "live.rrd", tmp_path / "summary.json"
-    config = write_config(tmp_path, pipeline=PATIENT_VIEWER)
+    config = write_config(tmp_path, pipeline=PATIENT_VIEWER, rerun={"rotate_mb": 0.0})  # one file, not segments
     proc = tofd("run", "--emulate", "--config", config, "--rerun", f"save:{rrd}", "--health-port", "0",
                 "--summary", summary_path, env=env)
     try:

@@ -17,8 +17,11 @@ from foxglove_client import SUBPROTOCOL, Client, wait_for_url
 
 from tofd.config import Config, ConfigError
 from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
 from tofd.service.foxglove import topics as t
 from tofd.service.foxglove.spec import parse_foxglove_spec
+from tofd.service.viewer.encoding import unpng
+from tofd.service.viewer.pixels import cloud_pixels
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -56,11 +59,18 @@ def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
         assert url.startswith("ws://127.0.0.1:")
         client = Client(url)
         assert client.subprotocol == SUBPROTOCOL
+        client.wait_for(set(t.SCHEMAS))  # the range's channel opens at the first frame
         advertised = {c["topic"]: c for c in client.channels.values()}
         assert set(advertised) == set(t.SCHEMAS)
-        for topic, schema in t.SCHEMAS.items():
-            assert advertised[topic]["encoding"] == "protobuf" and advertised[topic]["schemaName"] == schema
+        for topic, schemas in t.SCHEMAS.items():
+            schema = advertised[topic]["schemaName"]
+            assert advertised[topic]["encoding"] == "protobuf" and schema in schemas.split(" | ")
             assert schema in client.schema_names(topic)
+        # the SR3000's range: a PNG of its own radial codes, their unit in the channel's metadata
+        assert advertised[t.RANGE]["schemaName"] == "foxglove.CompressedImage"
+        range_meta = advertised[t.RANGE]["metadata"]
+        assert range_meta["depth"] == "radial"
+        assert float(range_meta["unit_m"]) == pytest.approx(7.4948 / 65535, rel=1e-4)  # 20 MHz
         client.subscribe()
         got = client.read(60)  # until the replay ends and the server closes
         client.close()
@@ -85,13 +95,26 @@ def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
 
     ranges = got[t.RANGE]
     for _, image in ranges:
-        assert (image.width, image.height, image.encoding, image.step) == (176, 144, "32FC1", 176 * 4)
-        assert image.frame_id == t.CAMERA_FRAME and len(image.data) == 176 * 144 * 4
-    depth = np.frombuffer(ranges[-1][1].data, "<f4")
-    assert 0.2 < np.nanmin(depth) < np.nanmax(depth) < 3.0  # metres
+        assert image.format == "png" and image.frame_id == t.CAMERA_FRAME
     assert [log_ns for log_ns, _ in ranges] == sorted(log_ns for log_ns, _ in ranges)
-    amplitude = got[t.AMPLITUDE][-1][1]
-    assert amplitude.encoding == "16UC1" and np.frombuffer(amplitude.data, "<u2").max() > 0
+    # each range image is exactly the recorded frame's codes (the frame's counter: its nose message's metadata)
+    counters = {stamp: int({kv.key: kv.value for kv in a.metadata}["frame_counter"])
+                for stamp, a in by_stamp(got[t.NOSE]).items()}
+    recorded = {f.frame_counter: f for f in iter_frames(CLIP)}
+    unit = float(range_meta["unit_m"])
+    compared = 0
+    for stamp, image in list(by_stamp(ranges).items())[-5:]:
+        codes = unpng(image.data)
+        assert codes.dtype == np.uint16 and codes.shape == (144, 176)
+        if stamp in counters:
+            want = np.nan_to_num(recorded[counters[stamp]].range_m, nan=0.0) / unit
+            np.testing.assert_array_equal(codes, np.rint(want))
+            assert np.max(np.abs(codes - want)) < 0.01  # whole codes: the source's own
+            compared += 1
+    assert compared
+    assert 0.2 < unit * codes[codes > 0].min() < unit * codes.max() < 3.0  # metres
+    amplitude = unpng(got[t.AMPLITUDE][-1][1].data)
+    assert amplitude.dtype == np.uint16 and amplitude.max() > 0
 
     calibration = got[t.CALIBRATION][-1][1]
     assert list(calibration.K) == pytest.approx([intr.fx, 0, intr.cx, 0, intr.fy, intr.cy, 0, 0, 1])
@@ -118,14 +141,15 @@ def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
     for stamp, cloud in [(s, clouds[s]) for s in both[-5:]]:
         assert [f.name for f in cloud.fields] == ["x", "y", "z", "eps0"] and cloud.point_stride == 16
         points = np.frombuffer(cloud.data, "<f4").reshape(-1, 4)
-        assert len(points) == np.count_nonzero(np.frombuffer(masks[stamp].data, np.uint8))
+        assert len(points) == len(cloud_pixels(unpng(masks[stamp].data) > 0))
         assert np.all(points[:, 2] > 0.2) and np.all(points[:, 3] >= 0)
     transform = got[t.TRANSFORM][-1][1]
     assert (transform.parent_frame_id, transform.child_frame_id) == (t.WORLD_FRAME, t.CAMERA_FRAME)
     q = transform.rotation
     assert [q.x, q.y, q.z, q.w] == list(t.OPTICAL_IN_WORLD)
     for topic in t.FEATURES.values():
-        assert got[topic][-1][1].encoding == "32FC1"
+        feature = unpng(got[topic][-1][1].data)
+        assert got[topic][-1][1].format == "png" and feature.dtype == np.uint8 and feature.max() == 255
 
 
 def server_fds(proc: subprocess.Popen, url: str) -> int:
@@ -146,6 +170,7 @@ def test_a_stalled_client_and_fifty_connections_cost_the_pipeline_nothing(tmp_pa
         url, _ = wait_for_url(proc.stderr)
         stalled = Client(url)
         stalled.ws.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        stalled.wait_for(set(t.SCHEMAS))  # the range's channel opens at the first frame
         stalled.subscribe()  # and never reads again
         first = Client(url)
         first.subscribe([t.RANGE])

@@ -60,7 +60,7 @@ def test_a_replay_onto_a_full_disk_names_each_failed_output_once_and_leaves_no_t
 @pytest.mark.slow
 def test_a_live_save_sink_that_fills_its_disk_shows_in_healthz_metrics_and_the_summary(small_disk, tmp_path):
     rrd, summary_path = small_disk / "live.rrd", tmp_path / "summary.json"
-    config = write_config(tmp_path, pipeline=PATIENT_VIEWER)
+    config = write_config(tmp_path, pipeline=PATIENT_VIEWER, rerun={"rotate_mb": 0.0})  # one file, not segments
     proc = tofd("run", "--emulate", "--config", config, "--rerun", f"save:{rrd}", "--health-port", "0", "--summary",
                 summary_path)
     try:

@@ -93,7 +93,7 @@ def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tm
     not logged twice and the amplitude is stored as integers."""
     import numpy as np
     import rerun as rr
-    from rrd_helpers import feature_map_at, image_at, read_entities
+    from rrd_helpers import amplitude_at, feature_map_at, image_at, read_entities
 
     from tofd.drivers.frame import Frame
     from tofd.drivers.intrinsics import Intrinsics
@@ -124,7 +124,7 @@ def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tm
         np.testing.assert_allclose(point, rays[v, u] * radial[v, u], atol=1e-5)  # the camera's own 3-D point
     assert float(radial[0, 0]) > 0.8 * 1.1  # a corner: the radial range would be > 10 % off as depth
     assert not [e for e in tables if e.endswith("/range")]  # radial = depth / ray z
-    amp = image_at(tables[bp.AMPLITUDE][1], "Image", 0)
+    amp = amplitude_at(tables, 0)
     assert amp.dtype == np.uint16 and int(amp[0, 0]) == 1234
     for entity in bp.FEATURES.values():  # no foreground: nothing drawn, from a one-pixel crop
         assert not feature_map_at(tables[entity][1], 0, intr.shape).any()
@@ -174,3 +174,80 @@ def test_saved_rrd_is_batched_and_the_viewer_sends_no_usage_data(tmp_path, monke
     details = subprocess.run([rerun_executable(), "analytics", "config"], capture_output=True, text=True,
                              timeout=60, env={**os.environ, "HOME": str(home), "XDG_CONFIG_HOME": str(home)})
     assert details.stdout.strip() == "null" and "Welcome to Rerun" not in details.stdout
+
+
+def _log_one(tmp_path, frame, mask):
+    """Log one FrameResult of `frame` (feature maps 1.0 on the mask) to an .rrd; its entity tables."""
+    import numpy as np
+    import rerun as rr
+    from rrd_helpers import read_entities
+
+    from tofd.service.pipeline.results import FrameResult
+
+    feats = {name: np.where(mask, np.float32(1.0), np.float32(np.nan)) for name in bp.FEATURES}
+    rec = rr.RecordingStream("tofd-test")
+    path = tmp_path / "one.rrd"
+    rec.save(str(path))
+    RerunLogger(rec, frame.intrinsics)(FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0))
+    rec.flush()
+    rec.disconnect()
+    return read_entities(str(path))
+
+
+def test_millimetre_depth_is_stored_as_the_sources_integers_and_lines_up_with_the_cloud(tmp_path):
+    """A 640x576 camera giving z-depth in whole millimetres (a slanted wall, as the Azure Kinect driver converts
+    it to radial range): the .rrd holds a 16-bit PNG of exactly those millimetres with meter 1000, whose pixels
+    back-projected through the Pinhole are the camera's own 3-D points, and the foreground cloud's points lie on
+    the depth image's (the 3-D view and the image agree)."""
+    import numpy as np
+    from rrd_helpers import depth_at
+
+    from tofd.drivers.frame import Frame, SensorInfo
+    from tofd.lab.cameras import CAMERAS
+    from tofd.service.viewer.pixels import CLOUD_POINTS, cloud_pixels
+
+    intr = CAMERAS["k4a-nfov"]
+    v, u = np.indices(intr.shape)
+    z_mm = (700 + u // 3 + v // 5).astype(np.uint16)
+    z_mm[:20, :30] = 0  # no return
+    rays = intr.unit_rays()
+    scale = np.float32(1e-3) / rays[..., 2].astype(np.float32)  # the K4A driver's mm -> radial metres
+    radial = np.where(z_mm > 0, z_mm * scale, np.nan).astype(np.float32)
+    amplitude = (100 + (u * v) % 3000).astype(np.float32)
+    frame = Frame(radial, amplitude, frame_counter=0, timestamp_us=0, host_monotonic_s=0.0, host_wall_s=0.0,
+                  intrinsics=intr, sensor=SensorInfo(depth_unit_m=1e-3, amplitude="ir"))
+    mask = np.zeros(intr.shape, bool)
+    mask[200:400, 250:450] = True  # 40000 pixels: more than a cloud holds
+    tables = _log_one(tmp_path, frame, mask)
+    depth_m, stored = depth_at(tables, 0)
+    assert stored.dtype == np.uint16
+    np.testing.assert_array_equal(stored, z_mm)  # exactly the source's millimetres
+    pinhole = tables[bp.CAMERA][0][0].to_record_batch()
+    matrix = np.array(pinhole.column("Pinhole:image_from_camera")[0].as_py()[0]).reshape(3, 3).T
+    fx, fy, px, py = matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2]
+    xyz = np.stack([(u + 0.5 - px) / fx * depth_m, (v + 0.5 - py) / fy * depth_m, depth_m], axis=-1)
+    valid = z_mm > 0
+    np.testing.assert_allclose(xyz[valid], (rays * radial[..., None])[valid], atol=1e-6)
+    cloud = np.asarray(tables[bp.FOREGROUND][1].column("Points3D:positions")[0].as_py(), np.float64)
+    at = cloud_pixels(mask)
+    assert len(cloud) == len(at) <= CLOUD_POINTS and len(at) > CLOUD_POINTS / 4  # an even subsample
+    np.testing.assert_allclose(cloud, xyz.reshape(-1, 3)[at], atol=1e-6)
+
+
+def test_depth_that_is_not_whole_units_of_its_source_goes_as_float_metres(tmp_path):
+    """A source claiming millimetres whose ranges are not whole millimetres of z-depth (as the SR3000's radial
+    codes are not): the depth goes as float32 metres, the exact z-depth of the range."""
+    import numpy as np
+    from rrd_helpers import depth_at
+
+    from tofd.drivers.frame import Frame, SensorInfo
+    from tofd.drivers.intrinsics import Intrinsics
+
+    intr = Intrinsics()
+    radial = np.random.default_rng(0).uniform(0.5, 1.5, intr.shape).astype(np.float32)
+    frame = Frame(radial, np.ones(intr.shape, np.float32), frame_counter=0, timestamp_us=0, host_monotonic_s=0.0,
+                  host_wall_s=0.0, intrinsics=intr, sensor=SensorInfo(depth_unit_m=1e-3, amplitude="ir"))
+    tables = _log_one(tmp_path, frame, np.zeros(intr.shape, bool))
+    depth_m, stored = depth_at(tables, 0)
+    assert stored.dtype == np.float32
+    np.testing.assert_array_equal(stored, radial * intr.unit_rays().astype(np.float32)[..., 2])

@@ -26,7 +26,7 @@ from rosbag_helpers import (
     write_bag,
     write_frames_bag,
 )
-from rrd_helpers import check_rrd, image_at
+from rrd_helpers import check_rrd, depth_at
 from test_cli import CLIP, HANG_GUARD_S, one_line_error, tofd
 
 from tofd.drivers.bags.driver_bag import BagError, RangeOptions, RosbagSource
@@ -36,7 +36,6 @@ from tofd.drivers.frame import Frame
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import iter_frames
-from tofd.service.viewer import blueprint as bp
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
 
 N_FRAMES = 12
@@ -199,7 +198,7 @@ def test_a_bag_of_another_frame_size_goes_through_the_whole_pipeline(tmp_path):
     rows = results(tmp_path / "r" / "pmd.results.jsonl")
     assert len(rows) == 3 and all(math.dist(r["nose_px"], t) <= 5 for r, t in zip(rows, truth, strict=True))
     tables = check_rrd(tmp_path / "r" / "pmd.rrd", [0, 1, 2])
-    assert image_at(tables[bp.RANGE][1], "DepthImage", 2).shape == (h, w)
+    assert depth_at(tables, 2)[1].shape == (h, w)
 
 
 def bad_bag(tmp_path: Path, clip_frames: list[Frame], change: str) -> Path:

@@ -193,9 +193,9 @@ class RerunConfig:
     point_cloud: bool = True  # log the foreground as a 3-D point cloud coloured by NFFT eps0
     batch_frames: int = 15  # frames sent to Rerun together in replay and to .rrd files; live viewers get each at once
     analytics: bool = False  # let the Rerun SDK/viewer send anonymous usage data (off: tofd sets CI=1 for them)
-    rotate_mb: float = 0.0  # "save": start a new numbered .rrd segment at this size, MB (0: no size limit)
+    rotate_mb: float = 2000.0  # live "save": start a new numbered .rrd segment at this size, MB (0: no size limit)
     rotate_s: float = 0.0  # "save": ... or after this many seconds (0: no time limit)
-    keep_files: int = 0  # segments kept, the oldest deleted beyond it (0: keep all)
+    keep_files: int = 24  # segments kept, the oldest deleted beyond it (0: keep all)
 
     def validate(self) -> None:
         if self.sink not in RERUN_SINKS:
@@ -222,7 +222,7 @@ class FoxgloveConfig:
     enabled: bool = False  # serve the live stream to Foxglove (also: --foxglove HOST:PORT)
     bind: str = "127.0.0.1"  # listen address
     port: int = 8765  # TCP port (0 = any free port)
-    backlog_messages: int = 64  # messages queued per client before its oldest are dropped (a stalled client)
+    backlog_messages: int = 36  # messages queued per client before its oldest are dropped (about three frames)
 
     def validate(self) -> None:
         if not 0 <= self.port < 65536:

@@ -1,12 +1,14 @@
 """Publishes FrameResults over the Foxglove WebSocket protocol (foxglove-sdk's server); runs in a viewer process.
 
 The server is the SDK's own (Rust, its own threads): a log call encodes the message (protobuf) and queues it for
-each subscribed client, at most `[foxglove] backlog_messages` per client, dropping the client's oldest when its
-queue is full; a log call never waits for a client, so a stalled or slow client costs only its own messages.
+each subscribed client, at most `[foxglove] backlog_messages` per client (about three frames' messages), dropping
+the client's oldest when its queue is full, so a slow client gets the latest frames, not a backlog; a log call
+never waits for a client. A message is only made for a channel some client subscribed to (Channel.has_sinks).
 The viewer process around it (tofd.service.viewer.process) keeps the pipeline from ever waiting on this one.
 
-Per frame (topics.py): range, amplitude and mask images, the calibration, the nose and the nose track as image
-annotations, the foreground as a point cloud, the viewed feature maps as images and the world -> camera
+Per frame (topics.py): range (a 16-bit PNG in the source's unit where that is exact, else float metres),
+amplitude and mask as PNG, the calibration, the nose and the nose track as image annotations, the foreground as
+a point cloud (at most pixels.CLOUD_POINTS points), the viewed feature maps as PNG and the world -> camera
 transform; every message of a frame has the host's wall-clock time of its arrival as timestamp and log time.
 """
 
@@ -20,6 +22,7 @@ import foxglove
 import numpy as np
 from foxglove.channels import (
     CameraCalibrationChannel,
+    CompressedImageChannel,
     FrameTransformChannel,
     ImageAnnotationsChannel,
     PointCloudChannel,
@@ -28,6 +31,7 @@ from foxglove.channels import (
 from foxglove.messages import (
     CameraCalibration,
     Color,
+    CompressedImage,
     FrameTransform,
     ImageAnnotations,
     KeyValuePair,
@@ -48,7 +52,8 @@ from tofd.config import Config
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.foxglove import topics as t
 from tofd.service.pipeline.results import FrameResult
-from tofd.service.viewer.pixels import corner_origin, track_box_px
+from tofd.service.viewer.encoding import amplitude_u16, code_unit_m, in_units, png, source_unit_m, z_depth_m
+from tofd.service.viewer.pixels import cloud_pixels, corner_origin, track_box_px
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +63,19 @@ STOP_WAIT_S = 1.0  # seconds close() waits for the clients' closing handshakes (
 NOSE_POINT_PX = 6.0  # diameter of the nose's point in the image, pixels
 CLOUD_FIELDS = ("x", "y", "z", "eps0")  # float32 each: metres in CAMERA_FRAME, then NFFT eps0
 CLOUD_DTYPE = np.dtype([(name, "<f4") for name in CLOUD_FIELDS])
+
+
+def _png(stamp: Timestamp, plane: np.ndarray) -> CompressedImage:
+    """A PNG CompressedImage in CAMERA_FRAME of a (H, W) uint8 or uint16 plane."""
+    return CompressedImage(timestamp=stamp, frame_id=t.CAMERA_FRAME, data=png(plane), format="png")
+
+
+def feature_u8(values: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 of a feature map (>= 0, NaN outside the foreground -> 0), 255 its largest value: Foxglove
+    shows it colour-mapped, where only the map's shape matters to the eye (Rerun keeps the float values)."""
+    finite = np.fmax(values, np.float32(0))  # fmax drops NaN
+    top = float(finite.max(initial=0.0))
+    return np.zeros(values.shape, np.uint8) if top <= 0 else np.rint(finite * (255 / top)).astype(np.uint8)
 
 
 def _image(stamp: Timestamp, plane: np.ndarray, encoding: str) -> RawImage:
@@ -94,15 +112,18 @@ class FoxglovePublisher:
         host = "127.0.0.1" if fc.bind in ("0.0.0.0", "") else fc.bind
         self.web_url = f"ws://{host}:{self.server.port}"
         ctx = self.context
-        self.images = {topic: RawImageChannel(topic, context=ctx)
-                       for topic in (t.RANGE, t.AMPLITUDE, t.MASK, *t.FEATURES.values())}
+        self.images = {topic: CompressedImageChannel(topic, context=ctx) for topic in (t.AMPLITUDE, t.MASK)}
+        self.features = {name: CompressedImageChannel(topic, context=ctx, metadata=t.FEATURE_METADATA)
+                         for name, topic in t.FEATURES.items()}
+        self.range: RawImageChannel | CompressedImageChannel | None = None  # opened at the first frame
+        self._range_unit: tuple[str, float] | None = None  # ("z" or "radial", metres per step) of a PNG range
         self.calibration = CameraCalibrationChannel(t.CALIBRATION, context=ctx)
         self.nose = ImageAnnotationsChannel(t.NOSE, context=ctx)
         self.track = ImageAnnotationsChannel(t.NOSE_TRACK, context=ctx)
         self.cloud = PointCloudChannel(t.FOREGROUND, context=ctx)
         self.transform = FrameTransformChannel(t.TRANSFORM, context=ctx)
         self._rays = intrinsics.unit_rays().astype(np.float32).reshape(-1, 3)
-        self._zeros = np.zeros(intrinsics.shape, np.float32)
+        self._ray_z = np.ascontiguousarray(self._rays[:, 2].reshape(intrinsics.shape))
         self._fields = [PackedElementField(name=name, offset=4 * i, type=PackedElementFieldNumericType.Float32)
                         for i, name in enumerate(CLOUD_FIELDS)]
 
@@ -111,24 +132,60 @@ class FoxglovePublisher:
         ns = int(wall_s * 1e9)
         stamp = Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
         frame = r.frame
-        amplitude = np.minimum(np.rint(np.fmax(frame.amplitude, self._zeros)), 65535).astype("<u2")
-        planes = {t.RANGE: (frame.range_m, "32FC1"), t.AMPLITUDE: (amplitude, "16UC1"),
-                  t.MASK: (np.where(r.mask, np.uint8(255), np.uint8(0)), "mono8"),
-                  **{topic: (np.fmax(r.features[name], self._zeros), "32FC1") for name, topic in t.FEATURES.items()}}
-        self.transform.log(FrameTransform(timestamp=stamp, parent_frame_id=t.WORLD_FRAME,
-                                          child_frame_id=t.CAMERA_FRAME, translation=Vector3(x=0, y=0, z=0),
-                                          rotation=Quaternion(**dict(zip("xyzw", t.OPTICAL_IN_WORLD, strict=True)))),
-                           log_time=ns)
-        self.calibration.log(calibration(self.intrinsics, stamp), log_time=ns)
-        for topic, (plane, encoding) in planes.items():
-            self.images[topic].log(_image(stamp, np.ascontiguousarray(plane), encoding), log_time=ns)
-        self.cloud.log(self._foreground(r, stamp), log_time=ns)
-        self.nose.log(self._nose(r, stamp), log_time=ns)
-        self.track.log(self._track(r, stamp), log_time=ns)
+        if self.range is None:
+            self._open_range(r)
+        assert self.range is not None
+        # in rising importance: a slow client's full queue drops its oldest messages first
+        if self.transform.has_sinks():
+            self.transform.log(FrameTransform(
+                timestamp=stamp, parent_frame_id=t.WORLD_FRAME, child_frame_id=t.CAMERA_FRAME,
+                translation=Vector3(x=0, y=0, z=0),
+                rotation=Quaternion(**dict(zip("xyzw", t.OPTICAL_IN_WORLD, strict=True)))), log_time=ns)
+        for name, channel in self.features.items():
+            if channel.has_sinks():
+                channel.log(_png(stamp, feature_u8(r.features[name])), log_time=ns)
+        if self.cloud.has_sinks():
+            self.cloud.log(self._foreground(r, stamp), log_time=ns)
+        if self.images[t.MASK].has_sinks():
+            self.images[t.MASK].log(_png(stamp, np.where(r.mask, np.uint8(255), np.uint8(0))), log_time=ns)
+        if self.calibration.has_sinks():
+            self.calibration.log(calibration(self.intrinsics, stamp), log_time=ns)
+        if self.images[t.AMPLITUDE].has_sinks():
+            self.images[t.AMPLITUDE].log(_png(stamp, amplitude_u16(frame.amplitude)), log_time=ns)
+        if self.range.has_sinks():
+            self._log_range(r, stamp, ns)
+        if self.nose.has_sinks():
+            self.nose.log(self._nose(r, stamp), log_time=ns)
+        if self.track.has_sinks():
+            self.track.log(self._track(r, stamp), log_time=ns)
+
+    def _open_range(self, r: FrameResult) -> None:
+        """At the first frame, the range's channel: a PNG of the source's own integers where the frame's are exact
+        in them (z-depth in SensorInfo's unit: millimetre cameras; radial range codes: the SR3000), its depth
+        kind and unit in the channel's metadata; else float32 radial range in metres (RawImage 32FC1)."""
+        frame = r.frame
+        candidates = [("z", source_unit_m(frame), z_depth_m(frame.range_m, self._ray_z)),
+                      ("radial", code_unit_m(frame), np.fmax(frame.range_m, np.float32(0)))]
+        for kind, unit, plane in candidates:
+            if unit is not None and in_units(plane, unit)[1]:
+                self._range_unit = (kind, unit)
+                self.range = CompressedImageChannel(t.RANGE, context=self.context,
+                                                    metadata=t.range_metadata(kind, unit))
+                return
+        self.range = RawImageChannel(t.RANGE, context=self.context, metadata=t.range_metadata("radial", 1.0))
+
+    def _log_range(self, r: FrameResult, stamp: Timestamp, ns: int) -> None:
+        """Log the frame's range image as its channel carries it (_open_range)."""
+        if isinstance(self.range, CompressedImageChannel) and self._range_unit is not None:
+            kind, unit = self._range_unit
+            plane = z_depth_m(r.frame.range_m, self._ray_z) if kind == "z" else np.fmax(r.frame.range_m, 0)
+            self.range.log(_png(stamp, in_units(plane, unit)[0]), log_time=ns)
+        elif isinstance(self.range, RawImageChannel):
+            self.range.log(_image(stamp, np.ascontiguousarray(r.frame.range_m), "32FC1"), log_time=ns)
 
     def _foreground(self, r: FrameResult, stamp: Timestamp) -> PointCloud:
-        """The foreground's points in CAMERA_FRAME with their NFFT eps0."""
-        at = np.flatnonzero(r.mask)
+        """The foreground's points in CAMERA_FRAME with their NFFT eps0 (pixels.cloud_pixels of the mask)."""
+        at = cloud_pixels(r.mask)
         points = np.empty(at.size, CLOUD_DTYPE)
         xyz = np.take(self._rays, at, axis=0) * np.take(r.frame.range_m.reshape(-1), at)[:, None]
         for axis, name in enumerate("xyz"):

@@ -11,23 +11,36 @@ from tofd.algorithm.names import VIEWED_MAPS
 CAMERA_FRAME = "camera"
 WORLD_FRAME = "world"
 
-RANGE = "/camera/range"  # foxglove.RawImage 32FC1: radial range along each pixel's ray, metres (NaN: invalid)
-AMPLITUDE = "/camera/amplitude"  # foxglove.RawImage 16UC1: amplitude, sensor units
-MASK = "/camera/mask"  # foxglove.RawImage mono8: 255 foreground, 0 background
+RANGE = "/camera/range"
+"""The range image, chosen at the first frame (its channel's metadata, range_metadata, says which):
+foxglove.CompressedImage, a 16-bit PNG of the source's own integers where they are exact (z-depth in millimetres
+of a millimetre camera; the SR3000's radial range codes), 0 where invalid; else foxglove.RawImage 32FC1: radial
+range along each pixel's ray, metres (NaN: invalid)."""
+AMPLITUDE = "/camera/amplitude"  # foxglove.CompressedImage, 16-bit PNG: amplitude, sensor units
+MASK = "/camera/mask"  # foxglove.CompressedImage, 8-bit PNG: 255 foreground, 0 background
 CALIBRATION = "/camera/calibration"  # foxglove.CameraCalibration: the intrinsics (K, P; ROS pixel convention)
 NOSE = "/camera/nose"  # foxglove.ImageAnnotations: the detected nose tip (none: no annotation)
 NOSE_TRACK = "/camera/nose_track"  # foxglove.ImageAnnotations: the confirmed nose track's box and confidence
 FOREGROUND = "/foreground"  # foxglove.PointCloud: foreground points (x, y, z metres, NFFT eps0) in CAMERA_FRAME
 TRANSFORM = "/tf"  # foxglove.FrameTransform: WORLD_FRAME -> CAMERA_FRAME
 FEATURES = {name: "/features/" + name.removeprefix("range_").replace("_", "/") for name in VIEWED_MAPS}
-"""Feature map name -> topic (range_fft_eps0 -> /features/fft/eps0): foxglove.RawImage 32FC1, 0 outside the
-foreground."""
+"""Feature map name -> topic (range_fft_eps0 -> /features/fft/eps0): foxglove.CompressedImage, an 8-bit PNG of
+the whole image, 0 outside the foreground (which PNG stores in a few bytes), 255 the frame's largest value
+(FEATURE_METADATA)."""
+FEATURE_METADATA = {"scale": "per frame: 255 is the frame's largest value, 0 none"}
 
-SCHEMAS = {RANGE: "foxglove.RawImage", AMPLITUDE: "foxglove.RawImage", MASK: "foxglove.RawImage",
-           CALIBRATION: "foxglove.CameraCalibration", NOSE: "foxglove.ImageAnnotations",
-           NOSE_TRACK: "foxglove.ImageAnnotations", FOREGROUND: "foxglove.PointCloud",
-           TRANSFORM: "foxglove.FrameTransform", **dict.fromkeys(FEATURES.values(), "foxglove.RawImage")}
-"""Every topic and the schema of its messages (protobuf encoded)."""
+SCHEMAS = {RANGE: "foxglove.CompressedImage | foxglove.RawImage", AMPLITUDE: "foxglove.CompressedImage",
+           MASK: "foxglove.CompressedImage", CALIBRATION: "foxglove.CameraCalibration",
+           NOSE: "foxglove.ImageAnnotations", NOSE_TRACK: "foxglove.ImageAnnotations",
+           FOREGROUND: "foxglove.PointCloud", TRANSFORM: "foxglove.FrameTransform",
+           **dict.fromkeys(FEATURES.values(), "foxglove.CompressedImage")}
+"""Every topic and the schema of its messages (protobuf encoded; RANGE: one of two, per source)."""
+
+
+def range_metadata(depth: str, unit_m: float) -> dict[str, str]:
+    """The RANGE channel's metadata: "depth" ("z" along the optical axis or "radial" along each pixel's ray) and
+    "unit_m" (metres per stored step; 1 for float metres)."""
+    return {"depth": depth, "unit_m": repr(unit_m)}
 
 OPTICAL_IN_WORLD = (-0.5, 0.5, -0.5, 0.5)
 """Quaternion (x, y, z, w) of CAMERA_FRAME's axes in WORLD_FRAME: z forward -> x, x right -> -y, y down -> -z."""

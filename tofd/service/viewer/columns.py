@@ -29,11 +29,12 @@ def offsets_of(lengths: Sequence[int] | np.ndarray) -> np.ndarray:
     return offsets
 
 
-def blobs(flat: np.ndarray, sizes: np.ndarray) -> pa.ListArray:
+def blobs(flat: np.ndarray, sizes: np.ndarray | Sequence[int], datatype: pa.DataType = IMAGE_BUFFER_TYPE
+          ) -> pa.ListArray:
     """Images stored back to back in the 1-D array `flat`, `sizes` elements each, as image buffers (Rerun's
-    ImageBuffer arrow type) without a copy."""
+    ImageBuffer arrow type, or another list of bytes: `datatype`) without a copy."""
     return pa.ListArray.from_arrays(pa.array(offsets_of(np.asarray(sizes) * flat.itemsize)),
-                                    pa.array(flat.view(np.uint8)), type=IMAGE_BUFFER_TYPE)
+                                    pa.array(flat.view(np.uint8)), type=datatype)
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,11 +1,13 @@
 """Logs FrameResults to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
 
-Per frame (~0.3 MB): z-depth under the Pinhole (what Rerun's DepthImage means, so the 3-D projection is right;
-the camera's radial range is it over each ray's z), amplitude (uint16), mask, four feature maps cropped to the
-foreground's bounding box (they are 0 outside it; the box is ~10 % of the frame) with the translation that puts
-the crop where it lies in the image, the foreground cloud (~3000 points), the detected nose in 2-D and 3-D,
-beside it the confirmed nose track (a box of pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its
-3-D point) and the track's confidence, one scalar per stage timing.
+Per frame: z-depth under the Pinhole (what Rerun's depth images mean, so the 3-D projection is right; the camera's
+radial range is it over each ray's z) as a 16-bit PNG in the source's unit where that is exact, else float32 metres
+(tofd.service.viewer.encoding), amplitude as uint16 (a PNG from encoding.PNG_MIN_PIXELS pixels on), the mask
+(Rerun's chunk compression shrinks it to a few kB), four feature maps cropped to the foreground's bounding box (they
+are 0 outside it) with the translation that puts the crop where it lies in the image, the foreground cloud (at most
+pixels.CLOUD_POINTS points, an even subsample of a large foreground), the detected nose in 2-D and 3-D, beside it
+the confirmed nose track (a box of pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D
+point) and the track's confidence, one scalar per stage timing.
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
 
 Everything per frame goes out as columns (Rerun's send_columns), `batch_frames` frames per send: a log call
@@ -44,7 +46,16 @@ from tofd.service.viewer.columns import (
     offsets_of,
     row_columns,
 )
-from tofd.service.viewer.pixels import corner_origin, track_box_px
+from tofd.service.viewer.encoding import (
+    PNG_MEDIA_TYPE,
+    PNG_MIN_PIXELS,
+    amplitude_u16,
+    in_units,
+    png,
+    source_unit_m,
+    z_depth_m,
+)
+from tofd.service.viewer.pixels import cloud_pixels, corner_origin, track_box_px
 from tofd.service.viewer.wire import OWN_TIMINGS
 
 POINT_COLOUR_MAP = FAMILY_TABLE["range_nfft"].map_name("eps0")  # colours the foreground's 3-D points
@@ -82,19 +93,6 @@ def colour_by(values: np.ndarray) -> np.ndarray:
     lo, hi = np.partition(kept, ranks)[ranks]
     idx = np.clip((logv - lo) * (255 / max(hi - lo, 1e-12)), 0, 255)
     return np.take(lut, np.where(finite, idx, 0).astype(np.intp))
-
-
-def fill_planes(out: dict[str, np.ndarray], r: FrameResult, ray_z: np.ndarray, zeros: np.ndarray) -> None:
-    """Write one frame's full-frame images into `out` (entity -> (H, W) row of the batch's buffer): z-depth
-    (radial range times ray_z) in metres, amplitude as uint16 sensor units, mask; NaN -> 0.
-
-    zeros: (H, W) float32 zeros (numpy's fmax against an array is several times faster than against a scalar).
-    """
-    depth = np.fmax(r.frame.range_m, zeros, out=out[bp.RANGE])  # fmax drops NaN; ranges are >= 0
-    np.multiply(depth, ray_z, out=depth)
-    amplitude = np.rint(np.fmax(r.frame.amplitude, zeros))
-    np.minimum(amplitude, 65535, out=out[bp.AMPLITUDE], casting="unsafe")
-    out[bp.MASK][...] = r.mask
 
 
 def foreground_box(mask: np.ndarray) -> tuple[slice, slice]:
@@ -173,6 +171,7 @@ class Shown(Batch):
     logging time and row in the series batch."""
 
     images: dict[str, np.ndarray] = field(default_factory=dict)  # entity -> (batch_frames, H, W), row per frame
+    encoded: dict[str, list[bytes]] = field(default_factory=dict)  # entity -> its PNG per frame
     crops: dict[str, list[np.ndarray]] = field(default_factory=dict)  # feature entity -> its crop per frame
     corners: list[tuple[int, int]] = field(default_factory=list)  # per frame: the crops' top-left pixel (x, y)
     arrival_s: list[float] = field(default_factory=list)
@@ -191,12 +190,18 @@ class RerunLogger:
         self._rays = intrinsics.unit_rays().astype(np.float32)
         self._ray_z = np.ascontiguousarray(self._rays[..., 2])  # z-depth = radial range * cos(angle to the axis)
         self._zeros = np.zeros(intrinsics.shape, np.float32)
-        range_style = rr.DepthImage.from_fields(meter=1.0, colormap="turbo")
+        self._z = np.empty(intrinsics.shape, np.float32)  # the frame's z-depth, metres, when it goes encoded
         # a DepthImage is Rerun's colour-mapped scalar image; the eccentricities are not depths (0 = background)
         feature_style = rr.DepthImage.from_fields(colormap="viridis")
-        self._images = {bp.RANGE: ImageEntity(rr.DepthImage, np.float32, range_style),
-                        bp.AMPLITUDE: ImageEntity(rr.Image, np.uint16, color_model="L"),
-                        bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8)}
+        self._images = {bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8)}  # raw planes (and a float depth)
+        # PNG planes: archetype; the depth's joins at the first frame if its unit is exact
+        self._encoded: dict[str, type] = {}
+        if intrinsics.width * intrinsics.height >= PNG_MIN_PIXELS:
+            self._encoded[bp.AMPLITUDE] = rr.EncodedImage
+        else:
+            self._images[bp.AMPLITUDE] = ImageEntity(rr.Image, np.uint16, color_model="L")
+        self._depth_unit_m: float | None = None  # the depth's unit when it goes as PNG
+        self._depth_chosen = False
         self._crop = ImageEntity(rr.DepthImage, np.float32, feature_style)  # every feature map's
         self._shape = height, width = intrinsics.shape
         # as arrow, built once: Rerun's conversion is slow
@@ -214,6 +219,8 @@ class RerunLogger:
                 static=True)
         styles = {**{path: image.style for path, image in self._images.items()},
                   **dict.fromkeys(bp.FEATURES.values(), self._crop.style),
+                  **({bp.AMPLITUDE: rr.EncodedImage.from_fields(media_type=PNG_MEDIA_TYPE)}
+                     if bp.AMPLITUDE in self._encoded else {}),
                   **{path: style for path, (_, style) in PARTS.items()}}
         for path, style in styles.items():
             if style is not None:
@@ -236,13 +243,13 @@ class RerunLogger:
             self.rec.set_time("device_time", duration=device_s)
             self.rec.log(bp.EVENTS, rr.TextLog(f"{r.gap_before} before frame {frame.frame_counter}",
                                                level=rr.TextLogLevel.WARN))
-        fill_planes({path: buffer[row] for path, buffer in shown.images.items()}, r, self._ray_z, self._zeros)
+        self._add_planes(r, row)
         box = foreground_box(r.mask)
         shown.corners.append((box[1].start, box[0].start))
         for name, path in bp.FEATURES.items():  # eccentricities are >= 0; NaN outside the foreground
             shown.crops.setdefault(path, []).append(np.fmax(r.features[name][box], self._zeros[box]))
         if self.point_cloud:
-            at = np.flatnonzero(r.mask)  # np.take of a flat index is far faster than a 2-D mask or fancy index
+            at = cloud_pixels(r.mask)  # np.take of a flat index is far faster than a 2-D mask or fancy index
             ranges = np.take(frame.range_m.reshape(-1), at)
             shown.add(bp.FOREGROUND, row, positions=np.take(self._rays.reshape(-1, 3), at, axis=0) * ranges[:, None],
                       colors=colour_by(np.take(r.features[POINT_COLOUR_MAP].reshape(-1), at)))
@@ -255,6 +262,42 @@ class RerunLogger:
             self.flush()  # the views' batch first: its frames' logging times and latencies join the series
         elif shown.due(self.batch_frames):
             self._send_shown()
+
+    def _add_planes(self, r: FrameResult, row: int) -> None:
+        """The frame's depth (z-depth: PNG in the source's unit or float32 metres), amplitude (uint16: PNG from
+        PNG_MIN_PIXELS pixels on) and mask."""
+        shown = self._shown
+        if not self._depth_chosen:
+            self._choose_depth(r)
+        if self._depth_unit_m is None:
+            z_depth_m(r.frame.range_m, self._ray_z, out=shown.images[bp.RANGE][row])
+        else:
+            units, _ = in_units(z_depth_m(r.frame.range_m, self._ray_z, out=self._z), self._depth_unit_m)
+            shown.encoded.setdefault(bp.RANGE, []).append(png(units))
+        amplitude = amplitude_u16(r.frame.amplitude)
+        if bp.AMPLITUDE in self._encoded:
+            shown.encoded.setdefault(bp.AMPLITUDE, []).append(png(amplitude))
+        else:
+            shown.images[bp.AMPLITUDE][row] = amplitude
+        shown.images[bp.MASK][row] = r.mask
+
+    def _choose_depth(self, r: FrameResult) -> None:
+        """At the first frame: the depth goes as a 16-bit PNG in the source's unit when the frame's z-depth is
+        exactly that (encoding.in_units), else as float32 metres; its static style (metre, colour map)."""
+        unit = source_unit_m(r.frame)
+        if unit is not None and in_units(z_depth_m(r.frame.range_m, self._ray_z, out=self._z), unit)[1]:
+            self._depth_unit_m = unit
+            self._encoded[bp.RANGE] = rr.EncodedDepthImage
+            style: rr.AsComponents = rr.EncodedDepthImage.from_fields(media_type=PNG_MEDIA_TYPE, meter=1.0 / unit,
+                                                                     colormap="turbo")
+        else:
+            self._images[bp.RANGE] = ImageEntity(rr.DepthImage, np.float32)
+            height, width = self._shape
+            self._formats[bp.RANGE] = image_format(height=height, width=width, color_model=None, dtype=np.float32)
+            self._shown.images[bp.RANGE] = np.empty((self.batch_frames, *self._shape), np.float32)
+            style = rr.DepthImage.from_fields(meter=1.0, colormap="turbo")
+        self.rec.log(bp.RANGE, style, static=True)
+        self._depth_chosen = True
 
     def _add_nose_and_track(self, r: FrameResult, row: int, series_row: int) -> None:
         """The detected nose (its refined tip, else the accepted pixel; none: an empty row), and the confirmed track's
@@ -296,6 +339,10 @@ class RerunLogger:
             self._send(path, b, rows, image_columns(
                 image.archetype, blobs(frames.reshape(-1), np.full(len(rows), frames[0].size)),
                 self._formats_of(path, len(rows))))
+        for path, encoded in b.encoded.items():
+            descriptor, datatype = component_type(self._encoded[path], "blob")
+            flat = np.frombuffer(b"".join(encoded), np.uint8)
+            self._send(path, b, rows, row_columns((descriptor, blobs(flat, [len(e) for e in encoded], datatype))))
         self._send_crops(b, rows)
         self._send_parts(b)
         share_ms = (time.perf_counter() - t0) * 1e3 / len(rows)

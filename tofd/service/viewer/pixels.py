@@ -35,3 +35,22 @@ def track_box_px(track: TrackState | None, intrinsics: Intrinsics) -> tuple[np.n
     if px is None or track is None or track.nose_xyz_m is None:
         return None
     return corner_origin(px), TRACK_BOX_M / 2 * intrinsics.fx / track.nose_xyz_m[2]
+
+
+CLOUD_POINTS = 6000
+"""Most foreground points a viewer's 3-D view gets per frame (a density it draws at the camera's rate)."""
+
+
+def cloud_pixels(mask: np.ndarray, most: int = CLOUD_POINTS) -> np.ndarray:
+    """Flat indices of the (H, W) mask's pixels on the grid of every k-th row and column (k >= 1 the least that
+    keeps at most `most` of them), in row-major order: every pixel while the foreground is small, else an even
+    subsample of it."""
+    count = int(np.count_nonzero(mask))
+    step = 1
+    while count > most:
+        step += 1
+        count = int(np.count_nonzero(mask[::step, ::step]))
+    if step == 1:
+        return np.flatnonzero(mask)
+    rows, cols = np.nonzero(mask[::step, ::step])
+    return (rows * step) * mask.shape[1] + cols * step

@@ -181,7 +181,7 @@ class ViewerProcess:
             from tofd.service.viewer.rerun_sink import RerunBackend, rerun_log_env, rerun_output
 
             open_backend, env = RerunBackend, rerun_log_env(sink, footer)
-            self.output, self._writing, cfg = rerun_output(cfg, sink)
+            self.output, self._writing, cfg = rerun_output(cfg, sink, footer)
         ctx = mp.get_context("spawn")
         self.queue_frames = queue_frames
         self.failed: str | None = None  # why the output failed, once the child said so

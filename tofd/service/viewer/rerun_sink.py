@@ -27,12 +27,12 @@ FILE_SINK_LOG = "re_log_encoding::rrd=off,re_sdk::recording_stream=off"
 (no warning that a live file has no footer; a failed file is reported by tofd, once)."""
 
 
-def rerun_output(cfg: Config, sink: str) -> tuple[Path | None, Path | None, Config]:
+def rerun_output(cfg: Config, sink: str, footer: bool) -> tuple[Path | None, Path | None, Config]:
     """A "save" sink's .rrd (None for other sinks), the temp file it grows in until the viewer process finishes
-    it (None where numbered segments, rotation.py, are written under their own names), and the config the viewer
-    process gets (writing the temp file)."""
+    it (None where numbered segments of a live file, rotation.py, are written under their own names), and the
+    config the viewer process gets (writing the temp file)."""
     output = Path(cfg.rerun.path) if sink == "save" else None
-    writing = None if output is None or FileRotation.wanted(cfg.rerun, sink) else temp_path(output)
+    writing = None if output is None or FileRotation.wanted(cfg.rerun, sink, footer) else temp_path(output)
     if writing is not None:
         cfg = replace(cfg, rerun=replace(cfg.rerun, path=str(writing)))
     return output, writing, cfg
@@ -52,7 +52,7 @@ class RerunBackend:
 
     def __init__(self, cfg: Config, sink: str, batch_frames: int, footer: bool):
         self.cfg, self.sink, self.batch_frames, self.footer = cfg, sink, batch_frames, footer
-        self.rotation = FileRotation(cfg.rerun) if FileRotation.wanted(cfg.rerun, sink) else None
+        self.rotation = FileRotation(cfg.rerun) if FileRotation.wanted(cfg.rerun, sink, footer) else None
         self.recording_id = str(uuid.uuid4())  # one recording over every segment
         self._checked_s, self._size_seen, self._logged_seen = time.monotonic(), -1, 0  # output_problem's checks
         self._open(None if self.rotation is None else self.rotation.segment())

@@ -1,10 +1,10 @@
 """Size and time limits of the live .rrd file: numbered segments, the oldest deleted beyond a count.
 
-With `[rerun] rotate_mb` or `rotate_s` set, the "save" sink writes <stem>.00000.rrd, <stem>.00001.rrd, ... beside
-`path`, starting the next segment once the current one holds rotate_mb megabytes or rotate_s seconds, and keeps
-the newest `keep_files` (0: all). Every segment is a complete recording with the same recording id, so
-`rerun <stem>.*.rrd` shows them as one. Sizes are checked against what the SDK has written, which it does in
-batches (targets.FILE_BATCHER): a segment ends up to one batch past rotate_mb.
+With `[rerun] rotate_mb` or `rotate_s` set, a live run's "save" sink writes <stem>.00000.rrd, <stem>.00001.rrd, ...
+beside `path` (a replay's file, with its footer, is one), starting the next segment once the current one holds
+rotate_mb megabytes or rotate_s seconds, and keeps the newest `keep_files` (0: all). Every segment is a complete
+recording with the same recording id, so `rerun <stem>.*.rrd` shows them as one. Sizes are checked against what the
+SDK has written, which it does in batches (targets.FILE_BATCHER): a segment ends up to one batch past rotate_mb.
 """
 
 from __future__ import annotations
@@ -28,9 +28,10 @@ class FileRotation:
         self.opened_s = self._checked_s = time.monotonic()
 
     @staticmethod
-    def wanted(cfg: RerunConfig, sink: str) -> bool:
-        """Whether the sink is a file with a size or time limit."""
-        return sink == "save" and (cfg.rotate_mb > 0 or cfg.rotate_s > 0)
+    def wanted(cfg: RerunConfig, sink: str, footer: bool) -> bool:
+        """Whether the sink is a live file (no footer: a lossless replay's .rrd is one complete recording) with a
+        size or time limit."""
+        return sink == "save" and not footer and (cfg.rotate_mb > 0 or cfg.rotate_s > 0)
 
     def segment(self, index: int | None = None) -> Path:
         """The path of segment `index` (the current one by default)."""

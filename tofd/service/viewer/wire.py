@@ -7,13 +7,14 @@ pipe. No pickle, and no large message: a pipe carries each byte through two kern
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from typing import TypedDict
 
 import numpy as np
 
 from tofd.algorithm.names import VIEWED_MAPS
-from tofd.drivers.frame import Frame
+from tofd.drivers.frame import Frame, Registers, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.pipeline.messages import DetectionMessage
 from tofd.service.pipeline.results import FrameResult, track_dict, track_from
@@ -42,6 +43,8 @@ class FrameHeader(TypedDict):
     timings_ms: dict[str, float]
     detection: DetectionMessage | None
     track: dict | None  # results.track_dict
+    registers: dict | None  # the frame's Registers as a dict (an SR3000's: the unit of its range codes)
+    sensor: dict | None  # the frame's SensorInfo.to_dict() (its depth unit decides how the viewers show depth)
 
 
 def write(r: FrameResult, slot: int, planes: dict[str, np.ndarray]) -> bytes:
@@ -54,7 +57,9 @@ def write(r: FrameResult, slot: int, planes: dict[str, np.ndarray]) -> bytes:
                          host_monotonic_s=f.host_monotonic_s, arrival_s=r.arrival_s, gap_before=r.gap_before,
                          nfft_iterations=r.nfft_iterations, nfft_residual=r.nfft_residual,
                          timings_ms={k: v for k, v in r.timings_ms.items() if k not in OWN_TIMINGS},
-                         detection=None if det is None else detection_dict(det), track=track_dict(r.track))
+                         detection=None if det is None else detection_dict(det), track=track_dict(r.track),
+                         registers=None if f.registers is None else dataclasses.asdict(f.registers),
+                         sensor=None if f.sensor is None else f.sensor.to_dict())
     return json.dumps(header).encode()
 
 
@@ -64,7 +69,9 @@ def read(header: bytes, ring: SlotRing, intrinsics: Intrinsics) -> FrameResult:
     h: FrameHeader = json.loads(header)
     planes = ring.views(h["slot"])
     frame = Frame(planes["range_m"], planes["amplitude"], h["frame_counter"], h["timestamp_us"],
-                  host_monotonic_s=h["host_monotonic_s"], host_wall_s=0.0, intrinsics=intrinsics)
+                  host_monotonic_s=h["host_monotonic_s"], host_wall_s=0.0, intrinsics=intrinsics,
+                  registers=None if h["registers"] is None else Registers(**h["registers"]),
+                  sensor=None if h["sensor"] is None else SensorInfo.from_dict(h["sensor"]))
     return FrameResult(seq=h["seq"], frame=frame, mask=planes["mask"],
                        features={name: planes[name] for name in VIEWED_MAPS}, nfft_iterations=h["nfft_iterations"],
                        nfft_residual=h["nfft_residual"], arrival_s=h["arrival_s"], timings_ms=h["timings_ms"],

@@ -1,0 +1,295 @@
+"""Viewer data rates: bytes per frame and MB/s per view of the Rerun .rrd and of the Foxglove stream, per camera, and
+the replay rate with and without each viewer, from one run.
+
+    python bench/bench_viewers.py                      # sr3000 (the bundled clip) and 640x576
+    python bench/bench_viewers.py --replay-frames 300 --runs 3 --live-seconds 10
+
+Per camera (bench/cameras.py): the SR3000's bundled clip (replay_data/emulated_face_035_070.mcap) and a clip of the
+emulator's face rendered in the Azure Kinect NFOV geometry (640x576) as a millimetre camera delivers it (z-depth in
+whole mm, amplitude in whole units), once per --conditions sensor model (tofd.lab.conditions: the training sensor's
+noise, which grows as the amplitude falls, and a constant 4 mm): lossless PNG shrinks a plane to about its noise's
+entropy, so the sizes follow the noise. Lossless replay of --replay-frames frames (the clip looped) through the real
+pipeline, --runs times each of: no viewer, the daemon's Rerun viewer process saving an .rrd (batched, as a replay
+does), and the Foxglove viewer process with one client subscribed to every channel (reading as fast as it can); runs
+interleaved, fps is the median run's, ratios against no viewer in the same run. The .rrd of the last Rerun run gives
+bytes per frame on disk (Rerun's LZ4 chunks) and per view the bytes its rows hold (an encoded image's PNG, a raw
+image's pixels, the points) before that compression. Then --live-seconds of the clip replayed in real time (30 fps,
+looped, latest-wins, bench/cameras.MemoryCamera) with the Foxglove viewer and a client subscribed to every channel:
+bytes per message and MB/s received per topic. Rerun's live rate is its bytes per frame times 30 fps; with the
+config's file rotation ([rerun] rotate_mb x (keep_files + 1): the most a live .rrd takes on disk), the hours of
+recording that budget keeps; and per camera the least bytes a lossless coder predicting from the left neighbour
+gets the first frame's depth and amplitude to (the entropy of their row differences). Prints tables,
+writes bench/results/bench_viewers.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import struct
+import tempfile
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import websocket
+from bench_pipeline import CLIP, Latencies, with_detector
+from cameras import CAMERAS, FRAME_PERIOD_US, MemoryCamera, write_face_clip
+from report import write_json
+
+from tofd.config import load_config
+from tofd.drivers.recording.replay import ReplaySource
+from tofd.lab.conditions import CONDITIONS, TRAIN_CONDITION
+from tofd.process_setup import prepare_service_process
+from tofd.service.foxglove.publisher import FoxglovePublisher
+from tofd.service.model import load_service_model
+from tofd.service.pipeline import Pipeline, maps_read
+from tofd.service.viewer.encoding import amplitude_u16, in_units, source_unit_m, z_depth_m
+from tofd.service.viewer.logger import frames_per_send
+from tofd.service.viewer.process import ViewerProcess
+from tofd.service.viewer.targets import file_footer
+
+KINDS = ("none", "rerun", "foxglove")
+LIVE_FPS = 1e6 / FRAME_PERIOD_US
+SUBPROTOCOL = "foxglove.sdk.v1"
+MESSAGE_DATA = 0x01  # Foxglove WebSocket binary opcode: subscription id (uint32 LE), log time (uint64 LE), payload
+
+
+class CountingClient:
+    """A Foxglove WebSocket client subscribed to every channel (advertised now or later) on a thread, counting the
+    messages and payload bytes it receives per topic."""
+
+    def __init__(self, url: str):
+        self.ws = websocket.create_connection(url, subprotocols=[SUBPROTOCOL], timeout=10)
+        self.topics: dict[int, str] = {}
+        self.messages: dict[str, int] = {}
+        self.bytes: dict[str, int] = {}
+        self.started_s = time.monotonic()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, name="counting-client", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        self.ws.settimeout(0.5)
+        while not self._stop.is_set():
+            try:
+                data = self.ws.recv()
+            except websocket.WebSocketTimeoutException:
+                continue
+            except (websocket.WebSocketConnectionClosedException, ConnectionError, OSError):
+                return
+            if isinstance(data, str):
+                msg = json.loads(data)
+                if msg.get("op") == "advertise":
+                    fresh = {c["id"]: c["topic"] for c in msg["channels"]}
+                    self.topics.update(fresh)
+                    self.ws.send(json.dumps({"op": "subscribe",
+                                             "subscriptions": [{"id": i, "channelId": i} for i in fresh]}))
+            elif data and data[0] == MESSAGE_DATA:
+                topic = self.topics[struct.unpack_from("<I", data, 1)[0]]
+                self.messages[topic] = self.messages.get(topic, 0) + 1
+                self.bytes[topic] = self.bytes.get(topic, 0) + len(data) - 13
+
+    def reset(self) -> None:
+        """Count from now on."""
+        self.messages, self.bytes, self.started_s = {}, {}, time.monotonic()
+
+    def close(self) -> float:
+        """Stop reading; the seconds counted."""
+        seconds = time.monotonic() - self.started_s
+        self._stop.set()
+        self._thread.join(5)
+        self.ws.close()
+        return seconds
+
+
+def viewers(cfg, kind: str, policy: str, rrd: Path) -> tuple[ViewerProcess | None, ViewerProcess | None]:
+    """The (Rerun viewer process saving `rrd`, Foxglove viewer process on a free port) of a run of `kind`."""
+    if kind == "rerun":
+        sink_cfg = replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd)))
+        sends = frames_per_send(sink_cfg.rerun, policy)
+        return ViewerProcess(sink_cfg, "save", sends, footer=file_footer(policy)), None
+    if kind == "foxglove":
+        fox_cfg = replace(cfg, foxglove=replace(cfg.foxglove, enabled=True, bind="127.0.0.1", port=0))
+        return None, ViewerProcess(fox_cfg, "foxglove", open_backend=FoxglovePublisher, name="foxglove")
+    return None, None
+
+
+def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: float | None, tmp: Path) -> dict:
+    """One run of `source` through the pipeline with the viewer of `kind`: fps, and the client's or the .rrd's
+    counts."""
+    rrd = tmp / f"{kind}-{time.monotonic_ns()}.rrd"
+    viewer, foxglove = viewers(cfg, kind, policy, rrd)
+    client = CountingClient(foxglove.web_url) if foxglove is not None and foxglove.web_url else None
+    lat = Latencies(max(1, (frames or 300) // 10), dict)  # steady fps: after the first tenth
+    pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(lat,), model=load_service_model(cfg),
+                        live_source=policy == "latest", live_viewers=() if foxglove is None else (foxglove,),
+                        result_maps=maps_read(kind != "none"))
+    pipeline.start(source, frames)
+    if client is not None:
+        client.reset()
+    t0 = time.monotonic()
+    if seconds is not None:
+        time.sleep(seconds)
+        pipeline.stop()
+    pipeline.wait()
+    elapsed = time.monotonic() - t0
+    summary = pipeline.close()
+    out: dict = {"frames_out": summary["frames_out"], "seconds": round(elapsed, 2),
+                 "fps": round(lat.steady_fps() or summary["frames_out"] / elapsed, 2)}
+    if client is not None:
+        counted_s = client.close()
+        out["client"] = {"seconds": round(counted_s, 2), "messages": client.messages, "bytes": client.bytes}
+    out["viewer_reports"] = [v.close(60.0) for v in (viewer, foxglove) if v is not None]
+    if viewer is not None:
+        out["rrd"] = str(rrd)
+    return out
+
+
+def rrd_views(path: Path, frames: int) -> dict:
+    """The .rrd's bytes on disk per frame and, per entity, the bytes of its rows (before Rerun's compression) per
+    frame."""
+    from rerun.chunk import RrdReader
+
+    per_entity: dict[str, int] = {}
+    for chunk in RrdReader(str(path)).stream().to_chunks():
+        if not chunk.is_static:
+            batch = chunk.to_record_batch()
+            per_entity[chunk.entity_path] = per_entity.get(chunk.entity_path, 0) + batch.nbytes
+    return {"file_bytes_per_frame": round(path.stat().st_size / frames),
+            "views_bytes_per_frame": {e: round(b / frames) for e, b in sorted(per_entity.items(), key=lambda x: -x[1])
+                                      if b / frames >= 100}}
+
+
+def delta_entropy_bytes(plane: np.ndarray) -> int:
+    """Bytes of a (H, W) integer plane at the entropy of its differences along rows (bits per pixel times pixels):
+    about the least a lossless coder that predicts from the left neighbour (PNG's SUB filter) gets it to."""
+    _, counts = np.unique(np.diff(plane.astype(np.int64), axis=1), return_counts=True)
+    p = counts / counts.sum()
+    return round(float(-(p * np.log2(p)).sum()) * plane.size / 8)
+
+
+def lossless_bounds(clip: Path) -> dict:
+    """delta_entropy_bytes of the clip's first frame's depth (in its source's unit, when whole) and amplitude."""
+    with ReplaySource(clip) as source:
+        frame = next(iter(source))
+    unit = source_unit_m(frame)
+    z = z_depth_m(frame.range_m, frame.intrinsics.unit_rays()[..., 2].astype(np.float32))
+    units = in_units(z, unit) if unit is not None else None
+    return {"depth": delta_entropy_bytes(units[0]) if units is not None and units[1] else None,
+            "amplitude": delta_entropy_bytes(amplitude_u16(frame.amplitude))}
+
+
+def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs: int, live_s: float, tmp: Path
+            ) -> dict:
+    """Replay rates with each viewer, the .rrd's and the live Foxglove stream's sizes, of one camera's clip."""
+    cam_cfg = replace(cfg, intrinsics=CAMERAS[name])
+    each: dict[str, list[dict]] = {kind: [] for kind in KINDS}
+    for _ in range(runs):
+        for kind in KINDS:
+            with ReplaySource(clip, loop=True) as source:
+                each[kind].append(run(cam_cfg, source, kind, "lossless", frames=replay_frames, seconds=None, tmp=tmp))
+    fps = {kind: float(np.median([r["fps"] for r in rows])) for kind, rows in each.items()}
+    last_rerun = each["rerun"][-1]
+    rrd = rrd_views(Path(last_rerun["rrd"]), last_rerun["frames_out"])
+    live = run(cam_cfg, MemoryCamera(clip), "foxglove", "latest", frames=None, seconds=live_s, tmp=tmp)
+    client = live["client"]
+    seconds = client["seconds"]
+    fox_topics = {topic: {"bytes_per_message": round(client["bytes"][topic] / n),
+                          "MB_per_s": round(client["bytes"][topic] / seconds / 1e6, 3)}
+                  for topic, n in sorted(client["messages"].items())}
+    frame_bytes = sum(t["bytes_per_message"] for t in fox_topics.values())
+    rerun_mb_s = rrd["file_bytes_per_frame"] * LIVE_FPS / 1e6
+    budget_gb = cfg.rerun.rotate_mb * (cfg.rerun.keep_files + 1) / 1e3  # the kept segments and the one written
+    return {
+        "camera": name, "sensor_model": condition, "pixels": f"{CAMERAS[name].width}x{CAMERAS[name].height}",
+        "replay_fps": {kind: round(v, 1) for kind, v in fps.items()},
+        "replay_fps_each": {kind: [r["fps"] for r in rows] for kind, rows in each.items()},
+        "rerun_over_none": round(fps["rerun"] / fps["none"], 3),
+        "foxglove_over_none": round(fps["foxglove"] / fps["none"], 3),
+        "rerun_MB_per_frame": round(rrd["file_bytes_per_frame"] / 1e6, 4),
+        "rerun_live_MB_per_s_at_30fps": round(rerun_mb_s, 2),
+        "rerun_live_GB_per_day": round(rerun_mb_s * 86400 / 1e3),
+        "rerun_rotation_budget_GB": round(budget_gb, 1),
+        "rerun_hours_kept_in_budget": round(budget_gb * 1e3 / rerun_mb_s / 3600, 1) if budget_gb else None,
+        "rerun_views_bytes_per_frame": rrd["views_bytes_per_frame"],
+        "lossless_bound_bytes": lossless_bounds(clip),
+        "foxglove_live_fps": live["fps"],
+        "foxglove_MB_per_s": round(sum(client["bytes"].values()) / seconds / 1e6, 2),
+        "foxglove_frame_bytes": frame_bytes,  # a published frame: every topic's mean message
+        "foxglove_MB_per_s_at_30fps": round(frame_bytes * LIVE_FPS / 1e6, 2),
+        "foxglove_topics": fox_topics,
+    }
+
+
+def print_tables(rows: list[dict]) -> None:
+    print(f"{'camera':>8} {'sensor model':>14} {'fps none':>9} {'rerun':>7} {'ratio':>6} {'foxglove':>9} {'ratio':>6} "
+          f"{'rrd MB/frame':>13} {'rrd MB/s@30':>12} {'fox MB/s':>9} {'fox kB/frame':>13} {'fox MB/s@30':>12}")
+    for r in rows:
+        f = r["replay_fps"]
+        print(f"{r['camera']:>8} {r['sensor_model']:>14} {f['none']:>9} {f['rerun']:>7} {r['rerun_over_none']:>6} "
+              f"{f['foxglove']:>9} {r['foxglove_over_none']:>6} {r['rerun_MB_per_frame']:>13} "
+              f"{r['rerun_live_MB_per_s_at_30fps']:>12} "
+              f"{r['foxglove_MB_per_s']:>9} {r['foxglove_frame_bytes'] / 1e3:>13.1f} "
+              f"{r['foxglove_MB_per_s_at_30fps']:>12}")
+    for r in rows:
+        print(f"\n{r['camera']} ({r['sensor_model']}): Rerun bytes per frame per view (before LZ4)")
+        for entity, b in r["rerun_views_bytes_per_frame"].items():
+            print(f"  {entity:40s} {b:>10}")
+        print(f"  lossless bound (entropy of row differences): {r['lossless_bound_bytes']}")
+        print(f"{r['camera']} ({r['sensor_model']}): Foxglove per topic (live, {r['foxglove_live_fps']} fps)")
+        for topic, t in r["foxglove_topics"].items():
+            print(f"  {topic:40s} {t['bytes_per_message']:>10} B  {t['MB_per_s']:>8} MB/s")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cameras", type=lambda text: text.split(","), default=["sr3000", "640x576"],
+                    help=f"of: {', '.join(CAMERAS)} (sr3000: the bundled clip; others rendered as a mm camera)")
+    ap.add_argument("--replay-frames", type=int, default=300, help="frames per lossless replay (the clip looped)")
+    ap.add_argument("--runs", type=int, default=3, help="replay runs per viewer kind (interleaved; the median)")
+    ap.add_argument("--camera-frames", type=int, default=60, help="frames of a rendered clip")
+    ap.add_argument("--live-seconds", type=float, default=10.0, help="seconds of the real-time Foxglove run")
+    ap.add_argument("--conditions", type=lambda text: text.split(","), default=[TRAIN_CONDITION, "noise_constant"],
+                    help=f"sensor models the rendered clips are made with (of: {', '.join(CONDITIONS)})")
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_viewers.json")
+    args = ap.parse_args()
+    prepare_service_process()  # as `tofd run` / `tofd replay` set up their process
+    unknown = [c for c in args.cameras if c not in CAMERAS]
+    if unknown:
+        ap.error(f"--cameras: unknown {', '.join(unknown)} (known: {', '.join(CAMERAS)})")
+    unknown = [c for c in args.conditions if c not in CONDITIONS]
+    if unknown:
+        ap.error(f"--conditions: unknown {', '.join(unknown)} (known: {', '.join(CONDITIONS)})")
+    results: dict = {
+        "title": "Viewer data rates (Rerun, Foxglove) and replay rate with each viewer",
+        "about": (f"bench/bench_viewers.py: lossless replay of {args.replay_frames} frames, {args.runs} runs per "
+                  f"viewer (median); Rerun: the .rrd a replay saves (MB per frame on disk; MB/s live = that at "
+                  f"30 fps); Foxglove: {args.live_seconds:g} s real-time replay at 30 fps, one client subscribed to "
+                  "every channel. 640x576: the emulator's face rendered as a millimetre camera (z-depth in whole "
+                  "mm) delivers it."),
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                    "load_avg_at_start": [round(x, 2) for x in os.getloadavg()]}}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp_path = Path(tmp)
+        cfg = with_detector(load_config(), tmp_path)
+        rows = []
+        for name in args.cameras:
+            for condition in ["bundled clip"] if name == "sr3000" else args.conditions:
+                clip = CLIP if name == "sr3000" else write_face_clip(
+                    tmp_path / f"{name}-{condition}.mcap", CAMERAS[name], args.camera_frames, millimetres=True,
+                    model=CONDITIONS[condition])
+                rows.append(compare(cfg, name, condition, clip, args.replay_frames, args.runs, args.live_seconds,
+                                    tmp_path))
+                print(json.dumps(rows[-1]))
+    results["rows"] = rows
+    print_tables(rows)
+    write_json(args.out, results)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,80 @@
+"""How the viewers (Rerun, Foxglove) carry a frame's planes: depth in its source's unit, images as 16-bit PNG.
+
+A camera that measures z-depth in whole units (millimetres: Azure Kinect, RealSense, Orbbec; SensorInfo's
+depth_unit_m) is shown as uint16 z-depth in that unit, which is lossless; a source whose z-depth is not a whole
+number of its unit at every pixel (the SR3000 measures radial range; rendered or float sources) is shown as
+float32 metres. PNG (zlib level 1 with its run-length strategy: the planes are noisy, so long string matches
+hardly pay, while the runs of a mask or of a feature map's zeros do) is what both viewers decode.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from tofd.drivers import sr3000
+from tofd.drivers.frame import Frame
+
+PNG_MEDIA_TYPE = "image/png"
+PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
+              cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]  # one filter: half the time of trying each
+WHOLE_UNIT_TOLERANCE = 0.05
+"""A z-depth within this many units of a whole number is that number (float32 round-off of the driver's
+unit -> radial range -> z-depth conversion is far below it)."""
+U16_MAX = 65535
+PNG_MIN_PIXELS = 100_000
+"""An image of fewer pixels goes to Rerun raw: its chunk compression (LZ4) gets an SR3000's 176x144 amplitude
+nearly as small as PNG does, for a fraction of the CPU."""
+
+
+def source_unit_m(frame: Frame) -> float | None:
+    """Metres per step of the source's integer depth (SensorInfo.depth_unit_m), None when the source gives
+    float metres or does not say (no SensorInfo: the SR3000 and rendered frames)."""
+    unit = None if frame.sensor is None else frame.sensor.depth_unit_m
+    return unit if unit is not None and unit < 1.0 else None
+
+
+def code_unit_m(frame: Frame) -> float | None:
+    """Metres per step of an SR3000's radial range codes (its non-ambiguity range / 65535 at the frame's
+    modulation frequency), None for other sources."""
+    if frame.registers is None:
+        return None
+    return sr3000.non_ambiguity_range_m(sr3000.mod_freq_khz(frame.registers.mod_freq_index)) / U16_MAX
+
+
+def z_depth_m(range_m: np.ndarray, ray_z: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) float32 z-depth in metres (0 where the range is NaN) of radial ranges along rays of z `ray_z`."""
+    depth = np.fmax(range_m, np.float32(0), out=out)  # fmax drops NaN; ranges are >= 0
+    return np.multiply(depth, ray_z, out=depth)
+
+
+def in_units(z_m: np.ndarray, unit_m: float) -> tuple[np.ndarray, bool]:
+    """(H, W) uint16 z-depth in units of `unit_m` (rounded, clipped at 65535) of `z_m` (metres, 0: no return),
+    and whether that is exact: every pixel a whole number of units below 65536."""
+    units = z_m * np.float32(1.0 / unit_m)
+    whole = np.rint(units)
+    exact = (float(np.max(np.abs(units - whole), initial=0.0)) <= WHOLE_UNIT_TOLERANCE
+             and float(whole.max(initial=0.0)) <= U16_MAX)
+    return np.minimum(whole, U16_MAX).astype(np.uint16), exact
+
+
+def amplitude_u16(amplitude: np.ndarray) -> np.ndarray:
+    """(H, W) uint16 amplitude: sensor units rounded to integers, NaN and negatives 0, clipped at 65535."""
+    rounded = np.rint(np.fmax(amplitude, np.float32(0)))
+    return np.minimum(rounded, U16_MAX).astype(np.uint16)
+
+
+def png(plane: np.ndarray) -> bytes:
+    """The lossless PNG of a (H, W) uint8 or uint16 plane (one channel)."""
+    ok, encoded = cv2.imencode(".png", np.ascontiguousarray(plane), PNG_PARAMS)
+    if not ok:
+        raise ValueError(f"PNG encoding of a {plane.dtype} {plane.shape} plane failed")
+    return encoded.tobytes()
+
+
+def unpng(data: bytes) -> np.ndarray:
+    """The (H, W) plane of a one-channel PNG (its own dtype)."""
+    plane = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if plane is None:
+        raise ValueError("not a PNG image")
+    return plane
