@@ -16,8 +16,9 @@ bytes per frame on disk (Rerun's LZ4 chunks) and per view the bytes its rows hol
 image's pixels, the points) before that compression. Then --live-seconds of the clip replayed in real time (30 fps,
 looped, latest-wins, bench/cameras.MemoryCamera) with the Foxglove viewer and a client subscribed to every channel:
 bytes per message and MB/s received per topic. Rerun's live rate is its bytes per frame times 30 fps; with the
-config's file rotation ([rerun] rotate_mb x (keep_files + 1): the most a live .rrd takes on disk), the hours of
-recording that budget keeps; and per camera the least bytes a lossless coder predicting from the left neighbour
+rotation budget docs/ARCHITECTURE.md suggests for a run of days ([rerun] rotate_mb = 2000, keep_files = 24:
+2000 MB x 25 segments, the most a live .rrd then takes on disk), the hours of recording that budget keeps; and
+per camera the least bytes a lossless coder predicting from the left neighbour
 gets the first frame's depth and amplitude to (the entropy of their row differences). Prints tables,
 writes bench/results/bench_viewers.json.
 """
@@ -57,6 +58,7 @@ KINDS = ("none", "rerun", "foxglove")
 LIVE_FPS = 1e6 / FRAME_PERIOD_US
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # Foxglove WebSocket binary opcode: subscription id (uint32 LE), log time (uint64 LE), payload
+ROTATE_MB, KEEP_FILES = 2000.0, 24  # the [rerun] rotation docs/ARCHITECTURE.md suggests for a run of days
 
 
 class CountingClient:
@@ -204,7 +206,7 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
                   for topic, n in sorted(client["messages"].items())}
     frame_bytes = sum(t["bytes_per_message"] for t in fox_topics.values())
     rerun_mb_s = rrd["file_bytes_per_frame"] * LIVE_FPS / 1e6
-    budget_gb = cfg.rerun.rotate_mb * (cfg.rerun.keep_files + 1) / 1e3  # the kept segments and the one written
+    budget_gb = ROTATE_MB * (KEEP_FILES + 1) / 1e3  # the kept segments and the one written
     return {
         "camera": name, "sensor_model": condition, "pixels": f"{CAMERAS[name].width}x{CAMERAS[name].height}",
         "replay_fps": {kind: round(v, 1) for kind, v in fps.items()},

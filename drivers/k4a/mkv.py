@@ -49,6 +49,9 @@ MATROSKA_MAGIC = b"\x1a\x45\xdf\xa3"
 DEPTH_TRACK, IR_TRACK = "DEPTH", "IR"
 CALIBRATION_ATTACHMENT = "calibration.json"
 GREY16_FOURCC = "b16g"
+LEAD_TOLERANCE = 0.25
+"""A gap of n - LEAD_TOLERANCE frame periods between the file's start and its first depth capture is n lost
+captures: a colour or IMU block may start the file a fraction of a period before the first depth capture."""
 MAX_CALIBRATION_BYTES = 1 << 20
 """Largest calibration.json attachment read (a device's is about 10 kB)."""
 MAX_LOST_FRAMES = 100_000
@@ -254,6 +257,9 @@ class K4aRecordingSource(FrameSource):
         last: int | None = -1
         if head[0].timestamp_us < t0 or self.frame_period_us is None:
             t0, last = head[0].timestamp_us, None
+        else:  # whole periods before the first depth capture; a colour or IMU block may lead it by less than one
+            lost_before = int((head[0].timestamp_us - t0) / self.frame_period_us + LEAD_TOLERANCE)
+            t0 = head[0].timestamp_us - round(lost_before * self.frame_period_us)
         for capture in (*head, *captures):
             counter = 0 if self.frame_period_us is None else round((capture.timestamp_us - t0) / self.frame_period_us)
             if last is not None and counter <= last:
