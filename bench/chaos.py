@@ -238,8 +238,7 @@ def replay_fault(fault: str) -> Callable[[Path], dict]:
 
 
 def bad_pixel_frames(work: Path) -> dict:
-    from test_bad_frames import DamagedSource
-
+    from tests.drivers.test_bad_frames import DamagedSource
     from tofd.config import load_config
     from tofd.service.model import load_detector
     from tofd.service.pipeline import Pipeline

@@ -64,7 +64,7 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(__all__))
 
 
-if TYPE_CHECKING:  # the same names for type checkers (tests/test_api.py checks both lists agree)
+if TYPE_CHECKING:  # the same names for type checkers (tests/api/test_api.py checks both lists agree)
     from tofd.algorithm.band import BAND_FLOOR as BAND_FLOOR
     from tofd.algorithm.band import band_edge_per_m as band_edge_per_m
     from tofd.algorithm.band import radial_tuning as radial_tuning

@@ -1,4 +1,4 @@
-"""Hostile bags for tests/test_bounded_inputs.py: a ROS 1 bag whose last chunk is a compression bomb, a ROS 2
+"""Hostile bags for tests/drivers/test_bounded_inputs.py: a ROS 1 bag whose last chunk is a compression bomb, a ROS 2
 sqlite3 bag cut short whose header claims gigabytes of pages, and PNG headers that declare huge images.
 
 Each maker edits a bag that rosbags' own writer wrote, so everything but the hostile part is intact.

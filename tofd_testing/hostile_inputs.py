@@ -1,5 +1,5 @@
-"""Hostile inputs for tests/test_hostile.py and bench/hostile.py: recordings whose chunks, records, header metadata or
-attachments claim what no camera sends, dataset .npz bombs and configs out of every bound.
+"""Hostile inputs for tests/commands/test_hostile.py and bench/hostile.py: recordings whose chunks, records, header
+metadata or attachments claim what no camera sends, dataset .npz bombs and configs out of every bound.
 
 Each maker writes one file into a directory and returns its path; RECORDING_CASES / DATASET_CASES / CONFIG_CASES
 name them with the limit that must hold (drivers/recording/bounds.py, tofd/config.py, tofd/lab/npz.py).

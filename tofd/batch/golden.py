@@ -57,7 +57,7 @@ tip_px pixels, nfft_iterations CG iterations, nfft_residual and means as the row
 CG in single precision until a residual threshold that keeps eps0 within 1 % of the converged value, so another
 rounding may stop it some iterations earlier or later: the NFFT maps may then differ by up to 1 % each way, hence
 scores and NFFT map means within 2 %, the residual within half and the count within a few iterations
-(tests/test_golden.py replays the clip with the threshold moved so that CG stops elsewhere and holds the check to
+(tests/batch/test_golden.py replays the clip with the threshold moved so that CG stops elsewhere and holds the check to
 these). The FFT maps are direct double-precision transforms: rounding moves them by far under 1e-6."""
 MAX_LINES = 25
 

@@ -78,7 +78,7 @@ def _evict_idle_at_the_cap(server: Any, limit: int) -> None:
     """Make waitress's server `server` accept a connection at `limit` open ones by closing the one idle the longest
     (no request in progress, no answer being sent; oldest last_activity), in its own loop thread, just before it
     accepts. Uses waitress's public attributes active_channels, channel.requests / total_outbufs_len /
-    last_activity / handle_close() and server.handle_accept, pinned by tests/test_http_server.py."""
+    last_activity / handle_close() and server.handle_accept, pinned by tests/service/test_http_server.py."""
     accept = server.handle_accept
 
     def handle_accept() -> None:

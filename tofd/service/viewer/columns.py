@@ -3,7 +3,7 @@
 Rerun's Python SDK converts each component batch per call, most of a one-frame send's CPU; these build the
 Arrow arrays in each component's own type once, from numpy, and hand them over as they are. The names it uses
 beyond Rerun's documented API (each batch class's `_ARROW_DATATYPE`, the archetypes' `descriptor_<component>()`)
-are pinned for the rerun-sdk version pyproject.toml allows by tests/test_rerun_columns.py.
+are pinned for the rerun-sdk version pyproject.toml allows by tests/service/test_rerun_columns.py.
 """
 
 from __future__ import annotations

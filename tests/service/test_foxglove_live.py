@@ -1,0 +1,261 @@
+"""The live Foxglove sink through real processes and sockets: `tofd replay/run --foxglove` serve the Foxglove
+WebSocket protocol on loopback; a plain WebSocket client (foxglove_client.py) subscribes, decodes and checks."""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+
+from tofd.config import Config, ConfigError
+from tofd.drivers.recording.reader import read_recording_info
+from tofd.drivers.recording.replay import iter_frames
+from tofd.service.foxglove import topics as t
+from tofd.service.foxglove.spec import parse_foxglove_spec
+from tofd.service.viewer.encoding import unpng
+from tofd.service.viewer.pixels import cloud_pixels
+from tofd_testing.foxglove_client import SUBPROTOCOL, Client, wait_for_url
+from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
+
+ROOT = Path(__file__).resolve().parents[2]
+CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
+
+
+def tofd(*args):
+    return subprocess.Popen([sys.executable, "-m", "tofd", *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "RUST_LOG": "error"})
+
+
+def by_stamp(messages):
+    return {(m.timestamp.seconds, m.timestamp.nanos): m for _, m in messages}
+
+
+def test_foxglove_spec_defaults_to_loopback_and_names_a_bad_value():
+    cfg = parse_foxglove_spec("9000", Config())
+    assert (cfg.foxglove.enabled, cfg.foxglove.bind, cfg.foxglove.port) == (True, "127.0.0.1", 9000)
+    cfg = parse_foxglove_spec("0.0.0.0:0", Config())
+    assert (cfg.foxglove.bind, cfg.foxglove.port) == ("0.0.0.0", 0)
+    assert parse_foxglove_spec("on", Config()).foxglove.port == 8765
+    assert not parse_foxglove_spec("none", cfg).foxglove.enabled
+    with pytest.raises(ConfigError, match="--foxglove: 'localhost:http'"):
+        parse_foxglove_spec("localhost:http", Config())
+
+
+@pytest.mark.slow
+def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
+    info = read_recording_info(CLIP)
+    intr = info.intrinsics
+    proc = tofd("replay", CLIP, "--out", tmp_path, "--config", write_config(tmp_path, pipeline=PATIENT_VIEWER),
+                "--foxglove", "127.0.0.1:0")
+    try:
+        url, _ = wait_for_url(proc.stderr)
+        assert url.startswith("ws://127.0.0.1:")
+        client = Client(url)
+        assert client.subprotocol == SUBPROTOCOL
+        client.wait_for(set(t.SCHEMAS))  # the range's channel opens at the first frame
+        advertised = {c["topic"]: c for c in client.channels.values()}
+        assert set(advertised) == set(t.SCHEMAS)
+        for topic, schemas in t.SCHEMAS.items():
+            schema = advertised[topic]["schemaName"]
+            assert advertised[topic]["encoding"] == "protobuf" and schema in schemas.split(" | ")
+            assert schema in client.schema_names(topic)
+        # the SR3000's range: a PNG of its own radial codes, their unit in the channel's metadata
+        assert advertised[t.RANGE]["schemaName"] == "foxglove.CompressedImage"
+        range_meta = advertised[t.RANGE]["metadata"]
+        assert range_meta["depth"] == "radial"
+        assert float(range_meta["unit_m"]) == pytest.approx(7.4948 / 65535, rel=1e-4)  # 20 MHz
+        client.subscribe()
+        got = client.read(60)  # until the replay ends and the server closes
+        client.close()
+        err = proc.stderr.read()
+        proc.wait(60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    stem = CLIP.name.split(".")[0]
+    summary = json.loads((tmp_path / f"{stem}.summary.json").read_text())
+    results = {x["frame_counter"]: x for x in map(json.loads, (tmp_path / f"{stem}.results.jsonl").open())}
+    assert summary["foxglove"]["exit"] == "clean"
+    # every delivered frame was published or ledgered as a Foxglove drop; the client missed at most the first ones
+    fox_drops = summary["viewer_dropped_by_reason"].get("foxglove_blocked", 0)
+    assert summary["foxglove"]["frames"] + fox_drops == summary["frames_out"] == len(results)
+    nose = got[t.NOSE]
+    assert 0 < len(nose) <= summary["foxglove"]["frames"]
+    # every topic came; a frame may arrive in part (published while the subscriptions were taken, or a message
+    # dropped from the client's full backlog while the client lagged)
+    counts = {topic: len(got[topic]) for topic in t.SCHEMAS}
+    assert min(counts.values()) >= max(counts.values()) // 2, counts
+
+    ranges = got[t.RANGE]
+    for _, image in ranges:
+        assert image.format == "png" and image.frame_id == t.CAMERA_FRAME
+    assert [log_ns for log_ns, _ in ranges] == sorted(log_ns for log_ns, _ in ranges)
+    # each range image is exactly the recorded frame's codes (the frame's counter: its nose message's metadata)
+    counters = {stamp: int({kv.key: kv.value for kv in a.metadata}["frame_counter"])
+                for stamp, a in by_stamp(got[t.NOSE]).items()}
+    recorded = {f.frame_counter: f for f in iter_frames(CLIP)}
+    unit = float(range_meta["unit_m"])
+    compared = 0
+    for stamp, image in list(by_stamp(ranges).items())[-5:]:
+        codes = unpng(image.data)
+        assert codes.dtype == np.uint16 and codes.shape == (144, 176)
+        if stamp in counters:
+            want = np.nan_to_num(recorded[counters[stamp]].range_m, nan=0.0) / unit
+            np.testing.assert_array_equal(codes, np.rint(want))
+            assert np.max(np.abs(codes - want)) < 0.01  # whole codes: the source's own
+            compared += 1
+    assert compared
+    assert 0.2 < unit * codes[codes > 0].min() < unit * codes.max() < 3.0  # metres
+    amplitude = unpng(got[t.AMPLITUDE][-1][1].data)
+    assert amplitude.dtype == np.uint16 and amplitude.max() > 0
+
+    calibration = got[t.CALIBRATION][-1][1]
+    assert list(calibration.K) == pytest.approx([intr.fx, 0, intr.cx, 0, intr.fy, intr.cy, 0, 0, 1])
+    assert (calibration.width, calibration.height, calibration.frame_id) == (176, 144, t.CAMERA_FRAME)
+
+    checked = 0
+    for _, annotations in nose:
+        counter = int({kv.key: kv.value for kv in annotations.metadata}["frame_counter"])
+        want = results[counter]["tip_px"] or results[counter]["nose_px"]  # the tip where it was refined
+        if want is None:
+            assert not annotations.points
+            continue
+        (point,) = annotations.points[0].points  # Foxglove's origin: the top-left pixel's corner
+        assert (point.x, point.y) == pytest.approx((want[0] + 0.5, want[1] + 0.5), abs=0.006)  # results: 2 decimals
+        checked += 1
+    assert checked > 0
+    tracked = [a for _, a in got[t.NOSE_TRACK] if a.points]
+    assert tracked and all(len(a.points[0].points) == 4 and a.texts[0].text.startswith("track ") for a in tracked)
+
+    # the foreground cloud of a frame has one point per mask pixel, in front of the camera, with its eps0
+    masks, clouds = by_stamp(got[t.MASK]), by_stamp(got[t.FOREGROUND])
+    both = sorted(set(masks) & set(clouds))  # a frame's messages share its timestamp
+    assert len(both) >= len(clouds) // 2
+    for stamp, cloud in [(s, clouds[s]) for s in both[-5:]]:
+        assert [f.name for f in cloud.fields] == ["x", "y", "z", "eps0"] and cloud.point_stride == 16
+        points = np.frombuffer(cloud.data, "<f4").reshape(-1, 4)
+        assert len(points) == len(cloud_pixels(unpng(masks[stamp].data) > 0))
+        assert np.all(points[:, 2] > 0.2) and np.all(points[:, 3] >= 0)
+    transform = got[t.TRANSFORM][-1][1]
+    assert (transform.parent_frame_id, transform.child_frame_id) == (t.WORLD_FRAME, t.CAMERA_FRAME)
+    q = transform.rotation
+    assert [q.x, q.y, q.z, q.w] == list(t.OPTICAL_IN_WORLD)
+    for topic in t.FEATURES.values():
+        feature = unpng(got[topic][-1][1].data)
+        assert got[topic][-1][1].format == "png" and feature.dtype == np.uint8 and feature.max() == 255
+
+
+def server_fds(proc: subprocess.Popen, url: str) -> int:
+    """Open file descriptors of the child of the tofd process that listens on `url`'s port (the server)."""
+    port = int(url.rsplit(":", 1)[1])
+    (server,) = [c for c in psutil.Process(proc.pid).children()
+                 if any(conn.laddr.port == port and conn.status == psutil.CONN_LISTEN
+                        for conn in c.net_connections("tcp"))]
+    return server.num_fds()
+
+
+@pytest.mark.slow
+def test_a_stalled_client_and_fifty_connections_cost_the_pipeline_nothing(tmp_path):
+    summary_path = tmp_path / "summary.json"
+    proc = tofd("run", "--emulate", "--config", write_config(tmp_path), "--foxglove", "127.0.0.1:0",
+                "--health-port", "0", "--summary", summary_path)
+    try:
+        url, _ = wait_for_url(proc.stderr)
+        stalled = Client(url)
+        stalled.ws.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        stalled.wait_for(set(t.SCHEMAS))  # the range's channel opens at the first frame
+        stalled.subscribe()  # and never reads again
+        first = Client(url)
+        first.subscribe([t.RANGE])
+        assert first.read(30, until=lambda got: len(got.get(t.RANGE, [])) >= 10)[t.RANGE]
+        first.close()
+        fds_before = server_fds(proc, url)
+        for _ in range(50):
+            c = Client(url)
+            c.subscribe()
+            c.read(0.05)
+            c.close()
+        time.sleep(1.0)  # the server notices the closes
+        assert server_fds(proc, url) <= fds_before + 2  # the 50 connections left nothing behind
+        reader = Client(url)
+        reader.subscribe([t.RANGE, t.NOSE])
+        got = reader.read(30, until=lambda got: len(got.get(t.NOSE, [])) >= 30)
+        counters = [int(a.metadata[0].value) for _, a in got[t.NOSE]]
+        assert len(counters) >= 30 and counters == sorted(counters)  # live frames keep coming, in order
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+        reader.close()
+        stalled.close()
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    summary = json.loads(summary_path.read_text())
+    assert summary["consistent"] and summary["error"] is None
+    fox_drops = summary["viewer_dropped_by_reason"].get("foxglove_blocked", 0)
+    assert fox_drops < summary["frames_out"] / 2  # the viewer process kept up; the stalled client lost its own
+    if summary["foxglove"]["exit"] == "clean":
+        assert summary["foxglove"]["frames"] + fox_drops == summary["frames_out"]
+    else:  # the SDK's stop waits for the stalled client's closing handshake: the process is killed on time
+        assert summary["foxglove"]["exit"] == "killed"
+        assert any("foxglove" in part for part in summary["shutdown"]["abandoned"])
+
+
+@pytest.mark.slow
+def test_a_port_in_use_is_a_config_error_naming_the_key(tmp_path):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        run = subprocess.run([sys.executable, "-m", "tofd", "run", "--emulate", "--frames", "5", "--health-port", "0",
+                              "--config", write_config(tmp_path), "--foxglove", str(port)], cwd=ROOT,
+                             capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2, run.stderr
+    assert run.stderr.strip().splitlines()[-1] == (f"tofd run: config error: foxglove.port: port {port} on 127.0.0.1 "
+                                                   "is already in use (--foxglove HOST:PORT)")
+
+
+def test_the_foxglove_viewer_process_does_not_load_the_rerun_sdk():
+    """The viewer host and the Foxglove publisher import no Rerun module: rerun-sdk stays out of that process."""
+    from dataclasses import replace
+
+    from tofd.service.viewer.process import ViewerProcess
+    from tofd_testing.pipeline_sources import ModulesReportingFoxglove
+
+    cfg = Config()
+    cfg = replace(cfg, foxglove=replace(cfg.foxglove, enabled=True, port=0))
+    viewer = ViewerProcess(cfg, "foxglove", open_backend=ModulesReportingFoxglove, name="foxglove")
+    try:
+        assert viewer.process.is_alive() and viewer.web_url is not None
+        assert json.loads(viewer.web_url) == []
+    finally:
+        viewer.close(10.0)
+
+
+@pytest.mark.slow
+def test_a_replay_on_a_busy_port_fails_before_touching_the_previous_runs_outputs(tmp_path):
+    clip = ROOT / "tests" / "data" / "v1_first3.mcap"
+    out = tmp_path / "out"
+    first = subprocess.run([sys.executable, "-m", "tofd", "replay", str(clip), "--out", str(out), "--config",
+                            write_config(tmp_path, pipeline=PATIENT_VIEWER)], cwd=ROOT, capture_output=True,
+                           text=True, timeout=300)
+    assert first.returncode == 0, first.stderr
+    before = {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in out.iterdir()}
+    assert {"v1_first3.rrd", "v1_first3.results.jsonl", "v1_first3.summary.json"} <= set(before)
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        again = subprocess.run([sys.executable, "-m", "tofd", "replay", str(clip), "--out", str(out), "--config",
+                                write_config(tmp_path, pipeline=PATIENT_VIEWER), "--foxglove", f"127.0.0.1:{port}"],
+                               cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 2 and "Traceback" not in again.stderr, again.stderr
+    assert again.stderr.strip().splitlines()[-1].endswith(f"port {port} on 127.0.0.1 is already in use "
+                                                          "(--foxglove HOST:PORT)"), again.stderr
+    assert {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in out.iterdir()} == before

@@ -1,0 +1,102 @@
+"""What the viewers carry (tofd/service/viewer/encoding.py, pixels.cloud_pixels): depth in the source's own integers
+where they are exact, read back from a real Foxglove server by a plain client, lining up with the 3-D cloud."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tofd.config import Config
+from tofd.drivers import sr3000
+from tofd.drivers.frame import Frame, Registers, SensorInfo
+from tofd.drivers.intrinsics import Intrinsics
+from tofd.lab.cameras import CAMERAS
+from tofd.service.foxglove import topics as t
+from tofd.service.foxglove.publisher import FoxglovePublisher
+from tofd.service.foxglove.spec import parse_foxglove_spec
+from tofd.service.pipeline.results import FrameResult
+from tofd.service.viewer import blueprint as bp
+from tofd.service.viewer.encoding import code_unit_m, in_units, png, unpng, z_depth_m
+from tofd.service.viewer.pixels import CLOUD_POINTS, cloud_pixels
+from tofd_testing.foxglove_client import Client
+
+K4A = CAMERAS["k4a-nfov"]
+
+
+def millimetre_frame(counter: int) -> tuple[Frame, np.ndarray]:
+    """A 640x576 frame as the Azure Kinect driver delivers a slanted wall in whole millimetres of z-depth (radial
+    range = mm * 1e-3 / ray z, in float32), and those millimetres (0: no return)."""
+    v, u = np.indices(K4A.shape)
+    z_mm = (650 + u // 2 + v // 3 + counter).astype(np.uint16)
+    z_mm[:16, :24] = 0
+    scale = np.float32(1e-3) / K4A.unit_rays()[..., 2].astype(np.float32)
+    radial = np.where(z_mm > 0, z_mm * scale, np.nan).astype(np.float32)
+    frame = Frame(radial, (200 + (u + v) % 900).astype(np.float32), counter, counter * 33_333, 0.0, 0.0,
+                  intrinsics=K4A, sensor=SensorInfo(depth_unit_m=1e-3, amplitude="ir"))
+    return frame, z_mm
+
+
+def test_whole_units_are_recognised_and_round_trip_through_png():
+    frame, z_mm = millimetre_frame(0)
+    units, exact = in_units(z_depth_m(frame.range_m, K4A.unit_rays()[..., 2].astype(np.float32)), 1e-3)
+    assert exact and np.array_equal(units, z_mm)
+    assert np.array_equal(unpng(png(units)), z_mm)  # lossless, uint16
+    # the SR3000's radial codes are whole units of c / (2 f) / 65535 (not as z-depth)
+    registers = Registers()
+    raw = np.random.default_rng(0).integers(1000, 60000, (144, 176)).astype(np.uint16)
+    radial = sr3000.raw_to_range_m(raw, sr3000.mod_freq_khz(registers.mod_freq_index))
+    sr = Frame(radial, np.ones_like(radial), 0, 0, 0.0, 0.0, registers=registers)
+    codes, exact = in_units(radial, code_unit_m(sr))
+    assert exact and np.array_equal(codes, raw)
+    assert not in_units(z_depth_m(radial, Intrinsics().unit_rays()[..., 2].astype(np.float32)), code_unit_m(sr))[1]
+    assert not in_units(np.float32([[0.5004]]), 1e-3)[1]  # not a whole millimetre
+
+
+@pytest.mark.parametrize("fill", [0.01, 0.3, 1.0])
+def test_the_cloud_is_every_pixel_of_a_small_foreground_and_an_even_grid_of_a_large_one(fill):
+    mask = np.random.default_rng(1).random(K4A.shape) < fill
+    at = cloud_pixels(mask)
+    assert len(at) <= CLOUD_POINTS and mask.reshape(-1)[at].all() and np.all(np.diff(at) > 0)
+    if mask.sum() <= CLOUD_POINTS:
+        assert len(at) == mask.sum()
+    else:  # every k-th row and column of the mask, k the least that fits
+        rows, cols = np.divmod(at, K4A.width)
+        step = np.gcd.reduce(np.r_[rows, cols])
+        assert step > 1 and len(at) == mask[::step, ::step].sum() > CLOUD_POINTS / 4
+        assert mask[:: step - 1, :: step - 1].sum() > CLOUD_POINTS
+
+
+def test_foxglove_range_of_a_millimetre_camera_is_its_millimetres_and_lines_up_with_the_cloud():
+    cfg = parse_foxglove_spec("127.0.0.1:0", replace(Config(), intrinsics=K4A))
+    publisher = FoxglovePublisher(cfg)
+    mask = np.zeros(K4A.shape, bool)
+    mask[150:450, 200:500] = True  # 90000 pixels: the cloud is a subsample
+    feats = {name: np.where(mask, np.float32(2.0), np.float32(np.nan)) for name in bp.FEATURES}
+    frames = [millimetre_frame(k) for k in range(3)]
+    try:
+        publisher(FrameResult(0, frames[0][0], mask, feats, 0, 0.0, arrival_s=0.0))  # opens the range's channel
+        client = Client(publisher.web_url)
+        client.wait_for({t.RANGE})
+        client.subscribe([t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE])
+        client.read(0.5)  # the subscriptions are in
+        for frame, _ in frames[1:]:
+            publisher(FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0))
+        got = client.read(10, until=lambda got: len(got.get(t.NOSE, [])) == 2)
+        meta = next(c for c in client.channels.values() if c["topic"] == t.RANGE)["metadata"]
+        client.close()
+    finally:
+        publisher.close(1.0)
+    assert set(got) == {t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE}  # nothing else was sent to this client
+    assert meta == {"depth": "z", "unit_m": "0.001"}
+    k = np.array(got[t.CALIBRATION][-1][1].K).reshape(3, 3)
+    for (_, image), (_, cloud), (_, z_mm) in zip(got[t.RANGE], got[t.FOREGROUND], frames[1:], strict=True):
+        assert image.format == "png"
+        depth = unpng(image.data)
+        np.testing.assert_array_equal(depth, z_mm)  # exactly the camera's millimetres
+        points = np.frombuffer(cloud.data, "<f4").reshape(-1, 4)[:, :3].astype(np.float64)
+        assert len(points) == len(cloud_pixels(mask)) <= CLOUD_POINTS
+        uvw = points @ k.T  # each point through the calibration lands on its pixel, at that pixel's depth
+        rows, cols = np.divmod(cloud_pixels(mask), K4A.width)
+        np.testing.assert_allclose(uvw[:, 0] / uvw[:, 2], cols, atol=1e-3)
+        np.testing.assert_allclose(uvw[:, 1] / uvw[:, 2], rows, atol=1e-3)
+        np.testing.assert_allclose(points[:, 2], depth[rows, cols] * 1e-3, atol=1e-6)
