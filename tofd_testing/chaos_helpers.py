@@ -71,6 +71,16 @@ def tofd(*args: object, **kwargs: object) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True, env=env, **kwargs)
 
 
+def health_port(proc: subprocess.Popen) -> tuple[int, list[str]]:
+    """The /healthz port a `tofd run --health-port 0` logs, read from its stderr, and the lines read up to it (an
+    assertion error with them if the process ends first)."""
+    lines: list[str] = []
+    while not any("INFO health:" in line for line in lines):
+        lines.append(proc.stderr.readline())
+        assert lines[-1], "".join(lines)
+    return int(next(line for line in lines if "INFO health:" in line).split(":")[-1].split("/")[0]), lines
+
+
 def healthz(port: int, timeout_s: float = 5) -> tuple[int, dict]:
     """The /healthz status code and JSON status of the daemon on `port` (a 503 is an answer too)."""
     try:

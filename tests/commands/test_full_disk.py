@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tofd_testing.chaos_helpers import healthz, metric, metrics, tofd
+from tofd_testing.chaos_helpers import health_port, healthz, metric, metrics, tofd
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config, write_config
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -64,11 +64,7 @@ def test_a_live_save_sink_that_fills_its_disk_shows_in_healthz_metrics_and_the_s
     proc = tofd("run", "--emulate", "--config", config, "--rerun", f"save:{rrd}", "--health-port", "0", "--summary",
                 summary_path)
     try:
-        lines = []
-        while not any("INFO health:" in line for line in lines):
-            lines.append(proc.stderr.readline())
-            assert lines[-1], "".join(lines)
-        port = int(next(line for line in lines if "INFO health:" in line).split(":")[-1].split("/")[0])
+        port, lines = health_port(proc)
         deadline, status = time.monotonic() + 120, {}
         while status.get("status") != "degraded" and time.monotonic() < deadline:
             time.sleep(0.5)

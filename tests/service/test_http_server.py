@@ -14,6 +14,7 @@ import urllib.request
 import pytest
 
 from tofd.service.http_server import IDLE_TIMEOUT_S, RESERVED_FDS, HttpServer, connection_limit
+from tofd_testing.chaos_helpers import health_port
 
 
 def _app(environ, start_response):
@@ -162,11 +163,7 @@ def test_healthz_answers_while_300_idle_connections_are_held_at_a_descriptor_lim
                 preexec_fn=limited)
     held = []
     try:
-        lines = []
-        while not any("INFO health:" in line for line in lines):
-            lines.append(proc.stderr.readline())
-            assert lines[-1], "".join(lines)
-        port = int(next(line for line in lines if "INFO health:" in line).split(":")[-1].split("/")[0])
+        port, lines = health_port(proc)
         deadline = time.monotonic() + 120
         while healthz(port)[0] != 200 and time.monotonic() < deadline:
             time.sleep(0.5)

@@ -10,7 +10,7 @@ import pytest
 
 from tofd.service import signals
 from tofd.service.signals import StopSignals
-from tofd_testing.chaos_helpers import alive, tofd, workers_of
+from tofd_testing.chaos_helpers import alive, health_port, tofd, workers_of
 from tofd_testing.pipeline_sources import write_config
 
 
@@ -64,10 +64,7 @@ def test_a_running_daemon_logs_its_status_on_sigusr1_and_drains_on_sighup_or_sig
     proc = tofd("run", "--emulate", "--config", write_config(tmp_path), "--health-port", "0", "--summary",
                 summary_path, "--rerun", "none", start_new_session=True)
     try:
-        lines = []
-        while not any("INFO health:" in line for line in lines):
-            lines.append(proc.stderr.readline())
-            assert lines[-1], "".join(lines)
+        _, lines = health_port(proc)
         deadline = time.monotonic() + 60
         while not (workers := workers_of(proc.pid)) and time.monotonic() < deadline:
             time.sleep(0.2)
@@ -116,10 +113,7 @@ def test_a_daemon_started_with_sighup_ignored_as_under_nohup_keeps_ignoring_it(t
     proc = tofd("run", "--emulate", "--config", write_config(tmp_path), "--health-port", "0", "--rerun", "none",
                 preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
     try:
-        lines = []
-        while not any("INFO health:" in line for line in lines):
-            lines.append(proc.stderr.readline())
-            assert lines[-1], "".join(lines)
+        _, lines = health_port(proc)
         proc.send_signal(signal.SIGHUP)
         time.sleep(2)
         assert proc.poll() is None, "".join(lines)
