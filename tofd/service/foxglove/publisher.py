@@ -7,9 +7,11 @@ never waits for a client. A message is only made for a channel some client subsc
 The viewer process around it (tofd.service.viewer.process) keeps the pipeline from ever waiting on this one.
 
 Per frame (topics.py): range (a 16-bit PNG in the source's unit where that is exact, else float metres),
-amplitude and mask as PNG, the calibration, the nose and the nose track as image annotations, the foreground as
-a point cloud (at most pixels.CLOUD_POINTS points), the viewed feature maps as PNG and the world -> camera
-transform; every message of a frame has the host's wall-clock time of its arrival as timestamp and log time.
+amplitude for viewing as an 8-bit JPEG with its scale (encoding.amplitude_u8), the mask as PNG, the calibration,
+the nose and the nose track as image annotations, the foreground as a point cloud (at most pixels.CLOUD_POINTS
+points), the viewed feature maps as PNG and the world -> camera transform; every message of a frame has the
+host's wall-clock time of its arrival as timestamp and log time. The SDK's own log lines go to tofd's log,
+prefixed and limited (SDK_LOGGERS).
 """
 
 from __future__ import annotations
@@ -50,12 +52,25 @@ from foxglove.messages import (
 
 from tofd.config import Config
 from tofd.drivers.intrinsics import Intrinsics
+from tofd.logs import limit_library_lines
 from tofd.service.foxglove import topics as t
 from tofd.service.pipeline.results import FrameResult
-from tofd.service.viewer.encoding import amplitude_u16, code_unit_m, in_units, png, source_unit_m, z_depth_m
+from tofd.service.viewer.encoding import (
+    amplitude_u8,
+    code_unit_m,
+    in_units,
+    jpeg,
+    png,
+    source_unit_m,
+    z_depth_m,
+)
 from tofd.service.viewer.pixels import cloud_pixels, corner_origin, track_box_px
 
 log = logging.getLogger(__name__)
+
+SDK_LOGGERS = ("foxglove", "tungstenite")
+"""The foxglove SDK's (Rust) loggers, bridged to Python's logging: prefixed and limited (tofd.logs.LimitedLines),
+as a client's one bad request can make it log a line per item."""
 
 NOSE_COLOR = Color(r=1.0, g=0.0, b=1.0, a=1.0)
 TRACK_COLOR = Color(r=0.0, g=0.78, b=1.0, a=1.0)
@@ -101,6 +116,8 @@ class FoxglovePublisher:
 
     def __init__(self, cfg: Config, sink: str = "foxglove", batch_frames: int = 1, footer: bool = False):
         fc = cfg.foxglove
+        for name in SDK_LOGGERS:  # before the server starts: the SDK fixes its level then
+            limit_library_lines(name, "foxglove SDK: ")
         self.intrinsics = intrinsics = cfg.intrinsics
         self.context = foxglove.Context()  # our channels only: another server in this process sees none of them
         try:
@@ -115,6 +132,7 @@ class FoxglovePublisher:
         self.images = {topic: CompressedImageChannel(topic, context=ctx) for topic in (t.AMPLITUDE, t.MASK)}
         self.features = {name: CompressedImageChannel(topic, context=ctx, metadata=t.FEATURE_METADATA)
                          for name, topic in t.FEATURES.items()}
+        self.amplitude_scale = foxglove.Channel(t.AMPLITUDE_SCALE, schema=t.AMPLITUDE_SCALE_SCHEMA, context=ctx)
         self.range: RawImageChannel | CompressedImageChannel | None = None  # opened at the first frame
         self._range_unit: tuple[str, float] | None = None  # ("z" or "radial", metres per step) of a PNG range
         self.calibration = CameraCalibrationChannel(t.CALIBRATION, context=ctx)
@@ -150,8 +168,12 @@ class FoxglovePublisher:
             self.images[t.MASK].log(_png(stamp, np.where(r.mask, np.uint8(255), np.uint8(0))), log_time=ns)
         if self.calibration.has_sinks():
             self.calibration.log(calibration(self.intrinsics, stamp), log_time=ns)
-        if self.images[t.AMPLITUDE].has_sinks():
-            self.images[t.AMPLITUDE].log(_png(stamp, amplitude_u16(frame.amplitude)), log_time=ns)
+        if self.images[t.AMPLITUDE].has_sinks() or self.amplitude_scale.has_sinks():
+            amplitude, scale = amplitude_u8(frame.amplitude)
+            self.amplitude_scale.log({"timestamp": {"sec": stamp.sec, "nsec": stamp.nsec},
+                                      "units_per_level": scale}, log_time=ns)
+            self.images[t.AMPLITUDE].log(CompressedImage(timestamp=stamp, frame_id=t.CAMERA_FRAME,
+                                                         data=jpeg(amplitude), format="jpeg"), log_time=ns)
         if self.range.has_sinks():
             self._log_range(r, stamp, ns)
         if self.nose.has_sinks():

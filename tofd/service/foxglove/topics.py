@@ -16,7 +16,14 @@ RANGE = "/camera/range"
 foxglove.CompressedImage, a 16-bit PNG of the source's own integers where they are exact (z-depth in millimetres
 of a millimetre camera; the SR3000's radial range codes), 0 where invalid; else foxglove.RawImage 32FC1: radial
 range along each pixel's ray, metres (NaN: invalid)."""
-AMPLITUDE = "/camera/amplitude"  # foxglove.CompressedImage, 16-bit PNG: amplitude, sensor units
+AMPLITUDE = "/camera/amplitude"  # foxglove.CompressedImage, 8-bit JPEG: amplitude for viewing (AMPLITUDE_SCALE)
+AMPLITUDE_SCALE = "/camera/amplitude_scale"
+"""JSON (AMPLITUDE_SCALE_SCHEMA): the amplitude image's scale, sensor units per 8-bit level, with its timestamp."""
+AMPLITUDE_SCALE_SCHEMA = {
+    "type": "object", "title": "tofd.AmplitudeScale",
+    "properties": {"timestamp": {"type": "object", "properties": {"sec": {"type": "integer"},
+                                                                  "nsec": {"type": "integer"}}},
+                   "units_per_level": {"type": "number"}}}
 MASK = "/camera/mask"  # foxglove.CompressedImage, 8-bit PNG: 255 foreground, 0 background
 CALIBRATION = "/camera/calibration"  # foxglove.CameraCalibration: the intrinsics (K, P; ROS pixel convention)
 NOSE = "/camera/nose"  # foxglove.ImageAnnotations: the detected nose tip (none: no annotation)
@@ -30,11 +37,13 @@ the whole image, 0 outside the foreground (which PNG stores in a few bytes), 255
 FEATURE_METADATA = {"scale": "per frame: 255 is the frame's largest value, 0 none"}
 
 SCHEMAS = {RANGE: "foxglove.CompressedImage | foxglove.RawImage", AMPLITUDE: "foxglove.CompressedImage",
+           AMPLITUDE_SCALE: "tofd.AmplitudeScale",
            MASK: "foxglove.CompressedImage", CALIBRATION: "foxglove.CameraCalibration",
            NOSE: "foxglove.ImageAnnotations", NOSE_TRACK: "foxglove.ImageAnnotations",
            FOREGROUND: "foxglove.PointCloud", TRANSFORM: "foxglove.FrameTransform",
            **dict.fromkeys(FEATURES.values(), "foxglove.CompressedImage")}
-"""Every topic and the schema of its messages (protobuf encoded; RANGE: one of two, per source)."""
+"""Every topic and the schema of its messages (protobuf encoded, JSON_TOPICS JSON; RANGE: one of two, per source)."""
+JSON_TOPICS = (AMPLITUDE_SCALE,)
 
 
 def range_metadata(depth: str, unit_m: float) -> dict[str, str]:
