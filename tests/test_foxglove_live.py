@@ -158,9 +158,23 @@ def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
     assert (transform.parent_frame_id, transform.child_frame_id) == (t.WORLD_FRAME, t.CAMERA_FRAME)
     q = transform.rotation
     assert [q.x, q.y, q.z, q.w] == list(t.OPTICAL_IN_WORLD)
+    # the feature maps: 8-bit crops of the foreground's box, placed and scaled by the box message of their frame
+    boxes = {(m["timestamp"]["sec"], m["timestamp"]["nsec"]): m for _, m in got[t.FEATURE_BOX]}
+    placed = 0
     for topic in t.FEATURES.values():
-        feature = unpng(got[topic][-1][1].data)
-        assert got[topic][-1][1].format == "png" and feature.dtype == np.uint8 and feature.max() == 255
+        for stamp, image in by_stamp(got[topic]).items():
+            feature = unpng(image.data)
+            assert image.format == "png" and feature.dtype == np.uint8
+            if stamp in boxes and stamp in masks and boxes[stamp]["top"][topic] > 0:
+                box, mask = boxes[stamp], unpng(masks[stamp].data) > 0
+                rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+                assert (box["x"], box["y"], box["width"], box["height"]) == (
+                    cols[0], rows[0], cols[-1] - cols[0] + 1, rows[-1] - rows[0] + 1)
+                assert feature.shape == (box["height"], box["width"]) and feature.max() == 255
+                inside = mask[box["y"]: box["y"] + box["height"], box["x"]: box["x"] + box["width"]]
+                assert not feature[~inside].any()  # 0 outside the foreground
+                placed += 1
+    assert placed
 
 
 def server_fds(proc: subprocess.Popen, url: str) -> int:
@@ -272,11 +286,23 @@ def test_a_replay_on_a_busy_port_fails_before_touching_the_previous_runs_outputs
     assert {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in out.iterdir()} == before
 
 
-def test_a_clients_bad_request_makes_a_few_prefixed_log_lines_not_one_per_item(caplog):
+def test_a_clients_bad_request_makes_a_few_prefixed_log_lines_not_one_per_item():
     """A client subscribing 1000 times to a channel that does not exist: the SDK warns per subscription; tofd's log
-    gets at most LimitedLines' burst of them, each saying it is the foxglove SDK's."""
+    (the root logger's handlers) gets at most LimitedLines' burst of them, each saying it is the foxglove SDK's."""
+    import logging
+
     from tofd.service.foxglove.publisher import FoxglovePublisher
 
+    class Lines(logging.Handler):
+        def __init__(self) -> None:
+            super().__init__()
+            self.lines: list[str] = []
+
+        def emit(self, record: logging.LogRecord) -> None:
+            self.lines.append(record.getMessage())
+
+    tofd_log = Lines()
+    logging.getLogger().addHandler(tofd_log)
     publisher = FoxglovePublisher(parse_foxglove_spec("127.0.0.1:0", Config()))
     try:
         client = Client(publisher.web_url)
@@ -286,7 +312,8 @@ def test_a_clients_bad_request_makes_a_few_prefixed_log_lines_not_one_per_item(c
         client.close()
     finally:
         publisher.close(1.0)
-    lines = [r.getMessage() for r in caplog.records if "9999" in r.getMessage()]
+        logging.getLogger().removeHandler(tofd_log)
+    lines = [line for line in tofd_log.lines if "9999" in line]
     assert 1 <= len(lines) <= 5, lines
     assert all(line.startswith("foxglove SDK: ") for line in lines)
 

@@ -77,7 +77,8 @@ def test_foxglove_range_of_a_millimetre_camera_is_its_millimetres_and_lines_up_w
         publisher(FrameResult(0, frames[0][0], mask, feats, 0, 0.0, arrival_s=0.0))  # opens the range's channel
         client = Client(publisher.web_url)
         client.wait_for({t.RANGE})
-        client.subscribe([t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE])
+        feature = t.FEATURES["range_nfft_eps0"]
+        client.subscribe([t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE, feature, t.FEATURE_BOX])
         client.read(0.5)  # the subscriptions are in
         for frame, _ in frames[1:]:
             publisher(FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0))
@@ -86,7 +87,10 @@ def test_foxglove_range_of_a_millimetre_camera_is_its_millimetres_and_lines_up_w
         client.close()
     finally:
         publisher.close(1.0)
-    assert set(got) == {t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE}  # nothing else was sent to this client
+    assert set(got) == {t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE, feature, t.FEATURE_BOX}  # nothing else
+    for (_, image), (_, box) in zip(got[feature], got[t.FEATURE_BOX], strict=True):  # the mask's box, placed
+        assert (box["x"], box["y"], box["width"], box["height"]) == (200, 150, 300, 300)
+        assert box["top"][feature] == 2.0 and np.all(unpng(image.data) == 255)  # 255: the top value, 2.0
     assert meta == {"depth": "z", "unit_m": "0.001"}
     k = np.array(got[t.CALIBRATION][-1][1].K).reshape(3, 3)
     for (_, image), (_, cloud), (_, z_mm) in zip(got[t.RANGE], got[t.FOREGROUND], frames[1:], strict=True):

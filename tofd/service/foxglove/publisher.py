@@ -9,9 +9,9 @@ The viewer process around it (tofd.service.viewer.process) keeps the pipeline fr
 Per frame (topics.py): range (a 16-bit PNG in the source's unit where that is exact, else float metres),
 amplitude for viewing as an 8-bit JPEG with its scale (encoding.amplitude_u8), the mask as PNG, the calibration,
 the nose and the nose track as image annotations, the foreground as a point cloud (at most pixels.CLOUD_POINTS
-points), the viewed feature maps as PNG and the world -> camera transform; every message of a frame has the
-host's wall-clock time of its arrival as timestamp and log time. The SDK's own log lines go to tofd's log,
-prefixed and limited (SDK_LOGGERS).
+points), the viewed feature maps as 8-bit PNGs of the foreground's box (its place and their levels beside them)
+and the world -> camera transform; every message of a frame has the host's wall-clock time of its arrival as
+timestamp and log time. The SDK's own log lines go to tofd's log, prefixed and limited (SDK_LOGGERS).
 """
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ from tofd.service.viewer.encoding import (
     source_unit_m,
     z_depth_m,
 )
-from tofd.service.viewer.pixels import cloud_pixels, corner_origin, track_box_px
+from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
 
 log = logging.getLogger(__name__)
 
@@ -85,12 +85,13 @@ def _png(stamp: Timestamp, plane: np.ndarray) -> CompressedImage:
     return CompressedImage(timestamp=stamp, frame_id=t.CAMERA_FRAME, data=png(plane), format="png")
 
 
-def feature_u8(values: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 of a feature map (>= 0, NaN outside the foreground -> 0), 255 its largest value: Foxglove
-    shows it colour-mapped, where only the map's shape matters to the eye (Rerun keeps the float values)."""
+def feature_u8(values: np.ndarray) -> tuple[np.ndarray, float]:
+    """(h, w) uint8 of a feature map's crop (>= 0, NaN outside the foreground -> 0), 255 its largest value, and
+    that value (0: none): Foxglove shows it colour-mapped, where the map's shape is what the eye reads."""
     finite = np.fmax(values, np.float32(0))  # fmax drops NaN
     top = float(finite.max(initial=0.0))
-    return np.zeros(values.shape, np.uint8) if top <= 0 else np.rint(finite * (255 / top)).astype(np.uint8)
+    levels = np.zeros(values.shape, np.uint8) if top <= 0 else np.rint(finite * (255 / top)).astype(np.uint8)
+    return levels, top
 
 
 def _image(stamp: Timestamp, plane: np.ndarray, encoding: str) -> RawImage:
@@ -132,6 +133,7 @@ class FoxglovePublisher:
         self.images = {topic: CompressedImageChannel(topic, context=ctx) for topic in (t.AMPLITUDE, t.MASK)}
         self.features = {name: CompressedImageChannel(topic, context=ctx, metadata=t.FEATURE_METADATA)
                          for name, topic in t.FEATURES.items()}
+        self.feature_box = foxglove.Channel(t.FEATURE_BOX, schema=t.FEATURE_BOX_SCHEMA, context=ctx)
         self.amplitude_scale = foxglove.Channel(t.AMPLITUDE_SCALE, schema=t.AMPLITUDE_SCALE_SCHEMA, context=ctx)
         self.range: RawImageChannel | CompressedImageChannel | None = None  # opened at the first frame
         self._range_unit: tuple[str, float] | None = None  # ("z" or "radial", metres per step) of a PNG range
@@ -159,9 +161,7 @@ class FoxglovePublisher:
                 timestamp=stamp, parent_frame_id=t.WORLD_FRAME, child_frame_id=t.CAMERA_FRAME,
                 translation=Vector3(x=0, y=0, z=0),
                 rotation=Quaternion(**dict(zip("xyzw", t.OPTICAL_IN_WORLD, strict=True)))), log_time=ns)
-        for name, channel in self.features.items():
-            if channel.has_sinks():
-                channel.log(_png(stamp, feature_u8(r.features[name])), log_time=ns)
+        self._log_features(r, stamp, ns)
         if self.cloud.has_sinks():
             self.cloud.log(self._foreground(r, stamp), log_time=ns)
         if self.images[t.MASK].has_sinks():
@@ -180,6 +180,22 @@ class FoxglovePublisher:
             self.nose.log(self._nose(r, stamp), log_time=ns)
         if self.track.has_sinks():
             self.track.log(self._track(r, stamp), log_time=ns)
+
+    def _log_features(self, r: FrameResult, stamp: Timestamp, ns: int) -> None:
+        """The subscribed feature maps over the foreground's box (pixels.foreground_box), then the box's place and
+        each map's top value (FEATURE_BOX)."""
+        wanted = {name: channel for name, channel in self.features.items() if channel.has_sinks()}
+        if not wanted and not self.feature_box.has_sinks():
+            return
+        rows, cols = foreground_box(r.mask)
+        tops = {}
+        for name, channel in self.features.items():
+            levels, tops[t.FEATURES[name]] = feature_u8(r.features[name][rows, cols])
+            if name in wanted:
+                channel.log(_png(stamp, levels), log_time=ns)
+        self.feature_box.log({"timestamp": {"sec": stamp.sec, "nsec": stamp.nsec}, "x": cols.start, "y": rows.start,
+                              "width": cols.stop - cols.start, "height": rows.stop - rows.start, "top": tops},
+                             log_time=ns)
 
     def _open_range(self, r: FrameResult) -> None:
         """At the first frame, the range's channel: a PNG of the source's own integers where the frame's are exact

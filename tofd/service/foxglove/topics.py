@@ -32,18 +32,28 @@ FOREGROUND = "/foreground"  # foxglove.PointCloud: foreground points (x, y, z me
 TRANSFORM = "/tf"  # foxglove.FrameTransform: WORLD_FRAME -> CAMERA_FRAME
 FEATURES = {name: "/features/" + name.removeprefix("range_").replace("_", "/") for name in VIEWED_MAPS}
 """Feature map name -> topic (range_fft_eps0 -> /features/fft/eps0): foxglove.CompressedImage, an 8-bit PNG of
-the whole image, 0 outside the foreground (which PNG stores in a few bytes), 255 the frame's largest value
-(FEATURE_METADATA)."""
-FEATURE_METADATA = {"scale": "per frame: 255 is the frame's largest value, 0 none"}
+the foreground's bounding box only (FEATURE_BOX says where it lies and what its levels are), 0 outside the
+foreground, 255 the map's largest value in the frame."""
+FEATURE_BOX = "/features/box"
+"""JSON (FEATURE_BOX_SCHEMA), per frame: the feature maps' crop in the image (x, y: its top-left pixel; width,
+height) and per map topic its value at level 255 (a level's value is level / 255 of it)."""
+FEATURE_BOX_SCHEMA = {
+    "type": "object", "title": "tofd.FeatureBox",
+    "properties": {"timestamp": {"type": "object", "properties": {"sec": {"type": "integer"},
+                                                                  "nsec": {"type": "integer"}}},
+                   "x": {"type": "integer"}, "y": {"type": "integer"},
+                   "width": {"type": "integer"}, "height": {"type": "integer"},
+                   "top": {"type": "object", "additionalProperties": {"type": "number"}}}}
+FEATURE_METADATA = {"crop": f"the foreground's bounding box; its place and levels: {FEATURE_BOX}"}
 
 SCHEMAS = {RANGE: "foxglove.CompressedImage | foxglove.RawImage", AMPLITUDE: "foxglove.CompressedImage",
-           AMPLITUDE_SCALE: "tofd.AmplitudeScale",
+           AMPLITUDE_SCALE: "tofd.AmplitudeScale", FEATURE_BOX: "tofd.FeatureBox",
            MASK: "foxglove.CompressedImage", CALIBRATION: "foxglove.CameraCalibration",
            NOSE: "foxglove.ImageAnnotations", NOSE_TRACK: "foxglove.ImageAnnotations",
            FOREGROUND: "foxglove.PointCloud", TRANSFORM: "foxglove.FrameTransform",
            **dict.fromkeys(FEATURES.values(), "foxglove.CompressedImage")}
 """Every topic and the schema of its messages (protobuf encoded, JSON_TOPICS JSON; RANGE: one of two, per source)."""
-JSON_TOPICS = (AMPLITUDE_SCALE,)
+JSON_TOPICS = (AMPLITUDE_SCALE, FEATURE_BOX)
 
 
 def range_metadata(depth: str, unit_m: float) -> dict[str, str]:

@@ -3,12 +3,12 @@
 Per frame: z-depth under the Pinhole (what Rerun's depth images mean, so the 3-D projection is right; the camera's
 radial range is it over each ray's z) as a 16-bit PNG in the source's unit where that is exact, else float32 metres
 (tofd.service.viewer.encoding), amplitude for viewing as an 8-bit JPEG (its scale, sensor units per level, a
-time series beside it: encoding.amplitude_u8), the mask
-(Rerun's chunk compression shrinks it to a few kB), four feature maps cropped to the foreground's bounding box (they
-are 0 outside it) with the translation that puts the crop where it lies in the image, the foreground cloud (at most
-pixels.CLOUD_POINTS points, an even subsample of a large foreground), the detected nose in 2-D and 3-D, beside it
-the confirmed nose track (a box of pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D
-point) and the track's confidence, one scalar per stage timing.
+time series beside it: encoding.amplitude_u8), the mask (Rerun's chunk compression shrinks it to a few kB), four
+feature maps as half floats cropped to the foreground's bounding box (they are 0 outside it) with the translation
+that puts the crop where it lies in the image, the foreground cloud (at most pixels.CLOUD_POINTS points, an even
+subsample of a large foreground), the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of
+pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D point) and the track's confidence,
+one scalar per stage timing.
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
 
 Everything per frame goes out as columns (Rerun's send_columns), `batch_frames` frames per send: a log call
@@ -57,7 +57,7 @@ from tofd.service.viewer.encoding import (
     source_unit_m,
     z_depth_m,
 )
-from tofd.service.viewer.pixels import cloud_pixels, corner_origin, track_box_px
+from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
 from tofd.service.viewer.wire import OWN_TIMINGS
 
 POINT_COLOUR_MAP = FAMILY_TABLE["range_nfft"].map_name("eps0")  # colours the foreground's 3-D points
@@ -95,14 +95,6 @@ def colour_by(values: np.ndarray) -> np.ndarray:
     lo, hi = np.partition(kept, ranks)[ranks]
     idx = np.clip((logv - lo) * (255 / max(hi - lo, 1e-12)), 0, 255)
     return np.take(lut, np.where(finite, idx, 0).astype(np.intp))
-
-
-def foreground_box(mask: np.ndarray) -> tuple[slice, slice]:
-    """Rows and columns of the (H, W) mask's bounding box; the top-left pixel when the mask is empty."""
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if not rows.size:
-        return slice(0, 1), slice(0, 1)
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -201,7 +193,8 @@ class RerunLogger:
         self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage}
         self._depth_unit_m: float | None = None  # the depth's unit when it goes as PNG
         self._depth_chosen = False
-        self._crop = ImageEntity(rr.DepthImage, np.float32, feature_style)  # every feature map's
+        # every feature map's: half floats (3 significant digits, which a colour map cannot show anyway)
+        self._crop = ImageEntity(rr.DepthImage, np.float16, feature_style)
         self._shape = height, width = intrinsics.shape
         # as arrow, built once: Rerun's conversion is slow
         self._formats = {path: image_format(height=height, width=width, color_model=image.color_model,
@@ -245,7 +238,8 @@ class RerunLogger:
         box = foreground_box(r.mask)
         shown.corners.append((box[1].start, box[0].start))
         for name, path in bp.FEATURES.items():  # eccentricities are >= 0; NaN outside the foreground
-            shown.crops.setdefault(path, []).append(np.fmax(r.features[name][box], self._zeros[box]))
+            crop = np.fmax(r.features[name][box], self._zeros[box])
+            shown.crops.setdefault(path, []).append(crop.astype(np.float16))
         if self.point_cloud:
             at = cloud_pixels(r.mask)  # np.take of a flat index is far faster than a 2-D mask or fancy index
             ranges = np.take(frame.range_m.reshape(-1), at)
