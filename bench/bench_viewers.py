@@ -30,6 +30,7 @@ import concurrent.futures
 import json
 import os
 import platform
+import re
 import struct
 import tempfile
 import threading
@@ -69,16 +70,21 @@ KINDS = ("none", "rerun", "foxglove")
 LIVE_FPS = 1e6 / FRAME_PERIOD_US
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # Foxglove WebSocket binary opcode: subscription id (uint32 LE), log time (uint64 LE), payload
+UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)")  # the server's status message
+RESUBSCRIBE_S = 0.05
 ROTATE_MB, KEEP_FILES = 2000.0, 24  # the [rerun] rotation docs/ARCHITECTURE.md suggests for a run of days
 
 
 class CountingClient:
     """A Foxglove WebSocket client subscribed to every channel (advertised now or later) on a thread, counting the
-    messages and payload bytes it receives per topic."""
+    messages and payload bytes it receives per topic. A subscription the server refuses as to an unknown channel
+    that it did advertise is made again (the SDK can advertise a channel opened while a client is connected a
+    moment before it accepts subscriptions to it)."""
 
     def __init__(self, url: str):
         self.ws = websocket.create_connection(url, subprotocols=[SUBPROTOCOL], timeout=10)
-        self.topics: dict[int, str] = {}
+        self.topics: dict[int, str] = {}  # channel id -> topic
+        self._subscriptions: dict[int, str] = {}  # subscription id -> topic
         self.messages: dict[str, int] = {}
         self.bytes: dict[str, int] = {}
         self.started_s = time.monotonic()
@@ -100,12 +106,23 @@ class CountingClient:
                 if msg.get("op") == "advertise":
                     fresh = {c["id"]: c["topic"] for c in msg["channels"]}
                     self.topics.update(fresh)
-                    self.ws.send(json.dumps({"op": "subscribe",
-                                             "subscriptions": [{"id": i, "channelId": i} for i in fresh]}))
+                    self._subscribe(list(fresh))
+                refused = UNKNOWN_CHANNEL.search(msg.get("message", "")) if msg.get("op") == "status" else None
+                if refused and int(refused.group(1)) in self.topics:
+                    time.sleep(RESUBSCRIBE_S)  # the SDK had not registered the channel it advertised yet
+                    self._subscribe([int(refused.group(1))])
             elif data and data[0] == MESSAGE_DATA:
-                topic = self.topics[struct.unpack_from("<I", data, 1)[0]]
+                topic = self._subscriptions[struct.unpack_from("<I", data, 1)[0]]
                 self.messages[topic] = self.messages.get(topic, 0) + 1
                 self.bytes[topic] = self.bytes.get(topic, 0) + len(data) - 13
+
+    def _subscribe(self, channels: list[int]) -> None:
+        """Subscribe to `channels`, each under a new subscription id."""
+        subscriptions = []
+        for channel in channels:
+            self._subscriptions[len(self._subscriptions)] = self.topics[channel]
+            subscriptions.append({"id": len(self._subscriptions) - 1, "channelId": channel})
+        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
 
     def reset(self) -> None:
         """Count from now on."""
