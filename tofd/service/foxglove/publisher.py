@@ -85,6 +85,11 @@ def _png(stamp: Timestamp, plane: np.ndarray) -> CompressedImage:
     return CompressedImage(timestamp=stamp, frame_id=t.CAMERA_FRAME, data=png(plane), format="png")
 
 
+def _json_stamp(stamp: Timestamp) -> dict[str, int]:
+    """A Timestamp as the JSON topics carry it (their schemas' "timestamp")."""
+    return {"sec": stamp.sec, "nsec": stamp.nsec}
+
+
 def feature_u8(values: np.ndarray) -> tuple[np.ndarray, float]:
     """(h, w) uint8 of a feature map's crop (>= 0, NaN outside the foreground -> 0), 255 its largest value, and
     that value (0: none): Foxglove shows it colour-mapped, where the map's shape is what the eye reads."""
@@ -117,7 +122,7 @@ class FoxglovePublisher:
 
     def __init__(self, cfg: Config, sink: str = "foxglove", batch_frames: int = 1, footer: bool = False):
         fc = cfg.foxglove
-        for name in SDK_LOGGERS:  # before the server starts: the SDK fixes its level then
+        for name in SDK_LOGGERS:  # before the server starts, so its first lines go the same way
             limit_library_lines(name, "foxglove SDK: ")
         self.intrinsics = intrinsics = cfg.intrinsics
         self.context = foxglove.Context()  # our channels only: another server in this process sees none of them
@@ -170,8 +175,7 @@ class FoxglovePublisher:
             self.calibration.log(calibration(self.intrinsics, stamp), log_time=ns)
         if self.images[t.AMPLITUDE].has_sinks() or self.amplitude_scale.has_sinks():
             amplitude, scale = amplitude_u8(frame.amplitude)
-            self.amplitude_scale.log({"timestamp": {"sec": stamp.sec, "nsec": stamp.nsec},
-                                      "units_per_level": scale}, log_time=ns)
+            self.amplitude_scale.log({"timestamp": _json_stamp(stamp), "units_per_level": scale}, log_time=ns)
             self.images[t.AMPLITUDE].log(CompressedImage(timestamp=stamp, frame_id=t.CAMERA_FRAME,
                                                          data=jpeg(amplitude), format="jpeg"), log_time=ns)
         if self.range.has_sinks():
@@ -193,7 +197,7 @@ class FoxglovePublisher:
             levels, tops[t.FEATURES[name]] = feature_u8(r.features[name][rows, cols])
             if name in wanted:
                 channel.log(_png(stamp, levels), log_time=ns)
-        self.feature_box.log({"timestamp": {"sec": stamp.sec, "nsec": stamp.nsec}, "x": cols.start, "y": rows.start,
+        self.feature_box.log({"timestamp": _json_stamp(stamp), "x": cols.start, "y": rows.start,
                               "width": cols.stop - cols.start, "height": rows.stop - rows.start, "top": tops},
                              log_time=ns)
 

@@ -17,12 +17,13 @@ foxglove.CompressedImage, a 16-bit PNG of the source's own integers where they a
 of a millimetre camera; the SR3000's radial range codes), 0 where invalid; else foxglove.RawImage 32FC1: radial
 range along each pixel's ray, metres (NaN: invalid)."""
 AMPLITUDE = "/camera/amplitude"  # foxglove.CompressedImage, 8-bit JPEG: amplitude for viewing (AMPLITUDE_SCALE)
+TIMESTAMP_SCHEMA = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+"""The JSON topics' timestamp: seconds and nanoseconds of the host's wall clock, as the protobuf topics'."""
 AMPLITUDE_SCALE = "/camera/amplitude_scale"
 """JSON (AMPLITUDE_SCALE_SCHEMA): the amplitude image's scale, sensor units per 8-bit level, with its timestamp."""
 AMPLITUDE_SCALE_SCHEMA = {
     "type": "object", "title": "tofd.AmplitudeScale",
-    "properties": {"timestamp": {"type": "object", "properties": {"sec": {"type": "integer"},
-                                                                  "nsec": {"type": "integer"}}},
+    "properties": {"timestamp": TIMESTAMP_SCHEMA,
                    "units_per_level": {"type": "number"}}}
 MASK = "/camera/mask"  # foxglove.CompressedImage, 8-bit PNG: 255 foreground, 0 background
 CALIBRATION = "/camera/calibration"  # foxglove.CameraCalibration: the intrinsics (K, P; ROS pixel convention)
@@ -39,8 +40,7 @@ FEATURE_BOX = "/features/box"
 height) and per map topic its value at level 255 (a level's value is level / 255 of it)."""
 FEATURE_BOX_SCHEMA = {
     "type": "object", "title": "tofd.FeatureBox",
-    "properties": {"timestamp": {"type": "object", "properties": {"sec": {"type": "integer"},
-                                                                  "nsec": {"type": "integer"}}},
+    "properties": {"timestamp": TIMESTAMP_SCHEMA,
                    "x": {"type": "integer"}, "y": {"type": "integer"},
                    "width": {"type": "integer"}, "height": {"type": "integer"},
                    "top": {"type": "object", "additionalProperties": {"type": "number"}}}}
