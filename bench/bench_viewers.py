@@ -26,9 +26,11 @@ writes bench/results/bench_viewers.json.
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import json
 import os
 import platform
+import re
 import struct
 import tempfile
 import threading
@@ -36,6 +38,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import websocket
 from bench_pipeline import CLIP, Latencies, with_detector
@@ -49,7 +52,16 @@ from tofd.process_setup import prepare_service_process
 from tofd.service.foxglove.publisher import FoxglovePublisher
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline, maps_read
-from tofd.service.viewer.encoding import amplitude_u16, in_units, source_unit_m, z_depth_m
+from tofd.service.viewer import blueprint as bp
+from tofd.service.viewer.encoding import (
+    JPEG_QUALITY,
+    PNG_PARAMS,
+    amplitude_u8,
+    amplitude_u16,
+    in_units,
+    source_unit_m,
+    z_depth_m,
+)
 from tofd.service.viewer.logger import frames_per_send
 from tofd.service.viewer.process import ViewerProcess
 from tofd.service.viewer.targets import file_footer
@@ -58,16 +70,21 @@ KINDS = ("none", "rerun", "foxglove")
 LIVE_FPS = 1e6 / FRAME_PERIOD_US
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # Foxglove WebSocket binary opcode: subscription id (uint32 LE), log time (uint64 LE), payload
+UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)")  # the server's status message
+RESUBSCRIBE_S = 0.05
 ROTATE_MB, KEEP_FILES = 2000.0, 24  # the [rerun] rotation docs/ARCHITECTURE.md suggests for a run of days
 
 
 class CountingClient:
     """A Foxglove WebSocket client subscribed to every channel (advertised now or later) on a thread, counting the
-    messages and payload bytes it receives per topic."""
+    messages and payload bytes it receives per topic. A subscription the server refuses as to an unknown channel
+    that it did advertise is made again (the SDK can advertise a channel opened while a client is connected a
+    moment before it accepts subscriptions to it)."""
 
     def __init__(self, url: str):
         self.ws = websocket.create_connection(url, subprotocols=[SUBPROTOCOL], timeout=10)
-        self.topics: dict[int, str] = {}
+        self.topics: dict[int, str] = {}  # channel id -> topic
+        self._subscriptions: dict[int, str] = {}  # subscription id -> topic
         self.messages: dict[str, int] = {}
         self.bytes: dict[str, int] = {}
         self.started_s = time.monotonic()
@@ -89,12 +106,23 @@ class CountingClient:
                 if msg.get("op") == "advertise":
                     fresh = {c["id"]: c["topic"] for c in msg["channels"]}
                     self.topics.update(fresh)
-                    self.ws.send(json.dumps({"op": "subscribe",
-                                             "subscriptions": [{"id": i, "channelId": i} for i in fresh]}))
+                    self._subscribe(list(fresh))
+                refused = UNKNOWN_CHANNEL.search(msg.get("message", "")) if msg.get("op") == "status" else None
+                if refused and int(refused.group(1)) in self.topics:
+                    time.sleep(RESUBSCRIBE_S)  # the SDK had not registered the channel it advertised yet
+                    self._subscribe([int(refused.group(1))])
             elif data and data[0] == MESSAGE_DATA:
-                topic = self.topics[struct.unpack_from("<I", data, 1)[0]]
+                topic = self._subscriptions[struct.unpack_from("<I", data, 1)[0]]
                 self.messages[topic] = self.messages.get(topic, 0) + 1
                 self.bytes[topic] = self.bytes.get(topic, 0) + len(data) - 13
+
+    def _subscribe(self, channels: list[int]) -> None:
+        """Subscribe to `channels`, each under a new subscription id."""
+        subscriptions = []
+        for channel in channels:
+            self._subscriptions[len(self._subscriptions)] = self.topics[channel]
+            subscriptions.append({"id": len(self._subscriptions) - 1, "channelId": channel})
+        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
 
     def reset(self) -> None:
         """Count from now on."""
@@ -153,16 +181,21 @@ def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: flo
 
 
 def rrd_views(path: Path, frames: int) -> dict:
-    """The .rrd's bytes on disk per frame and, per entity, the bytes of its rows (before Rerun's compression) per
-    frame."""
+    """The .rrd's bytes on disk per frame, per entity the bytes of its rows (before Rerun's compression) per
+    frame, and the viewer process's own milliseconds per frame (its `logging` timing: encoding and sending)."""
     from rerun.chunk import RrdReader
 
     per_entity: dict[str, int] = {}
+    own_ms: list[float] = []
     for chunk in RrdReader(str(path)).stream().to_chunks():
         if not chunk.is_static:
             batch = chunk.to_record_batch()
             per_entity[chunk.entity_path] = per_entity.get(chunk.entity_path, 0) + batch.nbytes
+            if chunk.entity_path == f"{bp.TIMINGS}/logging":
+                own_ms += [row[0] for row in batch.column("Scalars:scalars").to_pylist()]
     return {"file_bytes_per_frame": round(path.stat().st_size / frames),
+            "viewer_ms_per_frame": {"median": round(float(np.median(own_ms)), 2),
+                                    "p90": round(float(np.percentile(own_ms, 90)), 2)} if own_ms else None,
             "views_bytes_per_frame": {e: round(b / frames) for e, b in sorted(per_entity.items(), key=lambda x: -x[1])
                                       if b / frames >= 100}}
 
@@ -184,6 +217,57 @@ def lossless_bounds(clip: Path) -> dict:
     units = in_units(z, unit) if unit is not None else None
     return {"depth": delta_entropy_bytes(units[0]) if units is not None and units[1] else None,
             "amplitude": delta_entropy_bytes(amplitude_u16(frame.amplitude))}
+
+
+STRATEGIES = {"rle": cv2.IMWRITE_PNG_STRATEGY_RLE, "default": cv2.IMWRITE_PNG_STRATEGY_DEFAULT}
+
+
+def timed(encode, repeats: int = 7) -> tuple[int, float]:
+    """Bytes of encode()'s output and its median milliseconds over `repeats` calls."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = encode()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return len(out), round(float(np.median(times)), 2)
+
+
+def encodings(clip: Path) -> dict:
+    """Bytes and ms of the clip's first frame's planes in the codecs the viewers could use: the depth (its source's
+    integers, when whole) as 16-bit PNG at zlib levels 1, 3, 6 with the run-length (tofd's) and default strategies;
+    the amplitude as lossless 16-bit PNG, 8-bit PNG and 8-bit JPEG; tofd's depth and amplitude encoded one after
+    the other and on two threads (cv2 releases the GIL)."""
+    with ReplaySource(clip) as source:
+        frame = next(iter(source))
+    out: dict = {}
+    unit = source_unit_m(frame)
+    z = z_depth_m(frame.range_m, frame.intrinsics.unit_rays()[..., 2].astype(np.float32))
+    depth = in_units(z, unit)[0] if unit is not None else None
+
+    def png(plane, level=1, strategy=cv2.IMWRITE_PNG_STRATEGY_RLE):
+        return lambda: cv2.imencode(".png", plane, [cv2.IMWRITE_PNG_COMPRESSION, level, cv2.IMWRITE_PNG_STRATEGY,
+                                                    strategy, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB])[1]
+
+    def jpg(plane, quality):
+        return lambda: cv2.imencode(".jpg", plane, [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
+
+    if depth is not None:
+        for level in (1, 3, 6):
+            for label, strategy in STRATEGIES.items():
+                out[f"depth png16 level {level} {label}"] = timed(png(depth, level, strategy))
+    amp8, _ = amplitude_u8(frame.amplitude)
+    out["amplitude png16 level 1 rle"] = timed(png(amplitude_u16(frame.amplitude)))
+    out["amplitude png8 level 1 rle"] = timed(png(amp8))
+    for quality in (75, 90, 95):
+        out[f"amplitude jpeg q{quality}"] = timed(jpg(amp8, quality))
+    if depth is not None:
+        serial = [lambda: cv2.imencode(".png", depth, PNG_PARAMS)[1],
+                  lambda: cv2.imencode(".jpg", amp8, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]]
+        with concurrent.futures.ThreadPoolExecutor(2) as pool:
+            out["depth + amplitude, two threads"] = timed(
+                lambda: b"".join(f.result() for f in [pool.submit(e) for e in serial]))
+        out["depth + amplitude, one after the other"] = timed(lambda: b"".join(e() for e in serial))
+    return {codec: {"bytes": size, "ms": ms} for codec, (size, ms) in out.items()}
 
 
 def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs: int, live_s: float, tmp: Path
@@ -220,6 +304,8 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
         "rerun_hours_kept_in_budget": round(budget_gb * 1e3 / rerun_mb_s / 3600, 1) if budget_gb else None,
         "rerun_views_bytes_per_frame": rrd["views_bytes_per_frame"],
         "lossless_bound_bytes": lossless_bounds(clip),
+        "rerun_viewer_ms_per_frame": rrd["viewer_ms_per_frame"],
+        "encodings_first_frame": encodings(clip),
         "foxglove_live_fps": live["fps"],
         "foxglove_MB_per_s": round(sum(client["bytes"].values()) / seconds / 1e6, 2),
         "foxglove_frame_bytes": frame_bytes,  # a published frame: every topic's mean message

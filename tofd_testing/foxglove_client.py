@@ -83,8 +83,11 @@ class Client:
                 continue
             sub, log_ns = struct.unpack_from("<IQ", data, 1)
             channel = self.channels[sub]
-            msg = decoder(channel["schemaName"])()
-            msg.ParseFromString(data[13:])
+            if channel["encoding"] == "json":
+                msg = json.loads(data[13:])
+            else:
+                msg = decoder(channel["schemaName"])()
+                msg.ParseFromString(data[13:])
             got.setdefault(channel["topic"], []).append((log_ns, msg))
         return got
 

@@ -4,6 +4,7 @@ import warnings
 
 import numpy as np
 import pyarrow as pa
+import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
@@ -72,12 +73,25 @@ def depth_at(tables, row):
 
 
 def amplitude_at(tables, row):
-    """The (H, W) uint16 amplitude image at `row`: a PNG (EncodedImage) or raw pixels (Image)."""
+    """The (H, W) uint8 amplitude image at `row` (a JPEG) and its scale, sensor units per level (the
+    AMPLITUDE_SCALE series at the same frame)."""
     table = tables[bp.AMPLITUDE][1]
-    if "EncodedImage:blob" in table.column_names:
-        assert static_value(tables, bp.AMPLITUDE, "EncodedImage:media_type") == "image/png"
-        return unpng(blob_at(table, "EncodedImage", row))
-    return image_at(table, "Image", row)
+    assert static_value(tables, bp.AMPLITUDE, "EncodedImage:media_type") == "image/jpeg"
+    image = unpng(blob_at(table, "EncodedImage", row))
+    scales = tables[bp.AMPLITUDE_SCALE][1]
+    at = scales.column("frame").to_pylist().index(table.column("frame")[row].as_py())
+    return image, scales.column("Scalars:scalars")[at].as_py()[0]
+
+
+def check_amplitude(image, scale, amplitude):
+    """The 8-bit `image` shows `amplitude` (sensor units) at `scale` units per level: the positive amplitudes'
+    99.5th percentile is level 255 (of a subsample: within 5 %), and each pixel is its amplitude's level (rounded,
+    saturating at 255) within JPEG's error (rms 2 levels, mean half a level)."""
+    assert image.dtype == np.uint8 and image.shape == amplitude.shape
+    positive = amplitude[amplitude > 0]
+    assert scale == pytest.approx(np.percentile(positive, 99.5) / 255, rel=0.05)
+    error = image.astype(np.float64) - np.minimum(np.rint(np.nan_to_num(amplitude) / scale), 255)
+    assert np.sqrt(np.mean(error**2)) <= 2.0 and abs(error.mean()) <= 0.5
 
 
 def feature_map_at(table, row, shape):
@@ -118,9 +132,7 @@ def check_rrd(path, counters, results_by_counter=None):
             unit = frame.sensor.depth_unit_m
             np.testing.assert_array_equal(stored, np.rint(z_m / unit))
             np.testing.assert_allclose(depth_m, z_m, atol=unit * 0.05)
-        amplitude = amplitude_at(tables, last)
-        assert amplitude.dtype == np.uint16
-        np.testing.assert_array_equal(amplitude, np.rint(results_by_counter[c].frame.amplitude))
+        check_amplitude(*amplitude_at(tables, last), results_by_counter[c].frame.amplitude)
         cloud = tables[bp.FOREGROUND][1].column("Points3D:positions")[len(counters) - 1]
         at = cloud_pixels(results_by_counter[c].mask)
         assert len(cloud) == len(at)
@@ -133,6 +145,7 @@ def check_rrd(path, counters, results_by_counter=None):
         assert rgb == [(68, 1, 84), (253, 231, 36)], rgb  # viridis at 0 and 1
         for name, entity in bp.FEATURES.items():  # each map, cropped to the foreground, is the whole map in place
             shown = feature_map_at(tables[entity][1], len(counters) - 1, frame.range_m.shape)
-            np.testing.assert_array_equal(shown, np.nan_to_num(results_by_counter[c].features[name], nan=0.0))
+            want = np.nan_to_num(results_by_counter[c].features[name], nan=0.0)
+            np.testing.assert_array_equal(shown, want.astype(np.float16))  # half floats of the map
             assert image_at(tables[entity][1], "DepthImage", len(counters) - 1).size < 0.5 * shown.size
     return tables

@@ -23,6 +23,7 @@ from tofd.service.viewer.encoding import unpng
 from tofd.service.viewer.pixels import cloud_pixels
 from tofd_testing.foxglove_client import SUBPROTOCOL, Client, wait_for_url
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
+from tofd_testing.rrd_helpers import check_amplitude
 
 ROOT = Path(__file__).resolve().parents[2]
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
@@ -64,8 +65,11 @@ def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
         assert set(advertised) == set(t.SCHEMAS)
         for topic, schemas in t.SCHEMAS.items():
             schema = advertised[topic]["schemaName"]
-            assert advertised[topic]["encoding"] == "protobuf" and schema in schemas.split(" | ")
-            assert schema in client.schema_names(topic)
+            assert schema in schemas.split(" | ")
+            if topic in t.JSON_TOPICS:
+                assert advertised[topic]["encoding"] == "json"
+                continue
+            assert advertised[topic]["encoding"] == "protobuf" and schema in client.schema_names(topic)
         # the SR3000's range: a PNG of its own radial codes, their unit in the channel's metadata
         assert advertised[t.RANGE]["schemaName"] == "foxglove.CompressedImage"
         range_meta = advertised[t.RANGE]["metadata"]
@@ -113,8 +117,15 @@ def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
             compared += 1
     assert compared
     assert 0.2 < unit * codes[codes > 0].min() < unit * codes.max() < 3.0  # metres
-    amplitude = unpng(got[t.AMPLITUDE][-1][1].data)
-    assert amplitude.dtype == np.uint16 and amplitude.max() > 0
+    # the amplitude for viewing: a JPEG of the recorded amplitude's 8-bit levels at the scale sent beside it
+    scales = {(m["timestamp"]["sec"], m["timestamp"]["nsec"]): m["units_per_level"] for _, m in got[t.AMPLITUDE_SCALE]}
+    shown = 0
+    for stamp, image in by_stamp(got[t.AMPLITUDE]).items():
+        assert image.format == "jpeg" and image.frame_id == t.CAMERA_FRAME
+        if stamp in counters and stamp in scales:
+            check_amplitude(unpng(image.data), scales[stamp], recorded[counters[stamp]].amplitude)
+            shown += 1
+    assert shown
 
     calibration = got[t.CALIBRATION][-1][1]
     assert list(calibration.K) == pytest.approx([intr.fx, 0, intr.cx, 0, intr.fy, intr.cy, 0, 0, 1])
@@ -147,9 +158,23 @@ def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
     assert (transform.parent_frame_id, transform.child_frame_id) == (t.WORLD_FRAME, t.CAMERA_FRAME)
     q = transform.rotation
     assert [q.x, q.y, q.z, q.w] == list(t.OPTICAL_IN_WORLD)
+    # the feature maps: 8-bit crops of the foreground's box, placed and scaled by the box message of their frame
+    boxes = {(m["timestamp"]["sec"], m["timestamp"]["nsec"]): m for _, m in got[t.FEATURE_BOX]}
+    placed = 0
     for topic in t.FEATURES.values():
-        feature = unpng(got[topic][-1][1].data)
-        assert got[topic][-1][1].format == "png" and feature.dtype == np.uint8 and feature.max() == 255
+        for stamp, image in by_stamp(got[topic]).items():
+            feature = unpng(image.data)
+            assert image.format == "png" and feature.dtype == np.uint8
+            if stamp in boxes and stamp in masks and boxes[stamp]["top"][topic] > 0:
+                box, mask = boxes[stamp], unpng(masks[stamp].data) > 0
+                rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+                assert (box["x"], box["y"], box["width"], box["height"]) == (
+                    cols[0], rows[0], cols[-1] - cols[0] + 1, rows[-1] - rows[0] + 1)
+                assert feature.shape == (box["height"], box["width"]) and feature.max() == 255
+                inside = mask[box["y"]: box["y"] + box["height"], box["x"]: box["x"] + box["width"]]
+                assert not feature[~inside].any()  # 0 outside the foreground
+                placed += 1
+    assert placed
 
 
 def server_fds(proc: subprocess.Popen, url: str) -> int:
@@ -259,3 +284,49 @@ def test_a_replay_on_a_busy_port_fails_before_touching_the_previous_runs_outputs
     assert again.stderr.strip().splitlines()[-1].endswith(f"port {port} on 127.0.0.1 is already in use "
                                                           "(--foxglove HOST:PORT)"), again.stderr
     assert {p.name: (p.read_bytes(), p.stat().st_mtime_ns) for p in out.iterdir()} == before
+
+
+def test_a_clients_bad_request_makes_a_few_prefixed_log_lines_not_one_per_item():
+    """A client subscribing 1000 times to a channel that does not exist: the SDK warns per subscription; tofd's log
+    (the root logger's handlers) gets at most LimitedLines' burst of them, each saying it is the foxglove SDK's."""
+    import logging
+
+    from tofd.service.foxglove.publisher import FoxglovePublisher
+
+    class Lines(logging.Handler):
+        def __init__(self) -> None:
+            super().__init__()
+            self.lines: list[str] = []
+
+        def emit(self, record: logging.LogRecord) -> None:
+            self.lines.append(record.getMessage())
+
+    tofd_log = Lines()
+    logging.getLogger().addHandler(tofd_log)
+    publisher = FoxglovePublisher(parse_foxglove_spec("127.0.0.1:0", Config()))
+    try:
+        client = Client(publisher.web_url)
+        client.ws.send(json.dumps({"op": "subscribe",
+                                   "subscriptions": [{"id": i, "channelId": 9999} for i in range(1000)]}))
+        client.read(1.0)  # the server has handled the request
+        client.close()
+    finally:
+        publisher.close(1.0)
+        logging.getLogger().removeHandler(tofd_log)
+    lines = [line for line in tofd_log.lines if "9999" in line]
+    assert 1 <= len(lines) <= 5, lines
+    assert all(line.startswith("foxglove SDK: ") for line in lines)
+
+
+def test_limited_lines_lets_a_burst_through_per_interval_and_counts_the_rest():
+    import logging
+
+    from tofd.logs import LimitedLines
+
+    limited = LimitedLines("lib: ", burst=2, interval_s=0.2)
+    records = [logging.LogRecord("lib", logging.WARNING, __file__, 1, "item %d", (i,), None) for i in range(6)]
+    passed = [r.getMessage() for r in records[:5] if limited.filter(r)]
+    assert passed == ["lib: item 0", "lib: item 1"]
+    time.sleep(0.25)  # a new interval: its first line says how many were left out
+    assert limited.filter(records[5])
+    assert records[5].getMessage() == "lib: item 5 (3 more lines left out before this one)"

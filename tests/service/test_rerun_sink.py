@@ -90,7 +90,7 @@ def test_results_lines_match_delivered_frames(tmp_path):
 def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tmp_path):
     """A fronto-parallel wall at z = 0.8 m: every pixel of the logged DepthImage, back-projected with the logged
     Pinhole the way Rerun's 3-D view does (x = (u + 0.5 - px) / fx * d), lands on the wall; the radial range is
-    not logged twice and the amplitude is stored as integers."""
+    not logged twice and the amplitude's scale is recorded."""
     import numpy as np
     import rerun as rr
 
@@ -124,8 +124,8 @@ def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tm
         np.testing.assert_allclose(point, rays[v, u] * radial[v, u], atol=1e-5)  # the camera's own 3-D point
     assert float(radial[0, 0]) > 0.8 * 1.1  # a corner: the radial range would be > 10 % off as depth
     assert not [e for e in tables if e.endswith("/range")]  # radial = depth / ray z
-    amp = amplitude_at(tables, 0)
-    assert amp.dtype == np.uint16 and int(amp[0, 0]) == 1234
+    amp, scale = amplitude_at(tables, 0)  # uniform: its top is the brightest level, the scale recorded
+    assert amp.dtype == np.uint8 and np.all(amp == 255) and scale * 255 == pytest.approx(1234.4)
     for entity in bp.FEATURES.values():  # no foreground: nothing drawn, from a one-pixel crop
         assert not feature_map_at(tables[entity][1], 0, intr.shape).any()
         assert image_at(tables[entity][1], "DepthImage", 0).shape == (1, 1)
@@ -204,7 +204,7 @@ def test_millimetre_depth_is_stored_as_the_sources_integers_and_lines_up_with_th
     from tofd.drivers.frame import Frame, SensorInfo
     from tofd.lab.cameras import CAMERAS
     from tofd.service.viewer.pixels import CLOUD_POINTS, cloud_pixels
-    from tofd_testing.rrd_helpers import depth_at
+    from tofd_testing.rrd_helpers import amplitude_at, check_amplitude, depth_at
 
     intr = CAMERAS["k4a-nfov"]
     v, u = np.indices(intr.shape)
@@ -213,7 +213,8 @@ def test_millimetre_depth_is_stored_as_the_sources_integers_and_lines_up_with_th
     rays = intr.unit_rays()
     scale = np.float32(1e-3) / rays[..., 2].astype(np.float32)  # the K4A driver's mm -> radial metres
     radial = np.where(z_mm > 0, z_mm * scale, np.nan).astype(np.float32)
-    amplitude = (100 + (u * v) % 3000).astype(np.float32)
+    bright = 100 + 3000 * np.exp(-((u - 320) ** 2 + (v - 288) ** 2) / 200**2)  # an IR image: lit in the middle
+    amplitude = (bright * np.random.default_rng(0).normal(1, 0.02, intr.shape)).astype(np.float32)  # 2 % noise
     frame = Frame(radial, amplitude, frame_counter=0, timestamp_us=0, host_monotonic_s=0.0, host_wall_s=0.0,
                   intrinsics=intr, sensor=SensorInfo(depth_unit_m=1e-3, amplitude="ir"))
     mask = np.zeros(intr.shape, bool)
@@ -222,6 +223,7 @@ def test_millimetre_depth_is_stored_as_the_sources_integers_and_lines_up_with_th
     depth_m, stored = depth_at(tables, 0)
     assert stored.dtype == np.uint16
     np.testing.assert_array_equal(stored, z_mm)  # exactly the source's millimetres
+    check_amplitude(*amplitude_at(tables, 0), amplitude)  # for viewing: 8 bits at the recorded scale
     pinhole = tables[bp.CAMERA][0][0].to_record_batch()
     matrix = np.array(pinhole.column("Pinhole:image_from_camera")[0].as_py()[0]).reshape(3, 3).T
     fx, fy, px, py = matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2]

@@ -16,7 +16,7 @@ from tofd.service.foxglove.publisher import FoxglovePublisher
 from tofd.service.foxglove.spec import parse_foxglove_spec
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer import blueprint as bp
-from tofd.service.viewer.encoding import code_unit_m, in_units, png, unpng, z_depth_m
+from tofd.service.viewer.encoding import amplitude_u8, code_unit_m, in_units, jpeg, png, unpng, z_depth_m
 from tofd.service.viewer.pixels import CLOUD_POINTS, cloud_pixels
 from tofd_testing.foxglove_client import Client
 
@@ -52,6 +52,26 @@ def test_whole_units_are_recognised_and_round_trip_through_png():
     assert not in_units(np.float32([[0.5004]]), 1e-3)[1]  # not a whole millimetre
 
 
+def test_the_amplitude_for_viewing_is_within_half_a_level_of_its_recorded_scale():
+    """8 bits, the positive amplitudes' 99.5th percentile the brightest level: each pixel's level times the scale
+    is its amplitude within half a level (brighter ones saturate at 255); NaN and negatives are 0; the JPEG keeps
+    the levels within about one."""
+    rng = np.random.default_rng(3)
+    amplitude = rng.gamma(2.0, 700.0, K4A.shape).astype(np.float32)
+    amplitude[:5, :5], amplitude[5:10, :5] = np.nan, -3.0
+    levels, scale = amplitude_u8(amplitude)
+    assert levels.dtype == np.uint8 and levels.shape == K4A.shape
+    assert scale == pytest.approx(np.percentile(amplitude[amplitude > 0], 99.5) / 255, rel=0.02)
+    shown = levels * scale
+    below = np.nan_to_num(amplitude) <= 255 * scale
+    assert np.all(np.abs(shown[below] - np.fmax(np.nan_to_num(amplitude[below]), 0)) <= scale / 2 + 1e-3 * scale)
+    assert np.all(levels[~below] == 255) and 0 < (~below).mean() < 0.01
+    assert not levels[:10, :5].any()
+    decoded = unpng(jpeg(levels)).astype(np.float64)
+    assert np.sqrt(np.mean((decoded - levels) ** 2)) < 4  # white noise: JPEG's worst case
+    assert amplitude_u8(np.full((4, 4), np.nan, np.float32))[1] == 1.0  # nothing positive: scale 1
+
+
 @pytest.mark.parametrize("fill", [0.01, 0.3, 1.0])
 def test_the_cloud_is_every_pixel_of_a_small_foreground_and_an_even_grid_of_a_large_one(fill):
     mask = np.random.default_rng(1).random(K4A.shape) < fill
@@ -77,7 +97,8 @@ def test_foxglove_range_of_a_millimetre_camera_is_its_millimetres_and_lines_up_w
         publisher(FrameResult(0, frames[0][0], mask, feats, 0, 0.0, arrival_s=0.0))  # opens the range's channel
         client = Client(publisher.web_url)
         client.wait_for({t.RANGE})
-        client.subscribe([t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE])
+        feature = t.FEATURES["range_nfft_eps0"]
+        client.subscribe([t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE, feature, t.FEATURE_BOX])
         client.read(0.5)  # the subscriptions are in
         for frame, _ in frames[1:]:
             publisher(FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0))
@@ -86,7 +107,10 @@ def test_foxglove_range_of_a_millimetre_camera_is_its_millimetres_and_lines_up_w
         client.close()
     finally:
         publisher.close(1.0)
-    assert set(got) == {t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE}  # nothing else was sent to this client
+    assert set(got) == {t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE, feature, t.FEATURE_BOX}  # nothing else
+    for (_, image), (_, box) in zip(got[feature], got[t.FEATURE_BOX], strict=True):  # the mask's box, placed
+        assert (box["x"], box["y"], box["width"], box["height"]) == (200, 150, 300, 300)
+        assert box["top"][feature] == 2.0 and np.all(unpng(image.data) == 255)  # 255: the top value, 2.0
     assert meta == {"depth": "z", "unit_m": "0.001"}
     k = np.array(got[t.CALIBRATION][-1][1].K).reshape(3, 3)
     for (_, image), (_, cloud), (_, z_mm) in zip(got[t.RANGE], got[t.FOREGROUND], frames[1:], strict=True):

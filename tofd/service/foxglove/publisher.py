@@ -7,9 +7,11 @@ never waits for a client. A message is only made for a channel some client subsc
 The viewer process around it (tofd.service.viewer.process) keeps the pipeline from ever waiting on this one.
 
 Per frame (topics.py): range (a 16-bit PNG in the source's unit where that is exact, else float metres),
-amplitude and mask as PNG, the calibration, the nose and the nose track as image annotations, the foreground as
-a point cloud (at most pixels.CLOUD_POINTS points), the viewed feature maps as PNG and the world -> camera
-transform; every message of a frame has the host's wall-clock time of its arrival as timestamp and log time.
+amplitude for viewing as an 8-bit JPEG with its scale (encoding.amplitude_u8), the mask as PNG, the calibration,
+the nose and the nose track as image annotations, the foreground as a point cloud (at most pixels.CLOUD_POINTS
+points), the viewed feature maps as 8-bit PNGs of the foreground's box (its place and their levels beside them)
+and the world -> camera transform; every message of a frame has the host's wall-clock time of its arrival as
+timestamp and log time. The SDK's own log lines go to tofd's log, prefixed and limited (SDK_LOGGERS).
 """
 
 from __future__ import annotations
@@ -50,12 +52,25 @@ from foxglove.messages import (
 
 from tofd.config import Config
 from tofd.drivers.intrinsics import Intrinsics
+from tofd.logs import limit_library_lines
 from tofd.service.foxglove import topics as t
 from tofd.service.pipeline.results import FrameResult
-from tofd.service.viewer.encoding import amplitude_u16, code_unit_m, in_units, png, source_unit_m, z_depth_m
-from tofd.service.viewer.pixels import cloud_pixels, corner_origin, track_box_px
+from tofd.service.viewer.encoding import (
+    amplitude_u8,
+    code_unit_m,
+    in_units,
+    jpeg,
+    png,
+    source_unit_m,
+    z_depth_m,
+)
+from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
 
 log = logging.getLogger(__name__)
+
+SDK_LOGGERS = ("foxglove", "tungstenite")
+"""The foxglove SDK's (Rust) loggers, bridged to Python's logging: prefixed and limited (tofd.logs.LimitedLines),
+as a client's one bad request can make it log a line per item."""
 
 NOSE_COLOR = Color(r=1.0, g=0.0, b=1.0, a=1.0)
 TRACK_COLOR = Color(r=0.0, g=0.78, b=1.0, a=1.0)
@@ -70,12 +85,18 @@ def _png(stamp: Timestamp, plane: np.ndarray) -> CompressedImage:
     return CompressedImage(timestamp=stamp, frame_id=t.CAMERA_FRAME, data=png(plane), format="png")
 
 
-def feature_u8(values: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 of a feature map (>= 0, NaN outside the foreground -> 0), 255 its largest value: Foxglove
-    shows it colour-mapped, where only the map's shape matters to the eye (Rerun keeps the float values)."""
+def _json_stamp(stamp: Timestamp) -> dict[str, int]:
+    """A Timestamp as the JSON topics carry it (their schemas' "timestamp")."""
+    return {"sec": stamp.sec, "nsec": stamp.nsec}
+
+
+def feature_u8(values: np.ndarray) -> tuple[np.ndarray, float]:
+    """(h, w) uint8 of a feature map's crop (>= 0, NaN outside the foreground -> 0), 255 its largest value, and
+    that value (0: none): Foxglove shows it colour-mapped, where the map's shape is what the eye reads."""
     finite = np.fmax(values, np.float32(0))  # fmax drops NaN
     top = float(finite.max(initial=0.0))
-    return np.zeros(values.shape, np.uint8) if top <= 0 else np.rint(finite * (255 / top)).astype(np.uint8)
+    levels = np.zeros(values.shape, np.uint8) if top <= 0 else np.rint(finite * (255 / top)).astype(np.uint8)
+    return levels, top
 
 
 def _image(stamp: Timestamp, plane: np.ndarray, encoding: str) -> RawImage:
@@ -101,6 +122,8 @@ class FoxglovePublisher:
 
     def __init__(self, cfg: Config, sink: str = "foxglove", batch_frames: int = 1, footer: bool = False):
         fc = cfg.foxglove
+        for name in SDK_LOGGERS:  # before the server starts, so its first lines go the same way
+            limit_library_lines(name, "foxglove SDK: ")
         self.intrinsics = intrinsics = cfg.intrinsics
         self.context = foxglove.Context()  # our channels only: another server in this process sees none of them
         try:
@@ -115,6 +138,8 @@ class FoxglovePublisher:
         self.images = {topic: CompressedImageChannel(topic, context=ctx) for topic in (t.AMPLITUDE, t.MASK)}
         self.features = {name: CompressedImageChannel(topic, context=ctx, metadata=t.FEATURE_METADATA)
                          for name, topic in t.FEATURES.items()}
+        self.feature_box = foxglove.Channel(t.FEATURE_BOX, schema=t.FEATURE_BOX_SCHEMA, context=ctx)
+        self.amplitude_scale = foxglove.Channel(t.AMPLITUDE_SCALE, schema=t.AMPLITUDE_SCALE_SCHEMA, context=ctx)
         self.range: RawImageChannel | CompressedImageChannel | None = None  # opened at the first frame
         self._range_unit: tuple[str, float] | None = None  # ("z" or "radial", metres per step) of a PNG range
         self.calibration = CameraCalibrationChannel(t.CALIBRATION, context=ctx)
@@ -141,23 +166,40 @@ class FoxglovePublisher:
                 timestamp=stamp, parent_frame_id=t.WORLD_FRAME, child_frame_id=t.CAMERA_FRAME,
                 translation=Vector3(x=0, y=0, z=0),
                 rotation=Quaternion(**dict(zip("xyzw", t.OPTICAL_IN_WORLD, strict=True)))), log_time=ns)
-        for name, channel in self.features.items():
-            if channel.has_sinks():
-                channel.log(_png(stamp, feature_u8(r.features[name])), log_time=ns)
+        self._log_features(r, stamp, ns)
         if self.cloud.has_sinks():
             self.cloud.log(self._foreground(r, stamp), log_time=ns)
         if self.images[t.MASK].has_sinks():
             self.images[t.MASK].log(_png(stamp, np.where(r.mask, np.uint8(255), np.uint8(0))), log_time=ns)
         if self.calibration.has_sinks():
             self.calibration.log(calibration(self.intrinsics, stamp), log_time=ns)
-        if self.images[t.AMPLITUDE].has_sinks():
-            self.images[t.AMPLITUDE].log(_png(stamp, amplitude_u16(frame.amplitude)), log_time=ns)
+        if self.images[t.AMPLITUDE].has_sinks() or self.amplitude_scale.has_sinks():
+            amplitude, scale = amplitude_u8(frame.amplitude)
+            self.amplitude_scale.log({"timestamp": _json_stamp(stamp), "units_per_level": scale}, log_time=ns)
+            self.images[t.AMPLITUDE].log(CompressedImage(timestamp=stamp, frame_id=t.CAMERA_FRAME,
+                                                         data=jpeg(amplitude), format="jpeg"), log_time=ns)
         if self.range.has_sinks():
             self._log_range(r, stamp, ns)
         if self.nose.has_sinks():
             self.nose.log(self._nose(r, stamp), log_time=ns)
         if self.track.has_sinks():
             self.track.log(self._track(r, stamp), log_time=ns)
+
+    def _log_features(self, r: FrameResult, stamp: Timestamp, ns: int) -> None:
+        """The subscribed feature maps over the foreground's box (pixels.foreground_box), then the box's place and
+        each map's top value (FEATURE_BOX)."""
+        wanted = {name: channel for name, channel in self.features.items() if channel.has_sinks()}
+        if not wanted and not self.feature_box.has_sinks():
+            return
+        rows, cols = foreground_box(r.mask)
+        tops = {}
+        for name, channel in self.features.items():
+            levels, tops[t.FEATURES[name]] = feature_u8(r.features[name][rows, cols])
+            if name in wanted:
+                channel.log(_png(stamp, levels), log_time=ns)
+        self.feature_box.log({"timestamp": _json_stamp(stamp), "x": cols.start, "y": rows.start,
+                              "width": cols.stop - cols.start, "height": rows.stop - rows.start, "top": tops},
+                             log_time=ns)
 
     def _open_range(self, r: FrameResult) -> None:
         """At the first frame, the range's channel: a PNG of the source's own integers where the frame's are exact

@@ -9,7 +9,8 @@ from tofd.algorithm.names import VIEWED_MAPS, map_parts
 CAMERA = "/world/camera"  # Pinhole (intrinsics); x right, y down, z forward, metres
 IMAGE = f"{CAMERA}/image"  # the camera's image plane: 2-D views of range, amplitude, mask line up with 3-D
 RANGE = f"{IMAGE}/depth"  # DepthImage: z-depth (planar, along the optical axis), metres: projects correctly in 3-D
-AMPLITUDE = f"{IMAGE}/amplitude"  # Image: amplitude, sensor units, uint16
+AMPLITUDE = f"{IMAGE}/amplitude"  # EncodedImage: amplitude for viewing, 8-bit JPEG, AMPLITUDE_SCALE units per level
+AMPLITUDE_SCALE = "/amplitude_scale"  # Scalars: sensor units per level of AMPLITUDE (its level 255: a robust top)
 MASK = f"{IMAGE}/mask"  # SegmentationImage: 0 background, 1 foreground
 NOSE_2D = f"{IMAGE}/nose"  # Points2D: detected nose tip, pixels
 FOREGROUND = "/world/foreground"  # Points3D: foreground points, metres, coloured by NFFT eps0

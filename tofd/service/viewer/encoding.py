@@ -1,10 +1,13 @@
-"""How the viewers (Rerun, Foxglove) carry a frame's planes: depth in its source's unit, images as 16-bit PNG.
+"""How the viewers (Rerun, Foxglove) carry a frame's planes: depth exact in its source's unit, amplitude for viewing.
 
 A camera that measures z-depth in whole units (millimetres: Azure Kinect, RealSense, Orbbec; SensorInfo's
 depth_unit_m) is shown as uint16 z-depth in that unit, which is lossless; a source whose z-depth is not a whole
 number of its unit at every pixel (the SR3000 measures radial range; rendered or float sources) is shown as
 float32 metres. PNG (zlib level 1 with its run-length strategy: the planes are noisy, so long string matches
 hardly pay, while the runs of a mask or of a feature map's zeros do) is what both viewers decode.
+The amplitude is for looking at: 8 bits scaled so a robust top (AMPLITUDE_PERCENTILE) is the brightest level, the
+scale (sensor units per level) sent beside it, as a JPEG; a lossless 16-bit amplitude would cost about as much as
+the depth for noise the eye does not see (tofd's own recordings keep it exactly).
 """
 
 from __future__ import annotations
@@ -22,9 +25,13 @@ WHOLE_UNIT_TOLERANCE = 0.05
 """A z-depth within this many units of a whole number is that number (float32 round-off of the driver's
 unit -> radial range -> z-depth conversion is far below it)."""
 U16_MAX = 65535
-PNG_MIN_PIXELS = 100_000
-"""An image of fewer pixels goes to Rerun raw: its chunk compression (LZ4) gets an SR3000's 176x144 amplitude
-nearly as small as PNG does, for a fraction of the CPU."""
+JPEG_MEDIA_TYPE = "image/jpeg"
+JPEG_QUALITY = 95
+"""Quality of the amplitude's JPEG: its error is about one 8-bit level rms, far below the sensor's noise (q 90
+saves about a third of the bytes for about twice that error; bench_viewers measures both)."""
+AMPLITUDE_PERCENTILE = 99.5
+"""Percentile of the positive amplitudes shown as the brightest 8-bit level (a few specular pixels saturate)."""
+AMPLITUDE_LEVELS = 255
 
 
 def source_unit_m(frame: Frame) -> float | None:
@@ -64,6 +71,26 @@ def amplitude_u16(amplitude: np.ndarray) -> np.ndarray:
     return np.minimum(rounded, U16_MAX).astype(np.uint16)
 
 
+def amplitude_u8(amplitude: np.ndarray) -> tuple[np.ndarray, float]:
+    """(H, W) uint8 amplitude for viewing and its scale, sensor units per level: AMPLITUDE_PERCENTILE of the
+    positive amplitudes (of every other row and column: the same top, a quarter of the work) is level
+    AMPLITUDE_LEVELS, brighter pixels saturate; NaN and negatives are 0. Scale 1 when nothing is positive."""
+    sample = amplitude[::2, ::2]
+    positive = sample[sample > 0]  # False for NaN
+    top = float(np.percentile(positive, AMPLITUDE_PERCENTILE)) if positive.size else 0.0
+    scale = top / AMPLITUDE_LEVELS if top > 0 else 1.0
+    levels = np.rint(np.fmax(amplitude, np.float32(0)) * np.float32(1.0 / scale))
+    return np.minimum(levels, AMPLITUDE_LEVELS).astype(np.uint8), scale
+
+
+def jpeg(plane: np.ndarray) -> bytes:
+    """The JPEG (JPEG_QUALITY) of a (H, W) uint8 plane (greyscale)."""
+    ok, encoded = cv2.imencode(".jpg", np.ascontiguousarray(plane), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise ValueError(f"JPEG encoding of a {plane.dtype} {plane.shape} plane failed")
+    return encoded.tobytes()
+
+
 def png(plane: np.ndarray) -> bytes:
     """The lossless PNG of a (H, W) uint8 or uint16 plane (one channel)."""
     ok, encoded = cv2.imencode(".png", np.ascontiguousarray(plane), PNG_PARAMS)
@@ -73,8 +100,8 @@ def png(plane: np.ndarray) -> bytes:
 
 
 def unpng(data: bytes) -> np.ndarray:
-    """The (H, W) plane of a one-channel PNG (its own dtype)."""
+    """The (H, W) plane of a one-channel PNG or JPEG (its own dtype)."""
     plane = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if plane is None:
-        raise ValueError("not a PNG image")
+        raise ValueError("not a PNG or JPEG image")
     return plane

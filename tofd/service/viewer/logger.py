@@ -2,12 +2,13 @@
 
 Per frame: z-depth under the Pinhole (what Rerun's depth images mean, so the 3-D projection is right; the camera's
 radial range is it over each ray's z) as a 16-bit PNG in the source's unit where that is exact, else float32 metres
-(tofd.service.viewer.encoding), amplitude as uint16 (a PNG from encoding.PNG_MIN_PIXELS pixels on), the mask
-(Rerun's chunk compression shrinks it to a few kB), four feature maps cropped to the foreground's bounding box (they
-are 0 outside it) with the translation that puts the crop where it lies in the image, the foreground cloud (at most
-pixels.CLOUD_POINTS points, an even subsample of a large foreground), the detected nose in 2-D and 3-D, beside it
-the confirmed nose track (a box of pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D
-point) and the track's confidence, one scalar per stage timing.
+(tofd.service.viewer.encoding), amplitude for viewing as an 8-bit JPEG (its scale, sensor units per level, a
+time series beside it: encoding.amplitude_u8), the mask (Rerun's chunk compression shrinks it to a few kB), four
+feature maps as half floats cropped to the foreground's bounding box (they are 0 outside it) with the translation
+that puts the crop where it lies in the image, the foreground cloud (at most pixels.CLOUD_POINTS points, an even
+subsample of a large foreground), the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of
+pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D point) and the track's confidence,
+one scalar per stage timing.
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
 
 Everything per frame goes out as columns (Rerun's send_columns), `batch_frames` frames per send: a log call
@@ -47,15 +48,16 @@ from tofd.service.viewer.columns import (
     row_columns,
 )
 from tofd.service.viewer.encoding import (
+    JPEG_MEDIA_TYPE,
     PNG_MEDIA_TYPE,
-    PNG_MIN_PIXELS,
-    amplitude_u16,
+    amplitude_u8,
     in_units,
+    jpeg,
     png,
     source_unit_m,
     z_depth_m,
 )
-from tofd.service.viewer.pixels import cloud_pixels, corner_origin, track_box_px
+from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
 from tofd.service.viewer.wire import OWN_TIMINGS
 
 POINT_COLOUR_MAP = FAMILY_TABLE["range_nfft"].map_name("eps0")  # colours the foreground's 3-D points
@@ -95,14 +97,6 @@ def colour_by(values: np.ndarray) -> np.ndarray:
     return np.take(lut, np.where(finite, idx, 0).astype(np.intp))
 
 
-def foreground_box(mask: np.ndarray) -> tuple[slice, slice]:
-    """Rows and columns of the (H, W) mask's bounding box; the top-left pixel when the mask is empty."""
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if not rows.size:
-        return slice(0, 1), slice(0, 1)
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
-
-
 @dataclass(frozen=True, slots=True)
 class ImageEntity:
     """A per-frame image: its archetype, pixel type, colour model and the static style logged once."""
@@ -121,6 +115,7 @@ PARTS: dict[str, tuple[type, rr.AsComponents | None]] = {
     bp.TRACK_2D: (rr.Boxes2D, rr.Boxes2D.from_fields(colors=[TRACK_COLOR])),
     bp.TRACK_3D: (rr.Points3D, rr.Points3D.from_fields(radii=0.006, colors=[TRACK_COLOR])),
     bp.TRACK_CONFIDENCE: (rr.Scalars, None),
+    bp.AMPLITUDE_SCALE: (rr.Scalars, rr.SeriesLines(names="amplitude units per level")),
     **{f"{bp.TIMINGS}/{stage}": (rr.Scalars, rr.SeriesLines(names=f"{stage} [ms]")) for stage in TIMED_STAGES},
 }
 
@@ -194,15 +189,12 @@ class RerunLogger:
         # a DepthImage is Rerun's colour-mapped scalar image; the eccentricities are not depths (0 = background)
         feature_style = rr.DepthImage.from_fields(colormap="viridis")
         self._images = {bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8)}  # raw planes (and a float depth)
-        # PNG planes: archetype; the depth's joins at the first frame if its unit is exact
-        self._encoded: dict[str, type] = {}
-        if intrinsics.width * intrinsics.height >= PNG_MIN_PIXELS:
-            self._encoded[bp.AMPLITUDE] = rr.EncodedImage
-        else:
-            self._images[bp.AMPLITUDE] = ImageEntity(rr.Image, np.uint16, color_model="L")
+        # encoded planes: archetype; the depth's joins at the first frame if its unit is exact
+        self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage}
         self._depth_unit_m: float | None = None  # the depth's unit when it goes as PNG
         self._depth_chosen = False
-        self._crop = ImageEntity(rr.DepthImage, np.float32, feature_style)  # every feature map's
+        # every feature map's: half floats (3 significant digits, which a colour map cannot show anyway)
+        self._crop = ImageEntity(rr.DepthImage, np.float16, feature_style)
         self._shape = height, width = intrinsics.shape
         # as arrow, built once: Rerun's conversion is slow
         self._formats = {path: image_format(height=height, width=width, color_model=image.color_model,
@@ -219,8 +211,7 @@ class RerunLogger:
                 static=True)
         styles = {**{path: image.style for path, image in self._images.items()},
                   **dict.fromkeys(bp.FEATURES.values(), self._crop.style),
-                  **({bp.AMPLITUDE: rr.EncodedImage.from_fields(media_type=PNG_MEDIA_TYPE)}
-                     if bp.AMPLITUDE in self._encoded else {}),
+                  bp.AMPLITUDE: rr.EncodedImage.from_fields(media_type=JPEG_MEDIA_TYPE),
                   **{path: style for path, (_, style) in PARTS.items()}}
         for path, style in styles.items():
             if style is not None:
@@ -247,7 +238,8 @@ class RerunLogger:
         box = foreground_box(r.mask)
         shown.corners.append((box[1].start, box[0].start))
         for name, path in bp.FEATURES.items():  # eccentricities are >= 0; NaN outside the foreground
-            shown.crops.setdefault(path, []).append(np.fmax(r.features[name][box], self._zeros[box]))
+            crop = np.fmax(r.features[name][box], self._zeros[box])
+            shown.crops.setdefault(path, []).append(crop.astype(np.float16))
         if self.point_cloud:
             at = cloud_pixels(r.mask)  # np.take of a flat index is far faster than a 2-D mask or fancy index
             ranges = np.take(frame.range_m.reshape(-1), at)
@@ -264,8 +256,8 @@ class RerunLogger:
             self._send_shown()
 
     def _add_planes(self, r: FrameResult, row: int) -> None:
-        """The frame's depth (z-depth: PNG in the source's unit or float32 metres), amplitude (uint16: PNG from
-        PNG_MIN_PIXELS pixels on) and mask."""
+        """The frame's depth (z-depth: PNG in the source's unit or float32 metres), amplitude (8-bit JPEG and its scale)
+        and mask."""
         shown = self._shown
         if not self._depth_chosen:
             self._choose_depth(r)
@@ -274,11 +266,9 @@ class RerunLogger:
         else:
             units, _ = in_units(z_depth_m(r.frame.range_m, self._ray_z, out=self._z), self._depth_unit_m)
             shown.encoded.setdefault(bp.RANGE, []).append(png(units))
-        amplitude = amplitude_u16(r.frame.amplitude)
-        if bp.AMPLITUDE in self._encoded:
-            shown.encoded.setdefault(bp.AMPLITUDE, []).append(png(amplitude))
-        else:
-            shown.images[bp.AMPLITUDE][row] = amplitude
+        amplitude, scale = amplitude_u8(r.frame.amplitude)
+        shown.encoded.setdefault(bp.AMPLITUDE, []).append(jpeg(amplitude))
+        shown.add(bp.AMPLITUDE_SCALE, row, scalars=[scale])  # with its image, not with the lagging series
         shown.images[bp.MASK][row] = r.mask
 
     def _choose_depth(self, r: FrameResult) -> None:

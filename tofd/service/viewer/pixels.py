@@ -37,6 +37,14 @@ def track_box_px(track: TrackState | None, intrinsics: Intrinsics) -> tuple[np.n
     return corner_origin(px), TRACK_BOX_M / 2 * intrinsics.fx / track.nose_xyz_m[2]
 
 
+def foreground_box(mask: np.ndarray) -> tuple[slice, slice]:
+    """Rows and columns of the (H, W) mask's bounding box; the top-left pixel when the mask is empty."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not rows.size:
+        return slice(0, 1), slice(0, 1)
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
+
+
 CLOUD_POINTS = 6000
 """Most foreground points a viewer's 3-D view gets per frame (a density it draws at the camera's rate)."""
 

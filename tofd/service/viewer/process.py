@@ -32,6 +32,7 @@ from typing import NotRequired, Protocol, TypedDict
 
 from tofd.config import Config, config_from_dict, config_table
 from tofd.errors import TofdError
+from tofd.logs import root_level, setup_logging
 from tofd.outputs import finish_output
 from tofd.process_setup import child_environment, keep_arrays_on_the_heap
 from tofd.service.lifeline import die_with_parent
@@ -97,10 +98,12 @@ that the spawned child can be handed it."""
 
 def viewer_main(open_backend: OpenBackend, cfg_table: dict, sink: str, batch_frames: int, footer: bool,
                 parent_pid: int, frames: Connection, status: Connection, slots: tuple[str, int],
-                free: Semaphore) -> None:
+                free: Semaphore, log_level: str = "warning") -> None:
     """Entry point of the viewer process: log every frame it is sent to open_backend(...) until CLOSE or the
     pipe closes, freeing its slot (`slots`: the ring's name and size) after; what waits in the backend's batch
-    is sent when no frame came for IDLE_FLUSH_S, and at the end."""
+    is sent when no frame came for IDLE_FLUSH_S, and at the end; it logs in tofd's format at the parent's
+    `log_level`."""
+    setup_logging(log_level)
     die_with_parent(parent_pid)
     ignore_in_child()  # the parent decides when we stop
     keep_arrays_on_the_heap()
@@ -195,7 +198,8 @@ class ViewerProcess:
         self.drop_reason = "blocked" if name == "rerun" else f"{name}_blocked"
         self.process = ctx.Process(target=viewer_main, name=f"tofd-viewer-{name}", daemon=True,
                                    args=(open_backend, config_table(cfg), sink, batch_frames, footer, os.getpid(),
-                                         frames_r, status_w, (self._ring.name, queue_frames), self._free))
+                                         frames_r, status_w, (self._ring.name, queue_frames), self._free,
+                                         root_level()))
         with child_environment(env):
             with children_start():
                 self.process.start()
