@@ -30,7 +30,6 @@ import concurrent.futures
 import json
 import os
 import platform
-import re
 import struct
 import tempfile
 import threading
@@ -65,13 +64,12 @@ from tofd.service.viewer.encoding import (
 from tofd.service.viewer.logger import frames_per_send
 from tofd.service.viewer.process import ViewerProcess
 from tofd.service.viewer.targets import file_footer
+from tofd_testing.foxglove_client import RESUBSCRIBE_S, UNKNOWN_CHANNEL
 
 KINDS = ("none", "rerun", "foxglove")
 LIVE_FPS = 1e6 / FRAME_PERIOD_US
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # Foxglove WebSocket binary opcode: subscription id (uint32 LE), log time (uint64 LE), payload
-UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)")  # the server's status message
-RESUBSCRIBE_S = 0.05
 ROTATE_MB, KEEP_FILES = 2000.0, 24  # the [rerun] rotation docs/ARCHITECTURE.md suggests for a run of days
 
 

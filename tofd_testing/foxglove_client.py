@@ -16,6 +16,11 @@ from google.protobuf import descriptor_pb2
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # binary opcode: subscription id (uint32 LE), log time (uint64 LE ns), payload
+UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)")  # the server's status message refusing a subscription
+RESUBSCRIBE_S = 0.05
+"""foxglove-sdk 0.30 can advertise a channel opened while a client is connected a moment before it accepts
+subscriptions to it (the range channel opens at the first frame): a refused subscription to an advertised channel
+is made again after this wait."""
 
 
 def wait_for_url(stream, pattern: str = r"foxglove: (ws://\S+)") -> tuple[str, list[str]]:
@@ -68,7 +73,8 @@ class Client:
         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": i} for i in ids]}))
 
     def read(self, seconds: float, until: callable = lambda got: False) -> dict[str, list[tuple[int, object]]]:
-        """Topic -> [(log time ns, decoded message)] received for `seconds` (or until `until(got)`)."""
+        """Topic -> [(log time ns, decoded message)] received for `seconds` (or until `until(got)`); a subscription
+        the server refused to a channel it advertised is made again (RESUBSCRIBE_S)."""
         got: dict[str, list[tuple[int, object]]] = {}
         deadline = time.monotonic() + seconds
         self.ws.settimeout(0.5)
@@ -79,7 +85,14 @@ class Client:
                 continue
             except (websocket.WebSocketConnectionClosedException, ConnectionError):
                 break
-            if not isinstance(data, bytes) or data[0] != MESSAGE_DATA:
+            if isinstance(data, str):
+                msg = json.loads(data) if data.startswith("{") else {}
+                refused = UNKNOWN_CHANNEL.search(msg.get("message", "")) if msg.get("op") == "status" else None
+                if refused and int(refused.group(1)) in self.channels:
+                    time.sleep(RESUBSCRIBE_S)
+                    self.subscribe([self.channels[int(refused.group(1))]["topic"]])
+                continue
+            if data[0] != MESSAGE_DATA:
                 continue
             sub, log_ns = struct.unpack_from("<IQ", data, 1)
             channel = self.channels[sub]
