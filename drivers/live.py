@@ -22,7 +22,7 @@ from tofd.drivers.cameras import CameraRequest
 from tofd.drivers.depth import range_from_depth
 from tofd.drivers.frame import COUNTER_LIMIT, DeviceInfo, Frame, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
-from tofd.drivers.source import DriverError, FrameSource
+from tofd.drivers.source import DriverError, FrameSource, StallWatch
 
 log = logging.getLogger(__name__)
 
@@ -60,8 +60,7 @@ class SdkCamera(FrameSource):
         self.device_info = DeviceInfo(serial=request.serial or "?", backend=request.kind, model=request.kind)
         self.sensor: SensorInfo | None = None  # set by _open: depth unit, amplitude kind, the vendor settings
         self._streaming = False
-        self._silent_since = time.monotonic()
-        self._stall_reported = False
+        self._stalls = StallWatch(self.counters, request.stall_report_s, f"{request.kind} camera")
         self._io = threading.Lock()  # one SDK call at a time: the iterating thread's wait, or close()
 
     # --------------------------------------------------------------------------------- the SDK's part
@@ -95,7 +94,7 @@ class SdkCamera(FrameSource):
         if not self._streaming:
             self._open()
             self._streaming = True
-            self._silent_since = time.monotonic()
+            self._stalls.streaming_started()
 
     def __iter__(self) -> Iterator[Frame]:
         self.start()
@@ -111,10 +110,9 @@ class SdkCamera(FrameSource):
                     self._reconnect(exc)
                     continue
             if capture is None:
-                self._timed_out()
+                self._stalls.timed_out()
                 continue
-            self._stall_reported = False
-            self._silent_since = time.monotonic()
+            self._stalls.frame_arrived(time.monotonic())
             self.counters["frames"] += 1
             yield self.frame(capture)
 
@@ -127,15 +125,6 @@ class SdkCamera(FrameSource):
                      frame_counter=capture.frame_counter % COUNTER_LIMIT,
                      timestamp_us=max(0, int(capture.timestamp_us)), host_monotonic_s=time.monotonic(),
                      host_wall_s=time.time(), intrinsics=self.intrinsics, device=self.device_info, sensor=self.sensor)
-
-    def _timed_out(self) -> None:
-        self.counters["timeout"] += 1
-        silent_s = time.monotonic() - self._silent_since
-        if silent_s >= self.request.stall_report_s and not self._stall_reported:
-            self._stall_reported = True
-            self.counters["stall"] += 1
-            log.warning("%s camera %s: no frame for %.1f s; still waiting", self.request.kind,
-                        self.device_info.serial, silent_s)
 
     def _reconnect(self, cause: DeviceLost) -> None:
         """Release the device, then reopen it (same serial) with exponential backoff until it is back or closed

@@ -3,7 +3,9 @@ and what a source says about itself: its intrinsics, its settings, how many fram
 
 from __future__ import annotations
 
+import logging
 import threading
+import time
 from abc import ABC, abstractmethod
 from collections import Counter, deque
 from collections.abc import Iterator
@@ -14,7 +16,7 @@ from tofd.drivers.errors import DriverError
 from tofd.drivers.frame import Frame
 from tofd.drivers.intrinsics import Intrinsics
 
-__all__ = ["DriverError", "FrameSource", "Rejected", "SourceReport", "StopReason"]
+__all__ = ["DriverError", "FrameSource", "Rejected", "SourceReport", "StallWatch", "StopReason"]
 
 StopReason = Literal["end", "truncated", "corrupt", "damaged"]
 """Why a file source stopped: read to its end; cut short; unreadable bytes with nothing intact after them; damaged
@@ -50,6 +52,8 @@ class SourceReport:
         """E.g. "truncated after frame 41: the file ends at byte 30000"."""
         return f"{self.reason} after frame {self.last_good_counter}: {self.detail}"
 
+
+log = logging.getLogger(__name__)
 
 class FrameSource(ABC):
     """A stream of Frames.
@@ -117,3 +121,33 @@ class FrameSource(ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class StallWatch:
+    """The silences of a live source: every wait that ends without a frame is counted (counters["timeout"]), and a
+    silence that reaches `stall_report_s` seconds is counted (counters["stall"]) and logged once, until a frame."""
+
+    def __init__(self, counters: Counter[str], stall_report_s: float, name: str) -> None:
+        self.counters, self.stall_report_s, self.name = counters, stall_report_s, name
+        self.silent_since = time.monotonic()  # host time the current silence started
+        self.reported = False  # this silence was reported as a stall
+
+    def streaming_started(self) -> None:
+        """Streaming (re)started now: the silence is timed from here."""
+        self.silent_since = time.monotonic()
+
+    def frame_arrived(self, now_monotonic_s: float) -> None:
+        """A frame arrived at host time `now_monotonic_s`: the silence is over."""
+        self.silent_since, self.reported = now_monotonic_s, False
+
+    def timed_out(self) -> bool:
+        """Count one wait without a frame; True when it makes the silence a stall (counted and logged now)."""
+        self.counters["timeout"] += 1
+        silent_s = time.monotonic() - self.silent_since
+        if self.reported or silent_s < self.stall_report_s:
+            return False
+        self.reported = True
+        self.counters["stall"] += 1
+        log.warning("%s: no frame for %.1f s (%d waits timed out so far); still trying", self.name, silent_s,
+                    self.counters["timeout"])
+        return True

@@ -37,7 +37,7 @@ import numpy as np
 from tofd.drivers import sr3000
 from tofd.drivers.frame import DEFAULT_REGISTER_VALUES, DeviceInfo, Frame, GroundTruth, Registers
 from tofd.drivers.intrinsics import Intrinsics
-from tofd.drivers.source import FrameSource
+from tofd.drivers.source import FrameSource, StallWatch
 from tofd.drivers.usb import protocol as p
 from tofd.drivers.usb.device import DeviceListing, list_devices, open_device
 from tofd.drivers.usb.errors import (
@@ -150,11 +150,10 @@ class UsbCamera(FrameSource):
         self._tally = _DropTally(0)
         self._gap_kind: str | None = None
         self._last_frame_s = time.monotonic()  # host time of the last good frame (or of the first start)
-        self._silent_since = self._last_frame_s  # start of the current run of timeouts
-        self._stall_reported = False
         self._io_errors_in_a_row = 0
         self._device = open_device(serial, backend)
         self.serial = self._device.serial
+        self._stalls = StallWatch(self.counters, stall_report_s, f"camera {self.serial}")
         self.device_info = DeviceInfo(self.serial, self._device.info.firmware_str, backend_name)
         self._apply_registers()
 
@@ -206,7 +205,7 @@ class UsbCamera(FrameSource):
         self._dropped_before += self._tally.total
         self._tally = _DropTally(dropped_at_start)
         self._acquiring = True
-        self._silent_since = time.monotonic()
+        self._stalls.streaming_started()
 
     def __iter__(self) -> Iterator[Frame]:
         while not self.closed:
@@ -288,14 +287,8 @@ class UsbCamera(FrameSource):
 
     # ------------------------------------------------------------------------------------ faults
     def _timed_out(self) -> None:
-        self.counters["timeout"] += 1
-        silent_s = time.monotonic() - self._silent_since
-        if silent_s >= self.stall_report_s and not self._stall_reported:
-            self._stall_reported = True
-            self.counters["stall"] += 1
+        if self._stalls.timed_out():
             self._gap_kind = self._gap_kind or "stall"
-            log.warning("camera %s: no frame for %.1f s (%d read timeouts so far); still trying",
-                        self.serial, silent_s, self.counters["timeout"])
 
     def _clear_halt(self) -> None:
         try:
@@ -324,8 +317,8 @@ class UsbCamera(FrameSource):
             if self.on_gap is not None:
                 self.on_gap(gap)
         self._gap_kind = None
-        self._stall_reported = False
-        self._last_frame_s = self._silent_since = now_mono
+        self._last_frame_s = now_mono
+        self._stalls.frame_arrived(now_mono)
 
     def _reconnect(self, cause: str = "unplug") -> None:
         """Close, then reopen the same serial with exponential backoff; restore registers, restart acquisition.
