@@ -69,7 +69,11 @@ def test_an_sdk_recording_played_by_the_sdk_comes_back_on_the_sphere(femto_bag):
     # the lead-in 6 may be lost (see the helper); the SDK plays in real time, so a loaded machine may miss frames
     assert numbers == sorted(set(numbers)) and set(numbers) <= set(range(6, 7 + N_FRAMES)), numbers
     assert numbers[-1] == 6 + N_FRAMES and len(numbers) >= N_FRAMES // 2, numbers
-    assert counters["frames"] == len(frames) and counters.get("unpaired_range", 0) == 0
+    assert counters["frames"] == len(frames), counters
+    # the lead-in pair may come apart in the SDK's recording (its depth image without its infrared): then it is the
+    # one unpaired range, and frame 6 is not delivered
+    unpaired = counters.get("unpaired_range", 0)
+    assert unpaired == 0 or (unpaired == 1 and 6 not in numbers), counters
     frames = [f for f in frames if f.frame_counter >= 7]
     assert [f.timestamp_us for f in frames] == [T0_US + round((f.frame_counter - 7) * 1e6 / 30) for f in frames]
     first = frames[0]
