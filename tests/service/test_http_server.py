@@ -117,6 +117,21 @@ def test_close_ends_open_connections_and_frees_the_port():
         assert probe.connect_ex(("127.0.0.1", port)) != 0
 
 
+def test_close_holds_when_waitress_has_closed_its_trigger():
+    """waitress closes its wake-up pipe with its listener after an error in its loop; close still ends the server."""
+    srv = HttpServer("127.0.0.1", 0, _app, max_connections=4).start()
+    port = srv.port
+    sock = socket.create_connection(("127.0.0.1", port))
+    assert _get(port) == b"ok\n"
+    srv._server.trigger.close()
+    srv.close()
+    assert _closed_by_server(sock, 5)
+    sock.close()
+    assert not srv._thread.is_alive()
+    with socket.socket() as probe:
+        assert probe.connect_ex(("127.0.0.1", port)) != 0
+
+
 def test_waitress_has_what_the_eviction_uses():
     """Pins the waitress attributes tofd.service.http_server's eviction reads and calls."""
     from waitress.channel import HTTPChannel

@@ -113,10 +113,19 @@ class HttpServer:
         return self
 
     def close(self, timeout_s: float = 2.0) -> None:
-        """Close the listening socket and every connection (in the server's own loop), stop its threads."""
+        """Close the listening socket and every connection, stop the server's threads.
+
+        The closing runs in the server's own loop, woken by waitress's trigger; when the trigger is gone (waitress
+        closes it with its listener after an error in its loop) or the loop does not answer within `timeout_s`, it
+        runs here, and the loop, which polls at most every second, ends on its empty map."""
         if self._thread.is_alive():
-            self._server.trigger.pull_trigger(lambda: wasyncore.close_all(self._map))
+            try:
+                self._server.trigger.pull_trigger(lambda: wasyncore.close_all(self._map, ignore_all=True))
+            except OSError:
+                pass
+            else:
+                self._thread.join(timeout_s)
+        if self._map:
+            wasyncore.close_all(self._map, ignore_all=True)
             self._thread.join(timeout_s)
-        else:
-            wasyncore.close_all(self._map)
         self._server.task_dispatcher.shutdown(timeout=timeout_s)
