@@ -37,6 +37,14 @@ def render_cache_dir(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def vendor_cache_dir(request, tmp_path_factory):
+    """Where SDK versions the tests install (tofd_testing.vendor_bag_helpers.realsense_env) are kept: pytest's cache,
+    across runs; this session's temp dir when pytest runs without its cache plugin (-p no:cacheprovider)."""
+    cache = getattr(request.config, "cache", None)
+    return cache.mkdir("tofd-realsense") if cache is not None else tmp_path_factory.mktemp("tofd-realsense")
+
+
+@pytest.fixture(scope="session")
 def small_scene() -> FaceScene:
     """A face scene with an 8-pose cycle (renders in a fraction of a second), shared by the session."""
     return FaceScene(motion=Motion(n_poses=8))

@@ -4,22 +4,17 @@ system has none the copy of the libusb-package wheel (the `realsense` extra inst
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import importlib
 from types import ModuleType
+
+from tofd.drivers.libusb import bundled_libusb
 
 
 def load_libusb() -> None:
     """Make libusb-1.0 loadable for pyrealsense2: the system's, else libusb_package's (nothing when neither)."""
-    if ctypes.util.find_library("usb-1.0"):
-        return
-    try:
-        import libusb_package  # type: ignore[import-untyped]
-    except ImportError:
-        return  # importing pyrealsense2 then says which library is missing
-    path = libusb_package.get_library_path()
+    path = bundled_libusb()
     if path is not None:
-        ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+        ctypes.CDLL(path, mode=ctypes.RTLD_GLOBAL)
 
 
 def load() -> ModuleType:

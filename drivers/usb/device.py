@@ -5,20 +5,30 @@ from __future__ import annotations
 import array
 from dataclasses import dataclass
 
+import usb.backend.libusb1
 import usb.core
 import usb.util
 
 from tofd.drivers.frame import Registers
+from tofd.drivers.libusb import bundled_libusb
 from tofd.drivers.usb import protocol as p
 from tofd.drivers.usb.errors import AccessDenied, DeviceNotFound, UsbCameraError, usb_errors
 
 CONTROL_TIMEOUT_MS = 1000
 
 
+def libusb_backend() -> object | None:
+    """pyusb's libusb-1.0 backend on libusb-package's library when the system has none (drivers.libusb); None (pyusb's
+    own search of the system) otherwise."""
+    path = bundled_libusb()
+    return None if path is None else usb.backend.libusb1.get_backend(find_library=lambda _name: path)
+
+
 def find_usb_devices(backend: object | None = None) -> list[usb.core.Device]:
-    """Every attached device with the protocol's idVendor:idProduct (the libusb backend unless given)."""
+    """Every attached device with the protocol's idVendor:idProduct (libusb_backend() unless a backend is given)."""
     with usb_errors("enumerating USB devices"):
-        return list(usb.core.find(find_all=True, idVendor=p.VENDOR_ID, idProduct=p.PRODUCT_ID, backend=backend))
+        return list(usb.core.find(find_all=True, idVendor=p.VENDOR_ID, idProduct=p.PRODUCT_ID,
+                                  backend=libusb_backend() if backend is None else backend))
 
 
 def registers_from_bank(bank: bytes) -> Registers:

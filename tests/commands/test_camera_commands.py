@@ -10,7 +10,7 @@ import importlib
 import pytest
 
 from tests.commands.test_cli import one_line_error, tofd
-from tests.package.test_install import COMMAND, run_blocked
+from tests.package.test_install import BLOCKER, COMMAND, run_blocked
 from tofd.drivers.cameras import EXTRAS, SDK_KINDS, SdkMissing, backend
 
 
@@ -35,6 +35,29 @@ def test_devices_lists_each_installed_sdk_with_no_camera_and_names_the_missing_o
         else:
             (line,) = [line for line in lines if line.startswith(f"{kind}: not installed")]
             assert line.endswith(f"pip install 'tofd[{EXTRAS[kind]}]'"), line
+
+
+NO_SYSTEM_LIBUSB = BLOCKER + """
+import ctypes.util
+_find_library = ctypes.util.find_library
+ctypes.util.find_library = lambda name: None if "usb" in name else _find_library(name)  # no libusb in the system
+from tofd.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize("blocked", [(), ("libusb_package",)])
+def test_on_a_system_without_libusb_the_sr3000_is_looked_for_through_libusb_package(blocked):
+    """pip's libusb-package (the service extra) stands in for a system libusb-1.0: the bus is enumerated; without
+    either, `devices` says it cannot look and what to install, and still exits 0."""
+    proc = run_blocked(NO_SYSTEM_LIBUSB, blocked, "devices")
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    at = lines.index("sr3000 (SR3000-style USB cameras, 0852:0074):")
+    if blocked:
+        assert lines[at + 1].startswith("  cannot look:") and "libusb-1.0" in lines[at + 1], proc.stdout
+    else:
+        assert lines[at + 1] == "  none attached", proc.stdout
 
 
 def test_devices_with_the_realsense_sdk_blocked_still_exits_0_naming_its_extra():

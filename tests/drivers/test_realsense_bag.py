@@ -35,10 +35,10 @@ N_FRAMES = 6
 
 
 @pytest.fixture(scope="module", params=sorted(VERSIONS))
-def recording(request, tmp_path_factory):
+def recording(request, tmp_path_factory, vendor_cache_dir):
     kind = request.param
     version, units = VERSIONS[kind]
-    env = realsense_env(version, request.config.cache.mkdir("tofd-realsense"))
+    env = realsense_env(version, vendor_cache_dir)
     path = record_realsense(tmp_path_factory.mktemp(kind) / f"rs.{kind}", env, RS_LIKE, RS_SCENE, units, N_FRAMES)
     return kind, path, units
 

@@ -42,16 +42,16 @@ SCENES = [Scene(centre=(0.22 + 0.06 * t, 0.16, 0.6 + 0.1 * t)) for t in np.linsp
 
 
 @pytest.fixture(scope="module")
-def recording(request, tmp_path_factory):
-    env = realsense_env("current", request.config.cache.mkdir("tofd-realsense"))
+def recording(tmp_path_factory, vendor_cache_dir):
+    env = realsense_env("current", vendor_cache_dir)
     return record_realsense(tmp_path_factory.mktemp("rs") / "moving.db3", env, RS_640, SCENES, UNITS_M,
                             first_number=FIRST)
 
 
 @pytest.fixture(scope="module")
-def long_recording(request, tmp_path_factory):
+def long_recording(tmp_path_factory, vendor_cache_dir):
     """Ten seconds of a still sphere at 256x192: long enough to stop a run in the middle."""
-    env = realsense_env("current", request.config.cache.mkdir("tofd-realsense"))
+    env = realsense_env("current", vendor_cache_dir)
     return record_realsense(tmp_path_factory.mktemp("rs") / "long.db3", env, RS_LIKE, RS_SCENE, UNITS_M, 300)
 
 

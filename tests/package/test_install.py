@@ -18,8 +18,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 HEAVY = {"rerun-sdk", "dask", "distributed", "pyusb", "mcap", "rosbags", "prometheus-client"}
 CORE = {"numpy", "scipy", "ducc0", "finufft", "numba", "opencv-python-headless"}
-OPTIONAL_MODULES = ("rerun", "dask", "distributed", "usb", "mcap", "mcap_protobuf", "foxglove_schemas_protobuf",
-                    "google", "zstandard", "rosbags", "prometheus_client", "pyarrow", "fsspec", "matplotlib", "tqdm")
+OPTIONAL_MODULES = ("rerun", "dask", "distributed", "usb", "libusb_package", "mcap", "mcap_protobuf",
+                    "foxglove_schemas_protobuf", "google", "zstandard", "rosbags", "prometheus_client", "pyarrow",
+                    "fsspec", "matplotlib", "tqdm")
 """The top-level modules of every extra's packages: blocked, tofd must import and compute without them."""
 
 BLOCKER = """
