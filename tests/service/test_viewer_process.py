@@ -30,7 +30,8 @@ def shm_of(pid: int) -> list[str]:
 
 def test_frames_go_through_the_slots_in_order_with_their_planes(tmp_path):
     v, path = viewer(tmp_path, queue_frames=2)  # fewer slots than frames: each slot is reused
-    assert os.getpriority(os.PRIO_PROCESS, v.process.pid) == os.getpriority(os.PRIO_PROCESS, 0) + VIEWER_NICE
+    expected = min(os.getpriority(os.PRIO_PROCESS, 0) + VIEWER_NICE, 19)  # 19: the lowest priority (pytest under nice)
+    assert os.getpriority(os.PRIO_PROCESS, v.process.pid) == expected
     frames = [result(k, hit(0.01 * k) if k % 3 else MISS, None) for k in range(12)]
     for k, r in enumerate(frames):
         r.frame.range_m[...] = 0.4 + 0.01 * k  # each frame's own plane
