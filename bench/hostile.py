@@ -4,8 +4,10 @@
     python bench/hostile.py --only zstd_bomb,npz_bomb,idle_connections
 
 Cases: an intact recording (the baseline: what a replay of it costs), recordings whose chunks, records or
-header claim what no camera sends (tofd_testing/hostile_inputs.py, through
-`tofd replay`), dataset .npz bombs (through `tofd evaluate`), configs out of every bound (`tofd replay --config`),
+header claim what no camera sends (tofd_testing/hostile_inputs.py, through `tofd replay`), ROS bags written by
+rosbags whose last chunk is a decompression bomb or whose sqlite3 header claims pages it does not have
+(tofd_testing/hostile_bags.py, through `tofd info` and `tofd replay`), dataset .npz bombs (through
+`tofd evaluate`), configs out of every bound (`tofd replay --config`),
 and a live `tofd run --emulate` under 300 idle connections, 100 clients that leave before their answer, a save
 sink on a full 2 MB tmpfs, and SIGUSR1 / SIGHUP / SIGQUIT. Per row: case | limit that must hold | peak RSS of
 tofd and its children (MiB) | seconds | exit code | result (the one line tofd printed, or what was measured).
@@ -39,9 +41,11 @@ from proc_stats import cpu_s  # noqa: E402
 from report import write_json  # noqa: E402
 
 from tofd_testing.chaos_helpers import metric, metrics, tofd  # noqa: E402
+from tofd_testing.hostile_bags import mcap_chunk_bomb, ros1_chunk_bomb, sqlite_page_claim  # noqa: E402
 from tofd_testing.hostile_inputs import BASE_FRAMES, CONFIG_CASES, DATASET_CASES, RECORDING_CASES  # noqa: E402
 from tofd_testing.pipeline_sources import write_config  # noqa: E402
-from tofd_testing.recording_helpers import write_recording  # noqa: E402
+from tofd_testing.recording_helpers import make_frame, write_recording  # noqa: E402
+from tofd_testing.rosbag_helpers import frame_messages, typestore, write_bag, write_frames_bag  # noqa: E402
 
 CLIP = ROOT / "replay_data" / "emulated_face_035_070.mcap"
 SMALL_CLIP = ROOT / "tests" / "data" / "v1_first3.mcap"
@@ -85,6 +89,48 @@ def intact_baseline(work: Path) -> dict:
     path = work / "intact.mcap"
     write_recording(path, range(BASE_FRAMES))
     return _run(["replay", path, "--out", work / "out", "--rerun", "none"], "ledgered")
+
+
+BAG_FRAMES = 6  # frames of the bag each bag case damages
+BAG_BOMB_BYTES = 2 << 30  # what a bag's bomb chunk decompresses to
+
+
+def _ros1_bomb(compression: str) -> Callable[[Path], Path]:
+    def make(work: Path) -> Path:
+        frames = [make_frame(c) for c in range(BAG_FRAMES)]
+        ts = typestore("ros1")
+        bag = write_bag(work / "clip.bag", "ros1", (m for f in frames for m in frame_messages(ts, f)),
+                        chunk_bytes=1 << 10, compression=compression)
+        return ros1_chunk_bomb(bag, work / "bomb.bag", BAG_BOMB_BYTES)
+    return make
+
+
+def _mcap_bomb(work: Path) -> Path:
+    bag = write_frames_bag(work, "mcap", [make_frame(c) for c in range(BAG_FRAMES)])
+    return mcap_chunk_bomb(next(bag.glob("*.mcap")), work / "bomb.mcap", BOMB_BYTES_MCAP)
+
+
+def _sqlite_claim(work: Path) -> Path:
+    bag = write_frames_bag(work, "sqlite3", [make_frame(c) for c in range(BAG_FRAMES)])
+    return sqlite_page_claim(next(bag.glob("*.db3")), work / "cut.db3", 0.6, 2 << 30)
+
+
+BOMB_BYTES_MCAP = 1 << 30  # the MCAP bomb's message is built in memory here, so half the others'
+BAG_CASES: dict[str, tuple[Callable[[Path], Path], str]] = {
+    "ros1_lz4_bomb": (_ros1_bomb("lz4"), "a 2 GiB LZ4 chunk: never decompressed whole"),
+    "ros1_bz2_bomb": (_ros1_bomb("bz2"), "a 2 GiB bz2 chunk: never decompressed whole"),
+    "ros2_mcap_bomb": (_mcap_bomb, "a 1 GiB zstd chunk: never decompressed whole"),
+    "sqlite_page_claim": (_sqlite_claim, "a cut .db3 claiming 2 GiB: read as the pages it has"),
+}
+"""Bag case -> (maker of the file in a work dir, the limit that must hold)."""
+
+
+def bag_case(name: str, command: str) -> Callable[[Path], dict]:
+    def run(work: Path) -> dict:
+        path = BAG_CASES[name][0](work)
+        args = ["info", path] if command == "info" else ["replay", path, "--out", work / "out", "--rerun", "none"]
+        return _run(args, "ledgered")
+    return run
 
 
 def dataset_case(name: str) -> Callable[[Path], dict]:
@@ -250,6 +296,8 @@ def signal_case(sig: int) -> Callable[[Path], dict]:
 CASES: dict[str, tuple[str, Callable[[Path], dict]]] = {
     "intact_baseline": ("(the same replay, nothing hostile)", intact_baseline),
     **{name: (limit, recording_case(name)) for name, (_, limit) in RECORDING_CASES.items()},
+    **{f"{name}_{command}": (limit, bag_case(name, command)) for name, (_, limit) in BAG_CASES.items()
+       for command in ("info", "replay")},
     **{name: (limit, dataset_case(name)) for name, (_, limit) in DATASET_CASES.items()},
     **{f"config_{name}": (f"config error naming {key}", config_case(name))
        for name, (_, key) in CONFIG_CASES.items()},
