@@ -194,7 +194,7 @@ def range_from_depth(depth: np.ndarray, intrinsics: Intrinsics, *, scale: float)
     z = depth.astype(np.float64) * float(scale)
     with np.errstate(invalid="ignore"):
         z[~(np.isfinite(z) & (z > 0))] = np.nan
-    return z / intrinsics.unit_rays()[..., 2]
+    return intrinsics.radial_from_z(z)
 
 
 def _plan(intrinsics: Intrinsics, config: FeatureConfig | None, method: Method) -> FeaturePlan:
