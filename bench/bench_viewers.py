@@ -12,8 +12,9 @@ entropy, so the sizes follow the noise. Lossless replay of --replay-frames frame
 pipeline, --runs times each of: no viewer, the daemon's Rerun viewer process saving an .rrd (batched, as a replay
 does), and the Foxglove viewer process with one client subscribed to every channel (reading as fast as it can); runs
 interleaved, fps is the median run's, ratios against no viewer in the same run. The .rrd of the last Rerun run gives
-bytes per frame on disk (Rerun's LZ4 chunks) and per view the bytes its rows hold (an encoded image's PNG, a raw
-image's pixels, the points) before that compression. Then --live-seconds of the clip replayed in real time (30 fps,
+bytes per frame on disk (Rerun's LZ4 chunks), per view the bytes on disk of its chunks written alone by Rerun's writer,
+and the bytes its rows hold (an encoded image's PNG, a raw image's pixels, the points) before that compression.
+Then --live-seconds of the clip replayed in real time (30 fps,
 looped, latest-wins, bench/cameras.MemoryCamera) with the Foxglove viewer and a client subscribed to every channel:
 bytes per message and MB/s received per topic. Rerun's live rate is its bytes per frame times 30 fps; with the
 rotation budget docs/ARCHITECTURE.md suggests for a run of days ([rerun] rotate_mb = 2000, keep_files = 24:
@@ -179,23 +180,40 @@ def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: flo
 
 
 def rrd_views(path: Path, frames: int) -> dict:
-    """The .rrd's bytes on disk per frame, per entity the bytes of its rows (before Rerun's compression) per
-    frame, and the viewer process's own milliseconds per frame (its `logging` timing: encoding and sending)."""
+    """The .rrd's bytes on disk per frame; per view (entity) its bytes on disk per frame (the entity's chunks, static
+    ones too, written alone to an .rrd by Rerun's own writer, with its LZ4 chunk compression, less the bytes of an
+    .rrd holding no chunk) and the bytes of its rows before that compression; and the viewer process's own
+    milliseconds per frame (its `logging` timing: encoding and sending)."""
     from rerun.chunk import RrdReader
 
     per_entity: dict[str, int] = {}
     own_ms: list[float] = []
     for chunk in RrdReader(str(path)).stream().to_chunks():
-        if not chunk.is_static:
-            batch = chunk.to_record_batch()
-            per_entity[chunk.entity_path] = per_entity.get(chunk.entity_path, 0) + batch.nbytes
-            if chunk.entity_path == f"{bp.TIMINGS}/logging":
-                own_ms += [row[0] for row in batch.column("Scalars:scalars").to_pylist()]
-    return {"file_bytes_per_frame": round(path.stat().st_size / frames),
+        batch = chunk.to_record_batch()
+        per_entity[chunk.entity_path] = per_entity.get(chunk.entity_path, 0) + (0 if chunk.is_static else batch.nbytes)
+        if not chunk.is_static and chunk.entity_path == f"{bp.TIMINGS}/logging":
+            own_ms += [row[0] for row in batch.column("Scalars:scalars").to_pylist()]
+    alone = path.with_suffix(".view.rrd")
+
+    def written_alone(content: str) -> int:
+        RrdReader(str(path)).stream().filter(content=content).write_rrd(alone, application_id="bench_viewers",
+                                                                        recording_id="view")
+        return alone.stat().st_size
+
+    empty = written_alone("/no/such/entity")
+    on_disk = {entity: written_alone(entity) - empty for entity in per_entity}
+    alone.unlink()
+    size = path.stat().st_size
+
+    def per_frame(bytes_of: dict[str, int]) -> dict[str, int]:
+        return {e: round(b / frames) for e, b in sorted(bytes_of.items(), key=lambda x: -x[1]) if b / frames >= 100}
+
+    return {"file_bytes_per_frame": round(size / frames),
             "viewer_ms_per_frame": {"median": round(float(np.median(own_ms)), 2),
                                     "p90": round(float(np.percentile(own_ms, 90)), 2)} if own_ms else None,
-            "views_bytes_per_frame": {e: round(b / frames) for e, b in sorted(per_entity.items(), key=lambda x: -x[1])
-                                      if b / frames >= 100}}
+            "views_disk_bytes_per_frame": per_frame(on_disk),
+            "rest_disk_bytes_per_frame": round((size - sum(on_disk.values())) / frames),  # headers, footer index
+            "views_arrow_bytes_per_frame": per_frame(per_entity)}
 
 
 def delta_entropy_bytes(plane: np.ndarray) -> int:
@@ -300,7 +318,9 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
         "rerun_live_GB_per_day": round(rerun_mb_s * 86400 / 1e3),
         "rerun_rotation_budget_GB": round(budget_gb, 1),
         "rerun_hours_kept_in_budget": round(budget_gb * 1e3 / rerun_mb_s / 3600, 1) if budget_gb else None,
-        "rerun_views_bytes_per_frame": rrd["views_bytes_per_frame"],
+        "rerun_views_disk_bytes_per_frame": rrd["views_disk_bytes_per_frame"],
+        "rerun_rest_disk_bytes_per_frame": rrd["rest_disk_bytes_per_frame"],
+        "rerun_views_arrow_bytes_per_frame": rrd["views_arrow_bytes_per_frame"],
         "lossless_bound_bytes": lossless_bounds(clip),
         "rerun_viewer_ms_per_frame": rrd["viewer_ms_per_frame"],
         "encodings_first_frame": encodings(clip),
@@ -323,9 +343,11 @@ def print_tables(rows: list[dict]) -> None:
               f"{r['foxglove_MB_per_s']:>9} {r['foxglove_frame_bytes'] / 1e3:>13.1f} "
               f"{r['foxglove_MB_per_s_at_30fps']:>12}")
     for r in rows:
-        print(f"\n{r['camera']} ({r['sensor_model']}): Rerun bytes per frame per view (before LZ4)")
-        for entity, b in r["rerun_views_bytes_per_frame"].items():
-            print(f"  {entity:40s} {b:>10}")
+        print(f"\n{r['camera']} ({r['sensor_model']}): Rerun bytes per frame per view, on disk and before LZ4")
+        arrow = r["rerun_views_arrow_bytes_per_frame"]
+        for entity, b in r["rerun_views_disk_bytes_per_frame"].items():
+            print(f"  {entity:40s} {b:>10} {arrow.get(entity, 0):>10}")
+        print(f"  {'(headers, footer index)':40s} {r['rerun_rest_disk_bytes_per_frame']:>10}")
         print(f"  lossless bound (entropy of row differences): {r['lossless_bound_bytes']}")
         print(f"{r['camera']} ({r['sensor_model']}): Foxglove per topic (live, {r['foxglove_live_fps']} fps)")
         for topic, t in r["foxglove_topics"].items():
