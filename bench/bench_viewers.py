@@ -6,9 +6,11 @@ the replay rate with and without each viewer, from one run.
 
 Per camera (bench/cameras.py): the SR3000's bundled clip (replay_data/emulated_face_035_070.mcap) and a clip of the
 emulator's face rendered in the Azure Kinect NFOV geometry (640x576) as a millimetre camera delivers it (z-depth in
-whole mm, amplitude in whole units), once per --conditions sensor model (tofd.lab.conditions: the training sensor's
-noise, which grows as the amplitude falls, and a constant 4 mm): lossless PNG shrinks a plane to about its noise's
-entropy, so the sizes follow the noise. Lossless replay of --replay-frames frames (the clip looped) through the real
+whole mm, amplitude in whole units), once per --conditions sensor model (bench/cameras.SENSOR_MODELS: the training
+sensor's noise, which grows as the amplitude falls, SR3000-like; a constant 4 mm; and the training sensor's noise at
+most the Azure Kinect's specified random error, 17 mm, as a millimetre camera within its operating range gives it):
+lossless PNG shrinks a plane to about its noise's entropy, so the sizes follow the noise (each row's range_noise_mm).
+Lossless replay of --replay-frames frames (the clip looped) through the real
 pipeline, --runs times each of: no viewer, the daemon's Rerun viewer process saving an .rrd (batched, as a replay
 does), and the Foxglove viewer process with one client subscribed to every channel (reading as fast as it can); runs
 interleaved, fps is the median run's, ratios against no viewer in the same run. The .rrd of the last Rerun run gives
@@ -42,12 +44,12 @@ import cv2
 import numpy as np
 import websocket
 from bench_pipeline import CLIP, Latencies, with_detector
-from cameras import CAMERAS, FRAME_PERIOD_US, MemoryCamera, write_face_clip
+from cameras import CAMERAS, FRAME_PERIOD_US, SENSOR_MODELS, MemoryCamera, range_noise_mm, write_face_clip
 from report import write_json
 
 from tofd.config import load_config
 from tofd.drivers.recording.replay import ReplaySource
-from tofd.lab.conditions import CONDITIONS, TRAIN_CONDITION
+from tofd.lab.conditions import TRAIN_CONDITION
 from tofd.process_setup import prepare_service_process
 from tofd.service.foxglove.publisher import FoxglovePublisher
 from tofd.service.model import load_service_model
@@ -362,24 +364,26 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="replay runs per viewer kind (interleaved; the median)")
     ap.add_argument("--camera-frames", type=int, default=60, help="frames of a rendered clip")
     ap.add_argument("--live-seconds", type=float, default=10.0, help="seconds of the real-time Foxglove run")
-    ap.add_argument("--conditions", type=lambda text: text.split(","), default=[TRAIN_CONDITION, "noise_constant"],
-                    help=f"sensor models the rendered clips are made with (of: {', '.join(CONDITIONS)})")
+    ap.add_argument("--conditions", type=lambda text: text.split(","),
+                    default=[TRAIN_CONDITION, "noise_constant", "k4a_spec_noise"],
+                    help=f"sensor models the rendered clips are made with (of: {', '.join(SENSOR_MODELS)})")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_viewers.json")
     args = ap.parse_args()
     prepare_service_process()  # as `tofd run` / `tofd replay` set up their process
     unknown = [c for c in args.cameras if c not in CAMERAS]
     if unknown:
         ap.error(f"--cameras: unknown {', '.join(unknown)} (known: {', '.join(CAMERAS)})")
-    unknown = [c for c in args.conditions if c not in CONDITIONS]
+    unknown = [c for c in args.conditions if c not in SENSOR_MODELS]
     if unknown:
-        ap.error(f"--conditions: unknown {', '.join(unknown)} (known: {', '.join(CONDITIONS)})")
+        ap.error(f"--conditions: unknown {', '.join(unknown)} (known: {', '.join(SENSOR_MODELS)})")
     results: dict = {
         "title": "Viewer data rates (Rerun, Foxglove) and replay rate with each viewer",
         "about": (f"bench/bench_viewers.py: lossless replay of {args.replay_frames} frames, {args.runs} runs per "
                   f"viewer (median); Rerun: the .rrd a replay saves (MB per frame on disk; MB/s live = that at "
                   f"30 fps); Foxglove: {args.live_seconds:g} s real-time replay at 30 fps, one client subscribed to "
                   "every channel. 640x576: the emulator's face rendered as a millimetre camera (z-depth in whole "
-                  "mm) delivers it."),
+                  "mm) delivers it, under each sensor model (range_noise_mm: the noise it puts on the scene; "
+                  "k4a_spec_noise: at most the Azure Kinect's specified 17 mm)."),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "load_avg_at_start": [round(x, 2) for x in os.getloadavg()]}}
     with tempfile.TemporaryDirectory() as tmp:
@@ -390,9 +394,11 @@ def main() -> None:
             for condition in ["bundled clip"] if name == "sr3000" else args.conditions:
                 clip = CLIP if name == "sr3000" else write_face_clip(
                     tmp_path / f"{name}-{condition}.mcap", CAMERAS[name], args.camera_frames, millimetres=True,
-                    model=CONDITIONS[condition])
-                rows.append(compare(cfg, name, condition, clip, args.replay_frames, args.runs, args.live_seconds,
-                                    tmp_path))
+                    model=SENSOR_MODELS[condition])
+                row = compare(cfg, name, condition, clip, args.replay_frames, args.runs, args.live_seconds, tmp_path)
+                if name != "sr3000":
+                    row["range_noise_mm"] = range_noise_mm(CAMERAS[name], SENSOR_MODELS[condition])
+                rows.append(row)
                 print(json.dumps(rows[-1]))
     results["rows"] = rows
     print_tables(rows)
