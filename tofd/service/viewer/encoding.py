@@ -74,11 +74,13 @@ def amplitude_u16(amplitude: np.ndarray) -> np.ndarray:
 
 def amplitude_u8(amplitude: np.ndarray) -> tuple[np.ndarray, float]:
     """(H, W) uint8 amplitude for viewing and its scale, sensor units per level: AMPLITUDE_PERCENTILE of the
-    positive amplitudes (of every other row and column: the same top, a quarter of the work) is level
-    AMPLITUDE_LEVELS, brighter pixels saturate; NaN and negatives are 0. Scale 1 when nothing is positive."""
+    positive amplitudes (of every other row and column: the same top, a quarter of the work; nearest rank, by a
+    partial sort: np.percentile costs several times as much) is level AMPLITUDE_LEVELS, brighter pixels saturate;
+    NaN and negatives are 0. Scale 1 when nothing is positive."""
     sample = amplitude[::2, ::2]
     positive = sample[sample > 0]  # False for NaN
-    top = float(np.percentile(positive, AMPLITUDE_PERCENTILE)) if positive.size else 0.0
+    rank = round(AMPLITUDE_PERCENTILE / 100 * (positive.size - 1))
+    top = float(np.partition(positive, rank)[rank]) if positive.size else 0.0
     scale = top / AMPLITUDE_LEVELS if top > 0 else 1.0
     levels = np.rint(np.fmax(amplitude, np.float32(0)) * np.float32(1.0 / scale))
     return np.minimum(levels, AMPLITUDE_LEVELS).astype(np.uint8), scale
