@@ -16,13 +16,15 @@ does), and the Foxglove viewer process with one client subscribed to every chann
 interleaved, fps is the median run's, ratios against no viewer in the same run. The .rrd of the last Rerun run gives
 bytes per frame on disk (Rerun's LZ4 chunks), per view the bytes on disk of its chunks written alone by Rerun's writer,
 and the bytes its rows hold (an encoded image's PNG, a raw image's pixels, the points) before that compression.
-Then --live-seconds of the clip replayed in real time (30 fps,
-looped, latest-wins, bench/cameras.MemoryCamera) with the Foxglove viewer and a client subscribed to every channel:
-bytes per message and MB/s received per topic. Rerun's live rate is its bytes per frame times 30 fps; with the
-rotation budget docs/ARCHITECTURE.md suggests for a run of days ([rerun] rotate_mb = 2000, keep_files = 24:
-2000 MB x 25 segments, the most a live .rrd then takes on disk), the hours of recording that budget keeps; and
-per camera the least bytes a lossless coder predicting from the left neighbour
-gets the first frame's depth and amplitude to (the entropy of their row differences). Prints tables,
+Then --live-seconds of the clip replayed in real time (30 fps, looped, latest-wins, bench/cameras.MemoryCamera) with
+the Foxglove viewer and a client subscribed to every channel: bytes per message and MB/s received per topic; then as
+long with both viewers on (Rerun sent each frame at once, as to a live viewer): frames delivered per second, capture
+to the Rerun viewer process's send and to the Foxglove client's receipt of a frame's last message, median and p99
+(live_both_viewers). Rerun's live rate is its bytes per frame times 30 fps; with the rotation budget
+docs/ARCHITECTURE.md suggests for a run of days ([rerun] rotate_mb = 2000, keep_files = 24: 2000 MB x 25 segments,
+the most a live .rrd then takes on disk), the hours of recording that budget keeps; and per camera the least bytes a
+lossless coder predicting from the left neighbour gets the first frame's depth and amplitude to (the entropy of
+their row differences). Prints tables,
 writes bench/results/bench_viewers.json.
 """
 
@@ -88,6 +90,7 @@ class CountingClient:
         self._subscriptions: dict[int, str] = {}  # subscription id -> topic
         self.messages: dict[str, int] = {}
         self.bytes: dict[str, int] = {}
+        self.received_ns: dict[int, int] = {}  # a frame's log time (its capture, host wall clock) -> last receipt
         self.started_s = time.monotonic()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name="counting-client", daemon=True)
@@ -114,6 +117,7 @@ class CountingClient:
                     self._subscribe([int(refused.group(1))])
             elif data and data[0] == MESSAGE_DATA:
                 topic = self._subscriptions[struct.unpack_from("<I", data, 1)[0]]
+                self.received_ns[struct.unpack_from("<Q", data, 5)[0]] = time.time_ns()
                 self.messages[topic] = self.messages.get(topic, 0) + 1
                 self.bytes[topic] = self.bytes.get(topic, 0) + len(data) - 13
 
@@ -127,7 +131,12 @@ class CountingClient:
 
     def reset(self) -> None:
         """Count from now on."""
-        self.messages, self.bytes, self.started_s = {}, {}, time.monotonic()
+        self.messages, self.bytes, self.received_ns, self.started_s = {}, {}, {}, time.monotonic()
+
+    def latencies_ms(self) -> np.ndarray:
+        """Per frame received: milliseconds from its capture (the log time tofd gives every message of a frame: the
+        host's wall clock when the frame arrived) to the receipt of its last message."""
+        return np.array([(last - logged) / 1e6 for logged, last in self.received_ns.items()])
 
     def close(self) -> float:
         """Stop reading; the seconds counted."""
@@ -140,14 +149,16 @@ class CountingClient:
 
 def viewers(cfg, kind: str, policy: str, rrd: Path) -> tuple[ViewerProcess | None, ViewerProcess | None]:
     """The (Rerun viewer process saving `rrd`, Foxglove viewer process on a free port) of a run of `kind`."""
-    if kind == "rerun":
+    rerun = foxglove = None
+    if kind in ("rerun", "both"):
         sink_cfg = replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd)))
-        sends = frames_per_send(sink_cfg.rerun, policy)
-        return ViewerProcess(sink_cfg, "save", sends, footer=file_footer(policy)), None
-    if kind == "foxglove":
+        # both (live): each frame sent at once, as to a live viewer, not batched as into a file
+        sends = 1 if kind == "both" else frames_per_send(sink_cfg.rerun, policy)
+        rerun = ViewerProcess(sink_cfg, "save", sends, footer=file_footer(policy))
+    if kind in ("foxglove", "both"):
         fox_cfg = replace(cfg, foxglove=replace(cfg.foxglove, enabled=True, bind="127.0.0.1", port=0))
-        return None, ViewerProcess(fox_cfg, "foxglove", open_backend=FoxglovePublisher, name="foxglove")
-    return None, None
+        foxglove = ViewerProcess(fox_cfg, "foxglove", open_backend=FoxglovePublisher, name="foxglove")
+    return rerun, foxglove
 
 
 def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: float | None, tmp: Path) -> dict:
@@ -171,10 +182,13 @@ def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: flo
     elapsed = time.monotonic() - t0
     summary = pipeline.close()
     out: dict = {"frames_out": summary["frames_out"], "seconds": round(elapsed, 2),
-                 "fps": round(lat.steady_fps() or summary["frames_out"] / elapsed, 2)}
+                 "fps": round(lat.steady_fps() or summary["frames_out"] / elapsed, 2),
+                 "frames_in": summary["frames_in"], "dropped_by_reason": summary["dropped_by_reason"],
+                 "viewer_dropped": summary["viewer_dropped"]}
     if client is not None:
         counted_s = client.close()
-        out["client"] = {"seconds": round(counted_s, 2), "messages": client.messages, "bytes": client.bytes}
+        out["client"] = {"seconds": round(counted_s, 2), "messages": client.messages, "bytes": client.bytes,
+                         "latency_ms": client.latencies_ms()}
     out["viewer_reports"] = [v.close(60.0) for v in (viewer, foxglove) if v is not None]
     if viewer is not None:
         out["rrd"] = str(rrd)
@@ -190,11 +204,15 @@ def rrd_views(path: Path, frames: int) -> dict:
 
     per_entity: dict[str, int] = {}
     own_ms: list[float] = []
+    latency: dict[int, float] = {}  # frame -> the viewer process's latency (capture to its send to Rerun), ms
     for chunk in RrdReader(str(path)).stream().to_chunks():
         batch = chunk.to_record_batch()
         per_entity[chunk.entity_path] = per_entity.get(chunk.entity_path, 0) + (0 if chunk.is_static else batch.nbytes)
         if not chunk.is_static and chunk.entity_path == f"{bp.TIMINGS}/logging":
             own_ms += [row[0] for row in batch.column("Scalars:scalars").to_pylist()]
+        if not chunk.is_static and chunk.entity_path == f"{bp.TIMINGS}/latency":
+            latency.update(zip(batch.column("frame").to_pylist(),
+                               (row[0] for row in batch.column("Scalars:scalars").to_pylist()), strict=True))
     alone = path.with_suffix(".view.rrd")
 
     def written_alone(content: str) -> int:
@@ -215,7 +233,33 @@ def rrd_views(path: Path, frames: int) -> dict:
                                     "p90": round(float(np.percentile(own_ms, 90)), 2)} if own_ms else None,
             "views_disk_bytes_per_frame": per_frame(on_disk),
             "rest_disk_bytes_per_frame": round((size - sum(on_disk.values())) / frames),  # headers, footer index
-            "views_arrow_bytes_per_frame": per_frame(per_entity)}
+            "views_arrow_bytes_per_frame": per_frame(per_entity),
+            "latency_ms": np.array([latency[f] for f in sorted(latency)])}
+
+
+def percentiles(ms: np.ndarray, skip: int) -> dict:
+    """Median, p99 and max of `ms` after its first `skip` values (start-up), and how many there were."""
+    kept = ms[skip:]
+    if not kept.size:
+        return {"frames": 0}
+    return {"frames": int(kept.size), "p50": round(float(np.median(kept)), 1),
+            "p99": round(float(np.percentile(kept, 99)), 1), "max": round(float(kept.max()), 1)}
+
+
+def live_both(cfg, clip: Path, seconds: float, tmp: Path) -> dict:
+    """`seconds` of the clip as a live camera (MemoryCamera: 30 fps, latest-wins) with both viewers on: the Rerun
+    viewer process sending each frame at once (as to a live viewer; into an .rrd, from which its latencies are
+    read) and the Foxglove viewer process with a client subscribed to every channel. Frames delivered per second
+    and dropped; capture to Rerun (the viewer process's send to the SDK) and capture to the Foxglove client (the
+    receipt of a frame's last message) in ms, after the first second."""
+    live = run(cfg, MemoryCamera(clip), "both", "latest", frames=None, seconds=seconds, tmp=tmp)
+    skip = round(LIVE_FPS)
+    return {"seconds": live["seconds"], "frames_in": live["frames_in"], "frames_out": live["frames_out"],
+            "fps_delivered": live["fps"], "dropped_by_reason": live["dropped_by_reason"],
+            "viewer_dropped": live["viewer_dropped"],
+            "rerun_capture_to_send_ms": percentiles(rrd_views(Path(live["rrd"]), live["frames_out"])["latency_ms"],
+                                                    skip),
+            "foxglove_capture_to_client_ms": percentiles(live["client"]["latency_ms"], skip)}
 
 
 def delta_entropy_bytes(plane: np.ndarray) -> int:
@@ -301,6 +345,7 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
     last_rerun = each["rerun"][-1]
     rrd = rrd_views(Path(last_rerun["rrd"]), last_rerun["frames_out"])
     live = run(cam_cfg, MemoryCamera(clip), "foxglove", "latest", frames=None, seconds=live_s, tmp=tmp)
+    both = live_both(cam_cfg, clip, live_s, tmp)
     client = live["client"]
     seconds = client["seconds"]
     fox_topics = {topic: {"bytes_per_message": round(client["bytes"][topic] / n),
@@ -331,6 +376,7 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
         "foxglove_frame_bytes": frame_bytes,  # a published frame: every topic's mean message
         "foxglove_MB_per_s_at_30fps": round(frame_bytes * LIVE_FPS / 1e6, 2),
         "foxglove_topics": fox_topics,
+        "live_both_viewers": both,
     }
 
 
@@ -351,6 +397,10 @@ def print_tables(rows: list[dict]) -> None:
             print(f"  {entity:40s} {b:>10} {arrow.get(entity, 0):>10}")
         print(f"  {'(headers, footer index)':40s} {r['rerun_rest_disk_bytes_per_frame']:>10}")
         print(f"  lossless bound (entropy of row differences): {r['lossless_bound_bytes']}")
+        both = r["live_both_viewers"]
+        print(f"{r['camera']} ({r['sensor_model']}): live with both viewers: {both['fps_delivered']} fps delivered, "
+              f"capture to Rerun's send {both['rerun_capture_to_send_ms']}, to the Foxglove client "
+              f"{both['foxglove_capture_to_client_ms']} ms, viewer drops {both['viewer_dropped']}")
         print(f"{r['camera']} ({r['sensor_model']}): Foxglove per topic (live, {r['foxglove_live_fps']} fps)")
         for topic, t in r["foxglove_topics"].items():
             print(f"  {topic:40s} {t['bytes_per_message']:>10} B  {t['MB_per_s']:>8} MB/s")
