@@ -189,7 +189,8 @@ class RerunLogger:
         self._z = np.empty(intrinsics.shape, np.float32)  # the frame's z-depth, metres, when it goes encoded
         self._images = {bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8)}  # raw planes (and a float depth)
         # encoded planes: archetype; the depth's joins at the first frame if its unit is exact
-        self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage}
+        self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage,
+                                          **dict.fromkeys(bp.FEATURES.values(), rr.EncodedDepthImage)}
         self._depth_unit_m: float | None = None  # the depth's unit when it goes as PNG
         self._depth_chosen = False
         self._shape = height, width = intrinsics.shape
@@ -331,7 +332,7 @@ class RerunLogger:
             descriptor, datatype = component_type(rr.Transform3D, "translation")
             place = (descriptor, component_array(datatype, np.c_[b.corners, np.zeros(len(b.corners))]))  # z = 0
         for path, encoded in b.encoded.items():
-            archetype = self._encoded.get(path, rr.EncodedDepthImage)
+            archetype = self._encoded[path]
             descriptor, datatype = component_type(archetype, "blob")
             flat = np.frombuffer(b"".join(encoded), np.uint8)
             columns = [(descriptor, blobs(flat, [len(e) for e in encoded], datatype))]
