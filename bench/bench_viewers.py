@@ -6,20 +6,25 @@ the replay rate with and without each viewer, from one run.
 
 Per camera (bench/cameras.py): the SR3000's bundled clip (replay_data/emulated_face_035_070.mcap) and a clip of the
 emulator's face rendered in the Azure Kinect NFOV geometry (640x576) as a millimetre camera delivers it (z-depth in
-whole mm, amplitude in whole units), once per --conditions sensor model (tofd.lab.conditions: the training sensor's
-noise, which grows as the amplitude falls, and a constant 4 mm): lossless PNG shrinks a plane to about its noise's
-entropy, so the sizes follow the noise. Lossless replay of --replay-frames frames (the clip looped) through the real
+whole mm, amplitude in whole units), once per --conditions sensor model (bench/cameras.SENSOR_MODELS: the training
+sensor's noise, which grows as the amplitude falls, SR3000-like; a constant 4 mm; and the training sensor's noise at
+most the Azure Kinect's specified random error, 17 mm, as a millimetre camera within its operating range gives it):
+lossless PNG shrinks a plane to about its noise's entropy, so the sizes follow the noise (each row's range_noise_mm).
+Lossless replay of --replay-frames frames (the clip looped) through the real
 pipeline, --runs times each of: no viewer, the daemon's Rerun viewer process saving an .rrd (batched, as a replay
 does), and the Foxglove viewer process with one client subscribed to every channel (reading as fast as it can); runs
 interleaved, fps is the median run's, ratios against no viewer in the same run. The .rrd of the last Rerun run gives
-bytes per frame on disk (Rerun's LZ4 chunks) and per view the bytes its rows hold (an encoded image's PNG, a raw
-image's pixels, the points) before that compression. Then --live-seconds of the clip replayed in real time (30 fps,
-looped, latest-wins, bench/cameras.MemoryCamera) with the Foxglove viewer and a client subscribed to every channel:
-bytes per message and MB/s received per topic. Rerun's live rate is its bytes per frame times 30 fps; with the
-rotation budget docs/ARCHITECTURE.md suggests for a run of days ([rerun] rotate_mb = 2000, keep_files = 24:
-2000 MB x 25 segments, the most a live .rrd then takes on disk), the hours of recording that budget keeps; and
-per camera the least bytes a lossless coder predicting from the left neighbour
-gets the first frame's depth and amplitude to (the entropy of their row differences). Prints tables,
+bytes per frame on disk (Rerun's LZ4 chunks), per view the bytes on disk of its chunks written alone by Rerun's writer,
+and the bytes its rows hold (an encoded image's PNG, a raw image's pixels, the points) before that compression.
+Then --live-seconds of the clip replayed in real time (30 fps, looped, latest-wins, bench/cameras.MemoryCamera) with
+the Foxglove viewer and a client subscribed to every channel: bytes per message and MB/s received per topic; then as
+long with both viewers on (Rerun sent each frame at once, as to a live viewer): frames delivered per second, capture
+to the Rerun viewer process's send and to the Foxglove client's receipt of a frame's last message, median and p99
+(live_both_viewers). Rerun's live rate is its bytes per frame times 30 fps; with the rotation budget
+docs/ARCHITECTURE.md suggests for a run of days ([rerun] rotate_mb = 2000, keep_files = 24: 2000 MB x 25 segments,
+the most a live .rrd then takes on disk), the hours of recording that budget keeps; and per camera the least bytes a
+lossless coder predicting from the left neighbour gets the first frame's depth and amplitude to (the entropy of
+their row differences). Prints tables,
 writes bench/results/bench_viewers.json.
 """
 
@@ -41,12 +46,12 @@ import cv2
 import numpy as np
 import websocket
 from bench_pipeline import CLIP, Latencies, with_detector
-from cameras import CAMERAS, FRAME_PERIOD_US, MemoryCamera, write_face_clip
+from cameras import CAMERAS, FRAME_PERIOD_US, SENSOR_MODELS, MemoryCamera, range_noise_mm, write_face_clip
 from report import write_json
 
 from tofd.config import load_config
 from tofd.drivers.recording.replay import ReplaySource
-from tofd.lab.conditions import CONDITIONS, TRAIN_CONDITION
+from tofd.lab.conditions import TRAIN_CONDITION
 from tofd.process_setup import prepare_service_process
 from tofd.service.foxglove.publisher import FoxglovePublisher
 from tofd.service.model import load_service_model
@@ -85,6 +90,7 @@ class CountingClient:
         self._subscriptions: dict[int, str] = {}  # subscription id -> topic
         self.messages: dict[str, int] = {}
         self.bytes: dict[str, int] = {}
+        self.received_ns: dict[int, int] = {}  # a frame's log time (its capture, host wall clock) -> last receipt
         self.started_s = time.monotonic()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, name="counting-client", daemon=True)
@@ -111,6 +117,7 @@ class CountingClient:
                     self._subscribe([int(refused.group(1))])
             elif data and data[0] == MESSAGE_DATA:
                 topic = self._subscriptions[struct.unpack_from("<I", data, 1)[0]]
+                self.received_ns[struct.unpack_from("<Q", data, 5)[0]] = time.time_ns()
                 self.messages[topic] = self.messages.get(topic, 0) + 1
                 self.bytes[topic] = self.bytes.get(topic, 0) + len(data) - 13
 
@@ -124,7 +131,12 @@ class CountingClient:
 
     def reset(self) -> None:
         """Count from now on."""
-        self.messages, self.bytes, self.started_s = {}, {}, time.monotonic()
+        self.messages, self.bytes, self.received_ns, self.started_s = {}, {}, {}, time.monotonic()
+
+    def latencies_ms(self) -> np.ndarray:
+        """Per frame received: milliseconds from its capture (the log time tofd gives every message of a frame: the
+        host's wall clock when the frame arrived) to the receipt of its last message."""
+        return np.array([(last - logged) / 1e6 for logged, last in self.received_ns.items()])
 
     def close(self) -> float:
         """Stop reading; the seconds counted."""
@@ -137,14 +149,16 @@ class CountingClient:
 
 def viewers(cfg, kind: str, policy: str, rrd: Path) -> tuple[ViewerProcess | None, ViewerProcess | None]:
     """The (Rerun viewer process saving `rrd`, Foxglove viewer process on a free port) of a run of `kind`."""
-    if kind == "rerun":
+    rerun = foxglove = None
+    if kind in ("rerun", "both"):
         sink_cfg = replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd)))
-        sends = frames_per_send(sink_cfg.rerun, policy)
-        return ViewerProcess(sink_cfg, "save", sends, footer=file_footer(policy)), None
-    if kind == "foxglove":
+        # both (live): each frame sent at once, as to a live viewer, not batched as into a file
+        sends = 1 if kind == "both" else frames_per_send(sink_cfg.rerun, policy)
+        rerun = ViewerProcess(sink_cfg, "save", sends, footer=file_footer(policy))
+    if kind in ("foxglove", "both"):
         fox_cfg = replace(cfg, foxglove=replace(cfg.foxglove, enabled=True, bind="127.0.0.1", port=0))
-        return None, ViewerProcess(fox_cfg, "foxglove", open_backend=FoxglovePublisher, name="foxglove")
-    return None, None
+        foxglove = ViewerProcess(fox_cfg, "foxglove", open_backend=FoxglovePublisher, name="foxglove")
+    return rerun, foxglove
 
 
 def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: float | None, tmp: Path) -> dict:
@@ -168,10 +182,13 @@ def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: flo
     elapsed = time.monotonic() - t0
     summary = pipeline.close()
     out: dict = {"frames_out": summary["frames_out"], "seconds": round(elapsed, 2),
-                 "fps": round(lat.steady_fps() or summary["frames_out"] / elapsed, 2)}
+                 "fps": round(lat.steady_fps() or summary["frames_out"] / elapsed, 2),
+                 "frames_in": summary["frames_in"], "dropped_by_reason": summary["dropped_by_reason"],
+                 "viewer_dropped": summary["viewer_dropped"]}
     if client is not None:
         counted_s = client.close()
-        out["client"] = {"seconds": round(counted_s, 2), "messages": client.messages, "bytes": client.bytes}
+        out["client"] = {"seconds": round(counted_s, 2), "messages": client.messages, "bytes": client.bytes,
+                         "latency_ms": client.latencies_ms()}
     out["viewer_reports"] = [v.close(60.0) for v in (viewer, foxglove) if v is not None]
     if viewer is not None:
         out["rrd"] = str(rrd)
@@ -179,23 +196,70 @@ def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: flo
 
 
 def rrd_views(path: Path, frames: int) -> dict:
-    """The .rrd's bytes on disk per frame, per entity the bytes of its rows (before Rerun's compression) per
-    frame, and the viewer process's own milliseconds per frame (its `logging` timing: encoding and sending)."""
+    """The .rrd's bytes on disk per frame; per view (entity) its bytes on disk per frame (the entity's chunks, static
+    ones too, written alone to an .rrd by Rerun's own writer, with its LZ4 chunk compression, less the bytes of an
+    .rrd holding no chunk) and the bytes of its rows before that compression; and the viewer process's own
+    milliseconds per frame (its `logging` timing: encoding and sending)."""
     from rerun.chunk import RrdReader
 
     per_entity: dict[str, int] = {}
     own_ms: list[float] = []
+    latency: dict[int, float] = {}  # frame -> the viewer process's latency (capture to its send to Rerun), ms
     for chunk in RrdReader(str(path)).stream().to_chunks():
-        if not chunk.is_static:
-            batch = chunk.to_record_batch()
-            per_entity[chunk.entity_path] = per_entity.get(chunk.entity_path, 0) + batch.nbytes
-            if chunk.entity_path == f"{bp.TIMINGS}/logging":
-                own_ms += [row[0] for row in batch.column("Scalars:scalars").to_pylist()]
-    return {"file_bytes_per_frame": round(path.stat().st_size / frames),
+        batch = chunk.to_record_batch()
+        per_entity[chunk.entity_path] = per_entity.get(chunk.entity_path, 0) + (0 if chunk.is_static else batch.nbytes)
+        if not chunk.is_static and chunk.entity_path == f"{bp.TIMINGS}/logging":
+            own_ms += [row[0] for row in batch.column("Scalars:scalars").to_pylist()]
+        if not chunk.is_static and chunk.entity_path == f"{bp.TIMINGS}/latency":
+            latency.update(zip(batch.column("frame").to_pylist(),
+                               (row[0] for row in batch.column("Scalars:scalars").to_pylist()), strict=True))
+    alone = path.with_suffix(".view.rrd")
+
+    def written_alone(content: str) -> int:
+        RrdReader(str(path)).stream().filter(content=content).write_rrd(alone, application_id="bench_viewers",
+                                                                        recording_id="view")
+        return alone.stat().st_size
+
+    empty = written_alone("/no/such/entity")
+    on_disk = {entity: written_alone(entity) - empty for entity in per_entity}
+    alone.unlink()
+    size = path.stat().st_size
+
+    def per_frame(bytes_of: dict[str, int]) -> dict[str, int]:
+        return {e: round(b / frames) for e, b in sorted(bytes_of.items(), key=lambda x: -x[1]) if b / frames >= 100}
+
+    return {"file_bytes_per_frame": round(size / frames),
             "viewer_ms_per_frame": {"median": round(float(np.median(own_ms)), 2),
                                     "p90": round(float(np.percentile(own_ms, 90)), 2)} if own_ms else None,
-            "views_bytes_per_frame": {e: round(b / frames) for e, b in sorted(per_entity.items(), key=lambda x: -x[1])
-                                      if b / frames >= 100}}
+            "views_disk_bytes_per_frame": per_frame(on_disk),
+            "rest_disk_bytes_per_frame": round((size - sum(on_disk.values())) / frames),  # headers, footer index
+            "views_arrow_bytes_per_frame": per_frame(per_entity),
+            "latency_ms": np.array([latency[f] for f in sorted(latency)])}
+
+
+def percentiles(ms: np.ndarray, skip: int) -> dict:
+    """Median, p99 and max of `ms` after its first `skip` values (start-up), and how many there were."""
+    kept = ms[skip:]
+    if not kept.size:
+        return {"frames": 0}
+    return {"frames": int(kept.size), "p50": round(float(np.median(kept)), 1),
+            "p99": round(float(np.percentile(kept, 99)), 1), "max": round(float(kept.max()), 1)}
+
+
+def live_both(cfg, clip: Path, seconds: float, tmp: Path) -> dict:
+    """`seconds` of the clip as a live camera (MemoryCamera: 30 fps, latest-wins) with both viewers on: the Rerun
+    viewer process sending each frame at once (as to a live viewer; into an .rrd, from which its latencies are
+    read) and the Foxglove viewer process with a client subscribed to every channel. Frames delivered per second
+    and dropped; capture to Rerun (the viewer process's send to the SDK) and capture to the Foxglove client (the
+    receipt of a frame's last message) in ms, after the first second."""
+    live = run(cfg, MemoryCamera(clip), "both", "latest", frames=None, seconds=seconds, tmp=tmp)
+    skip = round(LIVE_FPS)
+    return {"seconds": live["seconds"], "frames_in": live["frames_in"], "frames_out": live["frames_out"],
+            "fps_delivered": live["fps"], "dropped_by_reason": live["dropped_by_reason"],
+            "viewer_dropped": live["viewer_dropped"],
+            "rerun_capture_to_send_ms": percentiles(rrd_views(Path(live["rrd"]), live["frames_out"])["latency_ms"],
+                                                    skip),
+            "foxglove_capture_to_client_ms": percentiles(live["client"]["latency_ms"], skip)}
 
 
 def delta_entropy_bytes(plane: np.ndarray) -> int:
@@ -281,6 +345,7 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
     last_rerun = each["rerun"][-1]
     rrd = rrd_views(Path(last_rerun["rrd"]), last_rerun["frames_out"])
     live = run(cam_cfg, MemoryCamera(clip), "foxglove", "latest", frames=None, seconds=live_s, tmp=tmp)
+    both = live_both(cam_cfg, clip, live_s, tmp)
     client = live["client"]
     seconds = client["seconds"]
     fox_topics = {topic: {"bytes_per_message": round(client["bytes"][topic] / n),
@@ -300,7 +365,9 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
         "rerun_live_GB_per_day": round(rerun_mb_s * 86400 / 1e3),
         "rerun_rotation_budget_GB": round(budget_gb, 1),
         "rerun_hours_kept_in_budget": round(budget_gb * 1e3 / rerun_mb_s / 3600, 1) if budget_gb else None,
-        "rerun_views_bytes_per_frame": rrd["views_bytes_per_frame"],
+        "rerun_views_disk_bytes_per_frame": rrd["views_disk_bytes_per_frame"],
+        "rerun_rest_disk_bytes_per_frame": rrd["rest_disk_bytes_per_frame"],
+        "rerun_views_arrow_bytes_per_frame": rrd["views_arrow_bytes_per_frame"],
         "lossless_bound_bytes": lossless_bounds(clip),
         "rerun_viewer_ms_per_frame": rrd["viewer_ms_per_frame"],
         "encodings_first_frame": encodings(clip),
@@ -309,6 +376,7 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
         "foxglove_frame_bytes": frame_bytes,  # a published frame: every topic's mean message
         "foxglove_MB_per_s_at_30fps": round(frame_bytes * LIVE_FPS / 1e6, 2),
         "foxglove_topics": fox_topics,
+        "live_both_viewers": both,
     }
 
 
@@ -323,10 +391,16 @@ def print_tables(rows: list[dict]) -> None:
               f"{r['foxglove_MB_per_s']:>9} {r['foxglove_frame_bytes'] / 1e3:>13.1f} "
               f"{r['foxglove_MB_per_s_at_30fps']:>12}")
     for r in rows:
-        print(f"\n{r['camera']} ({r['sensor_model']}): Rerun bytes per frame per view (before LZ4)")
-        for entity, b in r["rerun_views_bytes_per_frame"].items():
-            print(f"  {entity:40s} {b:>10}")
+        print(f"\n{r['camera']} ({r['sensor_model']}): Rerun bytes per frame per view, on disk and before LZ4")
+        arrow = r["rerun_views_arrow_bytes_per_frame"]
+        for entity, b in r["rerun_views_disk_bytes_per_frame"].items():
+            print(f"  {entity:40s} {b:>10} {arrow.get(entity, 0):>10}")
+        print(f"  {'(headers, footer index)':40s} {r['rerun_rest_disk_bytes_per_frame']:>10}")
         print(f"  lossless bound (entropy of row differences): {r['lossless_bound_bytes']}")
+        both = r["live_both_viewers"]
+        print(f"{r['camera']} ({r['sensor_model']}): live with both viewers: {both['fps_delivered']} fps delivered, "
+              f"capture to Rerun's send {both['rerun_capture_to_send_ms']}, to the Foxglove client "
+              f"{both['foxglove_capture_to_client_ms']} ms, viewer drops {both['viewer_dropped']}")
         print(f"{r['camera']} ({r['sensor_model']}): Foxglove per topic (live, {r['foxglove_live_fps']} fps)")
         for topic, t in r["foxglove_topics"].items():
             print(f"  {topic:40s} {t['bytes_per_message']:>10} B  {t['MB_per_s']:>8} MB/s")
@@ -340,24 +414,26 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="replay runs per viewer kind (interleaved; the median)")
     ap.add_argument("--camera-frames", type=int, default=60, help="frames of a rendered clip")
     ap.add_argument("--live-seconds", type=float, default=10.0, help="seconds of the real-time Foxglove run")
-    ap.add_argument("--conditions", type=lambda text: text.split(","), default=[TRAIN_CONDITION, "noise_constant"],
-                    help=f"sensor models the rendered clips are made with (of: {', '.join(CONDITIONS)})")
+    ap.add_argument("--conditions", type=lambda text: text.split(","),
+                    default=[TRAIN_CONDITION, "noise_constant", "k4a_spec_noise"],
+                    help=f"sensor models the rendered clips are made with (of: {', '.join(SENSOR_MODELS)})")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_viewers.json")
     args = ap.parse_args()
     prepare_service_process()  # as `tofd run` / `tofd replay` set up their process
     unknown = [c for c in args.cameras if c not in CAMERAS]
     if unknown:
         ap.error(f"--cameras: unknown {', '.join(unknown)} (known: {', '.join(CAMERAS)})")
-    unknown = [c for c in args.conditions if c not in CONDITIONS]
+    unknown = [c for c in args.conditions if c not in SENSOR_MODELS]
     if unknown:
-        ap.error(f"--conditions: unknown {', '.join(unknown)} (known: {', '.join(CONDITIONS)})")
+        ap.error(f"--conditions: unknown {', '.join(unknown)} (known: {', '.join(SENSOR_MODELS)})")
     results: dict = {
         "title": "Viewer data rates (Rerun, Foxglove) and replay rate with each viewer",
         "about": (f"bench/bench_viewers.py: lossless replay of {args.replay_frames} frames, {args.runs} runs per "
                   f"viewer (median); Rerun: the .rrd a replay saves (MB per frame on disk; MB/s live = that at "
                   f"30 fps); Foxglove: {args.live_seconds:g} s real-time replay at 30 fps, one client subscribed to "
                   "every channel. 640x576: the emulator's face rendered as a millimetre camera (z-depth in whole "
-                  "mm) delivers it."),
+                  "mm) delivers it, under each sensor model (range_noise_mm: the noise it puts on the scene; "
+                  "k4a_spec_noise: at most the Azure Kinect's specified 17 mm)."),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "load_avg_at_start": [round(x, 2) for x in os.getloadavg()]}}
     with tempfile.TemporaryDirectory() as tmp:
@@ -368,9 +444,11 @@ def main() -> None:
             for condition in ["bundled clip"] if name == "sr3000" else args.conditions:
                 clip = CLIP if name == "sr3000" else write_face_clip(
                     tmp_path / f"{name}-{condition}.mcap", CAMERAS[name], args.camera_frames, millimetres=True,
-                    model=CONDITIONS[condition])
-                rows.append(compare(cfg, name, condition, clip, args.replay_frames, args.runs, args.live_seconds,
-                                    tmp_path))
+                    model=SENSOR_MODELS[condition])
+                row = compare(cfg, name, condition, clip, args.replay_frames, args.runs, args.live_seconds, tmp_path)
+                if name != "sr3000":
+                    row["range_noise_mm"] = range_noise_mm(CAMERAS[name], SENSOR_MODELS[condition])
+                rows.append(row)
                 print(json.dumps(rows[-1]))
     results["rows"] = rows
     print_tables(rows)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tofd.drivers.emulator.render import SensorModel, load_face, render_face
+from tofd.drivers.emulator.render import SensorModel, load_face, range_noise_sigma, render_face
 from tofd.drivers.emulator.scene import Motion
 from tofd.drivers.frame import DeviceInfo, Frame, GroundTruth, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
@@ -18,11 +18,31 @@ from tofd.drivers.recording.replay import ReplaySource
 from tofd.drivers.recording.writer import RecordingWriter
 from tofd.drivers.source import FrameSource
 from tofd.lab.cameras import CAMERAS as LAB_CAMERAS
+from tofd.lab.conditions import CONDITIONS
 
 CAMERAS = {label: LAB_CAMERAS[name] for label, name in (("sr3000", "sr3000"), ("320x240", "320x240"),
                                                           ("640x576", "k4a-nfov"), ("1024x1024", "1024x1024"))}
 """The geometries the benchmarks compare, labelled by their pixels in the tables (tofd.lab.cameras owns them)."""
 FRAME_PERIOD_US = 33_333  # 30 fps
+
+K4A_RANDOM_ERROR_M = 0.017
+"""The Azure Kinect's specified random depth error (standard deviation) over its operating range (NFOV unbinned
+0.5-3.86 m, 15-95 % reflectivity at 850 nm): the hardware specification. Pixels whose signal is too low for
+that are invalidated by its depth engine (reported as 0), not delivered noisier."""
+SENSOR_MODELS = {**CONDITIONS, "k4a_spec_noise": SensorModel(max_range_noise_m=K4A_RANDOM_ERROR_M)}
+"""Sensor models a clip is rendered with: tofd.lab.conditions' and a millimetre camera's within its specification
+(the training sensor's amplitude-tied noise, at most K4A_RANDOM_ERROR_M: the SR3000-like model gives the wall of the
+scene, 1.6 m away at albedo 0.35 and inside the Azure Kinect's operating range, several times that)."""
+
+
+def range_noise_mm(intrinsics: Intrinsics, model: SensorModel) -> dict[str, float]:
+    """The range noise (standard deviation, mm) `model` puts on the first pose of write_face_clip's motion in this
+    geometry: its median and 95th percentile over the pixels, and the share of pixels above K4A_RANDOM_ERROR_M."""
+    pose = Motion(drift_px=Motion().drift_px * intrinsics.fx / Intrinsics().fx).pose(0, intrinsics)
+    sigma = range_noise_sigma(render_face(load_face("lee_perry_smith"), pose, intrinsics, None, model).amplitude,
+                              model)
+    return {"median": round(float(np.median(sigma)) * 1e3, 1), "p95": round(float(np.percentile(sigma, 95)) * 1e3, 1),
+            "share_above_k4a_spec": round(float(np.mean(sigma > K4A_RANDOM_ERROR_M)), 3)}
 
 
 def as_millimetre_camera(range_m: np.ndarray, amplitude: np.ndarray, intrinsics: Intrinsics

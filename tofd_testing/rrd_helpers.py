@@ -94,15 +94,31 @@ def check_amplitude(image, scale, amplitude):
     assert np.sqrt(np.mean(error**2)) <= 2.0 and abs(error.mean()) <= 0.5
 
 
+def feature_crop_at(table, row):
+    """A feature entity's crop at `row`: its 8-bit levels (a PNG depth image) and its meter (levels per unit)."""
+    levels = unpng(blob_at(table, "EncodedDepthImage", row))
+    return levels, table.column("EncodedDepthImage:meter")[row].as_py()[0]
+
+
 def feature_map_at(table, row, shape):
-    """A feature entity's map at `row` as the viewer draws it: its crop placed at its translation in an (H, W)
-    image of zeros."""
-    crop = image_at(table, "DepthImage", row)
+    """A feature entity's map at `row` as the viewer draws it, in its own unit (float64): its crop's levels over
+    its meter, placed at its translation in an (H, W) image of zeros."""
+    levels, meter = feature_crop_at(table, row)
+    assert levels.dtype == np.uint8
     x, y, z = table.column("Transform3D:translation")[row].as_py()[0]
     assert z == 0 and x == int(x) and y == int(y), (x, y, z)
-    full = np.zeros(shape, crop.dtype)
-    full[int(y): int(y) + crop.shape[0], int(x): int(x) + crop.shape[1]] = crop
+    full = np.zeros(shape, np.float64)
+    full[int(y): int(y) + levels.shape[0], int(x): int(x) + levels.shape[1]] = levels / meter
     return full
+
+
+def check_feature_map(shown, values):
+    """`shown` (feature_map_at) is the map `values` (NaN: 0) in 8-bit levels of its largest value: within half a
+    level everywhere, its largest value exact (to float32 round-off)."""
+    want = np.nan_to_num(values, nan=0.0).astype(np.float64)
+    top = want.max()
+    np.testing.assert_allclose(shown, want, atol=0.5 * top / 255 * (1 + 1e-5) + 1e-30)
+    assert shown.max() == pytest.approx(top, rel=1e-5)
 
 
 def check_rrd(path, counters, results_by_counter=None):
@@ -144,8 +160,8 @@ def check_rrd(path, counters, results_by_counter=None):
                for i in (np.nanargmin(eps0), np.nanargmax(eps0))]
         assert rgb == [(68, 1, 84), (253, 231, 36)], rgb  # viridis at 0 and 1
         for name, entity in bp.FEATURES.items():  # each map, cropped to the foreground, is the whole map in place
-            shown = feature_map_at(tables[entity][1], len(counters) - 1, frame.range_m.shape)
-            want = np.nan_to_num(results_by_counter[c].features[name], nan=0.0)
-            np.testing.assert_array_equal(shown, want.astype(np.float16))  # half floats of the map
-            assert image_at(tables[entity][1], "DepthImage", len(counters) - 1).size < 0.5 * shown.size
+            shown = feature_map_at(tables[entity][1], last, frame.range_m.shape)
+            check_feature_map(shown, results_by_counter[c].features[name])
+            assert feature_crop_at(tables[entity][1], last)[0].size < 0.5 * shown.size
+        assert static_value(tables, entity, "EncodedDepthImage:media_type") == "image/png"
     return tables

@@ -97,7 +97,7 @@ def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tm
     from tofd.drivers.frame import Frame
     from tofd.drivers.intrinsics import Intrinsics
     from tofd.service.pipeline.results import FrameResult
-    from tofd_testing.rrd_helpers import amplitude_at, feature_map_at, image_at, read_entities
+    from tofd_testing.rrd_helpers import amplitude_at, feature_crop_at, feature_map_at, image_at, read_entities
 
     intr = Intrinsics()
     rays = intr.unit_rays()
@@ -128,7 +128,7 @@ def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tm
     assert amp.dtype == np.uint8 and np.all(amp == 255) and scale * 255 == pytest.approx(1234.4)
     for entity in bp.FEATURES.values():  # no foreground: nothing drawn, from a one-pixel crop
         assert not feature_map_at(tables[entity][1], 0, intr.shape).any()
-        assert image_at(tables[entity][1], "DepthImage", 0).shape == (1, 1)
+        assert feature_crop_at(tables[entity][1], 0)[0].shape == (1, 1)
 
 
 def test_blueprint_has_an_events_view():

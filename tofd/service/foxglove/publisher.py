@@ -58,6 +58,7 @@ from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer.encoding import (
     amplitude_u8,
     code_unit_m,
+    feature_u8,
     in_units,
     jpeg,
     png,
@@ -88,15 +89,6 @@ def _png(stamp: Timestamp, plane: np.ndarray) -> CompressedImage:
 def _json_stamp(stamp: Timestamp) -> dict[str, int]:
     """A Timestamp as the JSON topics carry it (their schemas' "timestamp")."""
     return {"sec": stamp.sec, "nsec": stamp.nsec}
-
-
-def feature_u8(values: np.ndarray) -> tuple[np.ndarray, float]:
-    """(h, w) uint8 of a feature map's crop (>= 0, NaN outside the foreground -> 0), 255 its largest value, and
-    that value (0: none): Foxglove shows it colour-mapped, where the map's shape is what the eye reads."""
-    finite = np.fmax(values, np.float32(0))  # fmax drops NaN
-    top = float(finite.max(initial=0.0))
-    levels = np.zeros(values.shape, np.uint8) if top <= 0 else np.rint(finite * (255 / top)).astype(np.uint8)
-    return levels, top
 
 
 def _image(stamp: Timestamp, plane: np.ndarray, encoding: str) -> RawImage:

@@ -97,11 +97,3 @@ def image_format(*, height: int, width: int, color_model: ColorModelLike | None,
     return ImageFormatBatch([ImageFormat(width=width, height=height, color_model=color_model,
                                          channel_datatype=rr.ChannelDatatype.from_np_dtype(np.dtype(dtype)))
                              ]).as_arrow_array()
-
-
-def image_formats(template: pa.StructArray, heights: np.ndarray, widths: np.ndarray) -> pa.StructArray:
-    """Image formats like the one-row `template` (Rerun's ImageFormat arrow type), one per height and width."""
-    same = np.zeros(len(heights), np.intp)
-    fields = [pa.array(widths, pa.uint32()), pa.array(heights, pa.uint32()),
-              *(template.field(i).take(same) for i in range(2, template.type.num_fields))]
-    return pa.StructArray.from_arrays(fields, fields=list(template.type))

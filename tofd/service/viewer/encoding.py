@@ -7,7 +7,8 @@ float32 metres. PNG (zlib level 1 with its run-length strategy: the planes are n
 hardly pay, while the runs of a mask or of a feature map's zeros do) is what both viewers decode.
 The amplitude is for looking at: 8 bits scaled so a robust top (AMPLITUDE_PERCENTILE) is the brightest level, the
 scale (sensor units per level) sent beside it, as a JPEG; a lossless 16-bit amplitude would cost about as much as
-the depth for noise the eye does not see (tofd's own recordings keep it exactly).
+the depth for noise the eye does not see (tofd's own recordings keep it exactly). A feature map's crop is for
+looking at too: 8 bits, its largest value the brightest level (that value sent beside it), as a PNG.
 """
 
 from __future__ import annotations
@@ -73,14 +74,30 @@ def amplitude_u16(amplitude: np.ndarray) -> np.ndarray:
 
 def amplitude_u8(amplitude: np.ndarray) -> tuple[np.ndarray, float]:
     """(H, W) uint8 amplitude for viewing and its scale, sensor units per level: AMPLITUDE_PERCENTILE of the
-    positive amplitudes (of every other row and column: the same top, a quarter of the work) is level
-    AMPLITUDE_LEVELS, brighter pixels saturate; NaN and negatives are 0. Scale 1 when nothing is positive."""
+    positive amplitudes (of every other row and column: the same top, a quarter of the work; nearest rank, by a
+    partial sort: np.percentile costs several times as much) is level AMPLITUDE_LEVELS, brighter pixels saturate;
+    NaN and negatives are 0. Scale 1 when nothing is positive."""
     sample = amplitude[::2, ::2]
     positive = sample[sample > 0]  # False for NaN
-    top = float(np.percentile(positive, AMPLITUDE_PERCENTILE)) if positive.size else 0.0
+    rank = round(AMPLITUDE_PERCENTILE / 100 * (positive.size - 1))
+    top = float(np.partition(positive, rank)[rank]) if positive.size else 0.0
     scale = top / AMPLITUDE_LEVELS if top > 0 else 1.0
     levels = np.rint(np.fmax(amplitude, np.float32(0)) * np.float32(1.0 / scale))
     return np.minimum(levels, AMPLITUDE_LEVELS).astype(np.uint8), scale
+
+
+FEATURE_LEVELS = 255
+
+
+def feature_u8(values: np.ndarray) -> tuple[np.ndarray, float]:
+    """(h, w) uint8 of a feature map's crop for viewing (>= 0, NaN outside the foreground -> 0), FEATURE_LEVELS its
+    largest value, and that value (0: none; a level is top / FEATURE_LEVELS): the viewers show it colour-mapped,
+    where 256 colours are all a map shows."""
+    finite = np.fmax(values, np.float32(0))  # fmax drops NaN
+    top = float(finite.max(initial=0.0))
+    if top <= 0:
+        return np.zeros(values.shape, np.uint8), top
+    return np.rint(finite * np.float32(FEATURE_LEVELS / top)).astype(np.uint8), top
 
 
 def jpeg(plane: np.ndarray) -> bytes:

@@ -4,8 +4,9 @@ Per frame: z-depth under the Pinhole (what Rerun's depth images mean, so the 3-D
 radial range is it over each ray's z) as a 16-bit PNG in the source's unit where that is exact, else float32 metres
 (tofd.service.viewer.encoding), amplitude for viewing as an 8-bit JPEG (its scale, sensor units per level, a
 time series beside it: encoding.amplitude_u8), the mask (Rerun's chunk compression shrinks it to a few kB), four
-feature maps as half floats cropped to the foreground's bounding box (they are 0 outside it) with the translation
-that puts the crop where it lies in the image, the foreground cloud (at most pixels.CLOUD_POINTS points, an even
+feature maps cropped to the foreground's bounding box (they are 0 outside it) as 8-bit PNG depth images whose meter
+(levels per unit) gives their values back (encoding.feature_u8), with the translation that puts the crop where it
+lies in the image, the foreground cloud (at most pixels.CLOUD_POINTS points, an even
 subsample of a large foreground), the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of
 pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D point) and the track's confidence,
 one scalar per stage timing.
@@ -43,14 +44,15 @@ from tofd.service.viewer.columns import (
     component_type,
     image_columns,
     image_format,
-    image_formats,
     offsets_of,
     row_columns,
 )
 from tofd.service.viewer.encoding import (
+    FEATURE_LEVELS,
     JPEG_MEDIA_TYPE,
     PNG_MEDIA_TYPE,
     amplitude_u8,
+    feature_u8,
     in_units,
     jpeg,
     png,
@@ -166,8 +168,8 @@ class Shown(Batch):
     logging time and row in the series batch."""
 
     images: dict[str, np.ndarray] = field(default_factory=dict)  # entity -> (batch_frames, H, W), row per frame
-    encoded: dict[str, list[bytes]] = field(default_factory=dict)  # entity -> its PNG per frame
-    crops: dict[str, list[np.ndarray]] = field(default_factory=dict)  # feature entity -> its crop per frame
+    encoded: dict[str, list[bytes]] = field(default_factory=dict)  # entity -> its PNG or JPEG per frame
+    feature_meters: dict[str, list[float]] = field(default_factory=dict)  # feature entity -> levels per unit
     corners: list[tuple[int, int]] = field(default_factory=list)  # per frame: the crops' top-left pixel (x, y)
     arrival_s: list[float] = field(default_factory=list)
     call_ms: list[float] = field(default_factory=list)
@@ -184,23 +186,17 @@ class RerunLogger:
         self.intrinsics = intrinsics
         self._rays = intrinsics.unit_rays().astype(np.float32)
         self._ray_z = np.ascontiguousarray(self._rays[..., 2])  # z-depth = radial range * cos(angle to the axis)
-        self._zeros = np.zeros(intrinsics.shape, np.float32)
         self._z = np.empty(intrinsics.shape, np.float32)  # the frame's z-depth, metres, when it goes encoded
-        # a DepthImage is Rerun's colour-mapped scalar image; the eccentricities are not depths (0 = background)
-        feature_style = rr.DepthImage.from_fields(colormap="viridis")
         self._images = {bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8)}  # raw planes (and a float depth)
         # encoded planes: archetype; the depth's joins at the first frame if its unit is exact
-        self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage}
+        self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage,
+                                          **dict.fromkeys(bp.FEATURES.values(), rr.EncodedDepthImage)}
         self._depth_unit_m: float | None = None  # the depth's unit when it goes as PNG
         self._depth_chosen = False
-        # every feature map's: half floats (3 significant digits, which a colour map cannot show anyway)
-        self._crop = ImageEntity(rr.DepthImage, np.float16, feature_style)
         self._shape = height, width = intrinsics.shape
         # as arrow, built once: Rerun's conversion is slow
         self._formats = {path: image_format(height=height, width=width, color_model=image.color_model,
                                             dtype=image.dtype) for path, image in self._images.items()}
-        self._crop_format = image_format(height=height, width=width, color_model=self._crop.color_model,
-                                         dtype=self._crop.dtype)  # the crops' template (their sizes vary)
         self._format_columns: dict[tuple[str, int], pa.Array] = {}
         self._shown, self._series = self._new_shown(), Batch()
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
@@ -210,7 +206,9 @@ class RerunLogger:
         rec.log(bp.MASK, rr.AnnotationContext([(0, "background", (0, 0, 0)), (1, "foreground", (230, 60, 40))]),
                 static=True)
         styles = {**{path: image.style for path, image in self._images.items()},
-                  **dict.fromkeys(bp.FEATURES.values(), self._crop.style),
+                  # a depth image is Rerun's colour-mapped scalar image; the eccentricities are not depths
+                  **dict.fromkeys(bp.FEATURES.values(), rr.EncodedDepthImage.from_fields(media_type=PNG_MEDIA_TYPE,
+                                                                                         colormap="viridis")),
                   bp.AMPLITUDE: rr.EncodedImage.from_fields(media_type=JPEG_MEDIA_TYPE),
                   **{path: style for path, (_, style) in PARTS.items()}}
         for path, style in styles.items():
@@ -238,8 +236,9 @@ class RerunLogger:
         box = foreground_box(r.mask)
         shown.corners.append((box[1].start, box[0].start))
         for name, path in bp.FEATURES.items():  # eccentricities are >= 0; NaN outside the foreground
-            crop = np.fmax(r.features[name][box], self._zeros[box])
-            shown.crops.setdefault(path, []).append(crop.astype(np.float16))
+            levels, top = feature_u8(r.features[name][box])
+            shown.encoded.setdefault(path, []).append(png(levels))
+            shown.feature_meters.setdefault(path, []).append(FEATURE_LEVELS / top if top > 0 else 1.0)
         if self.point_cloud:
             at = cloud_pixels(r.mask)  # np.take of a flat index is far faster than a 2-D mask or fancy index
             ranges = np.take(frame.range_m.reshape(-1), at)
@@ -329,30 +328,24 @@ class RerunLogger:
             self._send(path, b, rows, image_columns(
                 image.archetype, blobs(frames.reshape(-1), np.full(len(rows), frames[0].size)),
                 self._formats_of(path, len(rows))))
+        if b.corners:  # the feature maps' crops: each with the translation that puts it back in the image
+            descriptor, datatype = component_type(rr.Transform3D, "translation")
+            place = (descriptor, component_array(datatype, np.c_[b.corners, np.zeros(len(b.corners))]))  # z = 0
         for path, encoded in b.encoded.items():
-            descriptor, datatype = component_type(self._encoded[path], "blob")
+            archetype = self._encoded[path]
+            descriptor, datatype = component_type(archetype, "blob")
             flat = np.frombuffer(b"".join(encoded), np.uint8)
-            self._send(path, b, rows, row_columns((descriptor, blobs(flat, [len(e) for e in encoded], datatype))))
-        self._send_crops(b, rows)
+            columns = [(descriptor, blobs(flat, [len(e) for e in encoded], datatype))]
+            if path in b.feature_meters:  # its value scale (levels per unit) and place
+                meter, meter_type = component_type(archetype, "meter")
+                columns += [(meter, component_array(meter_type, b.feature_meters[path])), place]
+            self._send(path, b, rows, row_columns(*columns))
         self._send_parts(b)
         share_ms = (time.perf_counter() - t0) * 1e3 / len(rows)
         now = time.monotonic()
         for i, at in enumerate(b.series_row):
             self._series.add(f"{bp.TIMINGS}/logging", at, scalars=[b.call_ms[i] + share_ms])
             self._series.add(f"{bp.TIMINGS}/latency", at, scalars=[(now - b.arrival_s[i]) * 1e3])
-
-    def _send_crops(self, b: Shown, rows: Sequence[int]) -> None:
-        """The feature maps' crops of the batch, each with the translation that puts it back in the image (one
-        box per frame: every map's crops have the same shapes, formats and translations)."""
-        if not b.crops:
-            return
-        shapes = np.array([c.shape for c in next(iter(b.crops.values()))])
-        formats = image_formats(self._crop_format, shapes[:, 0], shapes[:, 1])
-        descriptor, datatype = component_type(rr.Transform3D, "translation")
-        place = (descriptor, component_array(datatype, np.c_[b.corners, np.zeros(len(b.corners))]))  # z = 0
-        for path, crops in b.crops.items():
-            buffers = blobs(np.concatenate([c.reshape(-1) for c in crops]), shapes.prod(axis=1))
-            self._send(path, b, rows, image_columns(self._crop.archetype, buffers, formats, place))
 
     def _formats_of(self, path: str, frames: int) -> pa.Array:
         """The entity's one image format, once per frame of a batch of `frames` (built once per length)."""
