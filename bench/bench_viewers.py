@@ -67,7 +67,7 @@ from tofd.service.viewer.encoding import (
     z_depth_m,
 )
 from tofd.service.viewer.logger import frames_per_send
-from tofd.service.viewer.process import ViewerProcess
+from tofd.service.viewer.process import ViewerProcess, hand_off_frames
 from tofd.service.viewer.targets import file_footer
 from tofd_testing.foxglove_client import RESUBSCRIBE_S, UNKNOWN_CHANNEL
 
@@ -154,10 +154,11 @@ def viewers(cfg, kind: str, policy: str, rrd: Path) -> tuple[ViewerProcess | Non
         sink_cfg = replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd)))
         # both (live): each frame sent at once, as to a live viewer, not batched as into a file
         sends = 1 if kind == "both" else frames_per_send(sink_cfg.rerun, policy)
-        rerun = ViewerProcess(sink_cfg, "save", sends, footer=file_footer(policy))
+        rerun = ViewerProcess(sink_cfg, "save", sends, hand_off_frames(policy), footer=file_footer(policy))
     if kind in ("foxglove", "both"):
         fox_cfg = replace(cfg, foxglove=replace(cfg.foxglove, enabled=True, bind="127.0.0.1", port=0))
-        foxglove = ViewerProcess(fox_cfg, "foxglove", open_backend=FoxglovePublisher, name="foxglove")
+        foxglove = ViewerProcess(fox_cfg, "foxglove", queue_frames=hand_off_frames(policy),
+                                 open_backend=FoxglovePublisher, name="foxglove")
     return rerun, foxglove
 
 

@@ -116,7 +116,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
     with StopSignals() as stop:  # from here a signal is a stop request, also while the children start
         try:
             from tofd.service.viewer.logger import frames_per_send  # these import the Rerun SDK: only when serving
-            from tofd.service.viewer.process import ViewerProcess
+            from tofd.service.viewer.process import ViewerProcess, hand_off_frames
             from tofd.service.viewer.targets import file_footer
 
             start_resource_tracker()
@@ -131,11 +131,13 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             health = _health(cfg, made, metrics)
             if cfg.rerun.sink != "none":
                 viewer = ViewerProcess(cfg, cfg.rerun.sink, frames_per_send(cfg.rerun, policy),
-                                       cancelled=lambda: bool(stop), footer=file_footer(policy))
+                                       hand_off_frames(policy), cancelled=lambda: bool(stop),
+                                       footer=file_footer(policy))
             if cfg.foxglove.enabled:
                 from tofd.service.foxglove.publisher import FoxglovePublisher
 
-                foxglove = ViewerProcess(cfg, "foxglove", cancelled=lambda: bool(stop),
+                foxglove = ViewerProcess(cfg, "foxglove", queue_frames=hand_off_frames(policy),
+                                         cancelled=lambda: bool(stop),
                                          open_backend=FoxglovePublisher, name="foxglove")
             model = service_model(cfg, model_file)
             pipeline = Pipeline(cfg, policy, viewer=viewer, writers=(*writers, metrics.observe), model=model,

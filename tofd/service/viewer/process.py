@@ -48,6 +48,15 @@ CLOSE = b"close"
 POLL_S = 0.1  # seconds between checks of a start's `cancelled`
 IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this long without a new frame
 VIEWER_NICE = 10  # the viewer process's niceness: on busy cores the feature workers go first
+QUEUE_FRAMES = 8  # a lossless run's slots: they absorb a viewer's pauses, the pipeline waits beyond them
+LIVE_QUEUE_FRAMES = 2  # a live run's: a viewer that falls behind shows frames at most this many frames late
+
+
+def hand_off_frames(policy: str) -> int:
+    """Slots between the pipeline and a viewer process for a run of `policy`: few for a live ("latest") run, so a
+    viewer that falls behind gets the latest frames rather than a backlog (the frames it cannot take are refused
+    and ledgered); more for a lossless one."""
+    return LIVE_QUEUE_FRAMES if policy == "latest" else QUEUE_FRAMES
 
 
 class ViewerClosed(TypedDict):
@@ -174,7 +183,7 @@ class ViewerProcess:
     Rerun's footer, targets.file_footer); `name` names the child and the viewer's drops ("blocked" for Rerun,
     "<name>_blocked" for others)."""
 
-    def __init__(self, cfg: Config, sink: str, batch_frames: int = 1, queue_frames: int = 8,
+    def __init__(self, cfg: Config, sink: str, batch_frames: int = 1, queue_frames: int = QUEUE_FRAMES,
                  start_timeout_s: float = 30.0, cancelled: Callable[[], bool] = lambda: False, footer: bool = True,
                  open_backend: OpenBackend | None = None, name: str = "rerun"):
         env: dict[str, str] = {}
