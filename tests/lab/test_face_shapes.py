@@ -5,6 +5,8 @@ import itertools
 import numpy as np
 import pytest
 
+from tofd.algorithm.detector import load_model
+from tofd.config import default_file
 from tofd.drivers.emulator.render import load_face
 from tofd.lab.face_shapes import (
     HEAD_SCALE,
@@ -98,3 +100,11 @@ def test_the_identity_lists_do_not_overlap():
     assert set(SHAPE_TRAIN_SUBJECTS).isdisjoint(SHAPE_TUNE_SUBJECTS)
     assert all(SUBJECTS[s].shape_seed is not None for s in (*SHAPE_TRAIN_SUBJECTS, *SHAPE_TUNE_SUBJECTS, *held))
     assert len({SUBJECTS[s].mesh for s in held}) == 2  # held-out shapes on both base meshes
+
+
+def test_the_shipped_model_is_trained_on_the_training_shapes_and_no_test_identity():
+    """config/nose_model.json as tofd/commands/train.py documents it: the drawn training shapes are in, and no tuning,
+    held-out or test identity ever is (the benches' unseen-face numbers depend on it)."""
+    subjects = set(load_model(default_file("nose_model.json")).training["subjects"])
+    assert set(SHAPE_TRAIN_SUBJECTS) <= subjects and set(CV_SUBJECTS) <= subjects
+    assert subjects.isdisjoint({*SHAPE_TUNE_SUBJECTS, *HOLDOUT_SUBJECTS, *OLD_HOLDOUT_SUBJECTS, *TEST_SUBJECTS})
