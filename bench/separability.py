@@ -11,7 +11,6 @@ only at the config's rho0, which it was trained for). Prints a table and writes 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from pathlib import Path
 
@@ -70,7 +69,7 @@ def main() -> int:
             bins = distance_bins(ds.distance_m)
             cells = {d: {"condition": condition, "subject": subject, "distance_m": d} for d in distances}
             for rho0 in rho0s:
-                features = dataclasses.replace(cfg.features, tuning_frequency_per_m=rho0)
+                features = cfg.features.tuned_to(rho0)
                 samples = extract_samples(ds, features, cfg.segmentation, args.workers)
                 model_eer = {}
                 if rho0 == cfg.features.tuning_frequency_per_m:

@@ -91,6 +91,18 @@ def test_feature_config_validates_when_constructed():
     assert FeatureConfig(patch_width_m=1.0, patch_height_m=1.0, grid_size=146).grid_nyquist_per_m == (73.0, 73.0)
 
 
+def test_a_config_tuned_higher_gets_the_least_grid_that_reaches_its_band():
+    base = FeatureConfig()
+    with pytest.raises(ValueError, match="band edge"):
+        FeatureConfig(tuning_frequency_per_m=40.0)  # the default grid falls short of that band
+    tuned = base.tuned_to(40.0)
+    assert tuned.tuning_frequency_per_m == 40.0 and tuned.grid_size > base.grid_size
+    assert min(tuned.grid_nyquist_per_m) >= tuned.band_edge_per_m  # it reaches the band edge ...
+    smaller = tuned.grid_size - 2
+    assert min(smaller / 2 / tuned.patch_width_m, smaller / 2 / tuned.patch_height_m) < tuned.band_edge_per_m
+    assert base.tuned_to(base.tuning_frequency_per_m) == base  # ... and no grid is raised that reaches it already
+
+
 def test_feature_config_validation_names_key():
     for key, value in [("grid_size", 63), ("cg_tolerance", 0.0), ("damping", -1.0), ("cg_max_iterations", 0),
                        ("patch_height_m", 0.0)]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal, get_args
 
 from tofd.algorithm.band import band_edge_per_m
@@ -134,7 +134,20 @@ class FeatureConfig:
             raise ValueError(f"grid_size: {self.grid_size} modes over a {self.patch_width_m:.3g} x "
                              f"{self.patch_height_m:.3g} m patch reach {reach:.1f} cycles/m, short of the filters' "
                              f"band edge {edge:.1f} cycles/m (raise grid_size to at least "
-                             f"{2 * math.ceil(edge * max(self.patch_width_m, self.patch_height_m))})")
+                             f"{least_grid_size(edge, self.patch_width_m, self.patch_height_m)})")
+
+    def tuned_to(self, tuning_frequency_per_m: float) -> FeatureConfig:
+        """This config with the filters tuned to `tuning_frequency_per_m` (cycles/m), its grid_size raised to the
+        least that reaches the new band edge where it falls short."""
+        edge = band_edge_per_m(tuning_frequency_per_m, self.lowpass_sigma_per_m)
+        return replace(self, tuning_frequency_per_m=tuning_frequency_per_m,
+                       grid_size=max(self.grid_size, least_grid_size(edge, self.patch_width_m, self.patch_height_m)))
+
+
+def least_grid_size(band_edge_per_m: float, patch_width_m: float, patch_height_m: float) -> int:
+    """The least even NFFT grid size whose Nyquist frequency over a patch of these sides (m) reaches the band edge
+    (cycles/m)."""
+    return 2 * math.ceil(band_edge_per_m * max(patch_width_m, patch_height_m))
 
 
 def recorded_feature_settings(recorded: dict) -> dict:
