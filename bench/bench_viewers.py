@@ -152,12 +152,13 @@ def viewers(cfg, kind: str, policy: str, rrd: Path) -> tuple[ViewerProcess | Non
     rerun = foxglove = None
     if kind in ("rerun", "both"):
         sink_cfg = replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd)))
-        # both (live): each frame sent at once, as to a live viewer, not batched as into a file
+        # both (live): each frame sent at once and handed off as to a watched viewer, not as into a file
         sends = 1 if kind == "both" else frames_per_send(sink_cfg.rerun, policy)
-        rerun = ViewerProcess(sink_cfg, "save", sends, hand_off_frames(policy), footer=file_footer(policy))
+        rerun = ViewerProcess(sink_cfg, "save", sends, hand_off_frames(policy, "web" if kind == "both" else "save"),
+                              footer=file_footer(policy))
     if kind in ("foxglove", "both"):
         fox_cfg = replace(cfg, foxglove=replace(cfg.foxglove, enabled=True, bind="127.0.0.1", port=0))
-        foxglove = ViewerProcess(fox_cfg, "foxglove", queue_frames=hand_off_frames(policy),
+        foxglove = ViewerProcess(fox_cfg, "foxglove", queue_frames=hand_off_frames(policy, "foxglove"),
                                  open_backend=FoxglovePublisher, name="foxglove")
     return rerun, foxglove
 

@@ -10,7 +10,7 @@ The shipped config/nose_model.json is trained, 40 frames each, on the five hand-
 the evaluation's test subject nor held out plus the drawn face shapes for training (tofd.lab.faces CV_SUBJECTS and
 SHAPE_TRAIN_SUBJECTS; never SHAPE_TUNE_SUBJECTS or the held-out ones): tofd train --train-subjects
 lps,mp,mp_broad,mp_chin,lps_flat,lps_s1,lps_s2,lps_s3,mp_s1,mp_s2,mp_s3 --train-frames 440 --out
-config/nose_model.json (bench/cross_mesh.py measures this recipe, both_shapes, against the five identities alone).
+config/nose_model.json (docs/ARCHITECTURE.md: how this recipe compares with the five identities alone).
 """
 
 from __future__ import annotations

@@ -131,12 +131,12 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             health = _health(cfg, made, metrics)
             if cfg.rerun.sink != "none":
                 viewer = ViewerProcess(cfg, cfg.rerun.sink, frames_per_send(cfg.rerun, policy),
-                                       hand_off_frames(policy), cancelled=lambda: bool(stop),
+                                       hand_off_frames(policy, cfg.rerun.sink), cancelled=lambda: bool(stop),
                                        footer=file_footer(policy))
             if cfg.foxglove.enabled:
                 from tofd.service.foxglove.publisher import FoxglovePublisher
 
-                foxglove = ViewerProcess(cfg, "foxglove", queue_frames=hand_off_frames(policy),
+                foxglove = ViewerProcess(cfg, "foxglove", queue_frames=hand_off_frames(policy, "foxglove"),
                                          cancelled=lambda: bool(stop),
                                          open_backend=FoxglovePublisher, name="foxglove")
             model = service_model(cfg, model_file)

@@ -48,15 +48,16 @@ CLOSE = b"close"
 POLL_S = 0.1  # seconds between checks of a start's `cancelled`
 IDLE_FLUSH_S = 0.25  # the viewer process sends its waiting batch after this long without a new frame
 VIEWER_NICE = 10  # the viewer process's niceness: on busy cores the feature workers go first
-QUEUE_FRAMES = 8  # a lossless run's slots: they absorb a viewer's pauses, the pipeline waits beyond them
-LIVE_QUEUE_FRAMES = 2  # a live run's: a viewer that falls behind shows frames at most this many frames late
+QUEUE_FRAMES = 8  # slots that absorb a viewer's pauses: a lossless run waits beyond them, a live one drops
+LIVE_QUEUE_FRAMES = 2  # a watched live viewer's: when it falls behind it shows frames at most this many frames late
 
 
-def hand_off_frames(policy: str) -> int:
-    """Slots between the pipeline and a viewer process for a run of `policy`: few for a live ("latest") run, so a
-    viewer that falls behind gets the latest frames rather than a backlog (the frames it cannot take are refused
-    and ledgered); more for a lossless one."""
-    return LIVE_QUEUE_FRAMES if policy == "latest" else QUEUE_FRAMES
+def hand_off_frames(policy: str, sink: str) -> int:
+    """Slots between the pipeline and a viewer process of `sink` ("save", "web", "spawn", "connect" or "foxglove")
+    in a run of `policy`: few for a viewer someone watches live ("latest"), so that one that falls behind gets the
+    latest frames rather than a backlog (the frames it cannot take are refused and ledgered); more for a lossless
+    run and for a file, the run's record, to which latency does not matter."""
+    return LIVE_QUEUE_FRAMES if policy == "latest" and sink != "save" else QUEUE_FRAMES
 
 
 class ViewerClosed(TypedDict):
