@@ -24,10 +24,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from report import add_model_arguments, shown_path, write_json
+from report import add_model_arguments, model_setup, shown_path, write_json
 
-from tofd.algorithm.detector import Candidates, Margin, NoseModel, load_model
-from tofd.config import load_config
+from tofd.algorithm.detector import NoseModel
 from tofd.drivers.emulator.render import FACE_NAMES
 from tofd.lab.conditions import CONDITIONS, parse_conditions
 from tofd.lab.evaluation import evaluate_model, extract_samples, train_model
@@ -67,11 +66,7 @@ def main() -> None:
     except ValueError as exc:
         raise SystemExit(f"cross_mesh: {exc}") from None
     start = time.monotonic()
-    cfg = load_config(args.config)
-    candidates = Candidates.from_config(cfg.detector, cfg.segmentation)
-    margin = Margin.from_config(cfg.detector)
-    shipped = load_model(args.model)
-    shipped.check_compatible(cfg.features, cfg.segmentation)
+    cfg, candidates, margin, shipped = model_setup(args)
     base = CV_SUBJECTS
     arms = {f"{SHORT[m]}_{kind}": subjects_on(subjects, m) for m in FACE_NAMES
             for kind, subjects in (("base", base), ("shapes", (*base, *SHAPE_TRAIN_SUBJECTS)))}

@@ -19,10 +19,8 @@ import argparse
 import time
 from pathlib import Path
 
-from report import add_model_arguments, shown_path, write_json
+from report import add_model_arguments, model_setup, shown_path, write_json
 
-from tofd.algorithm.detector import Candidates, Margin, load_model
-from tofd.config import load_config
 from tofd.lab.conditions import CONDITIONS, TRAIN_CONDITION
 from tofd.lab.evaluation import evaluate_model, extract_samples, train_model
 from tofd.lab.faces import (
@@ -51,11 +49,7 @@ def main() -> None:
                                                     "--condition heldout_<condition>.json)")
     args = parser.parse_args()
     start = time.monotonic()
-    cfg = load_config(args.config)
-    candidates = Candidates.from_config(cfg.detector, cfg.segmentation)
-    margin = Margin.from_config(cfg.detector)
-    shipped = load_model(args.model)
-    shipped.check_compatible(cfg.features, cfg.segmentation)
+    cfg, candidates, margin, shipped = model_setup(args)
     train_subjects = tuple(dict.fromkeys((*shipped.training.get("subjects", ()), *SHAPE_TRAIN_SUBJECTS)))
     if set(train_subjects) & {*HOLDOUT_SUBJECTS, *OLD_HOLDOUT_SUBJECTS}:
         raise SystemExit(f"heldout: {args.model} was trained on a held-out identity ({', '.join(train_subjects)})")

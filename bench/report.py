@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from tofd.algorithm.detector import NoseDetector
+    from tofd.algorithm.detector import Candidates, Margin, NoseDetector, NoseModel
     from tofd.config import Config
 
 
@@ -31,6 +31,17 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """--model (default: the shipped config/nose_model.json) and --config (default config/tofd.toml)."""
     parser.add_argument("--model", default=str(Path(__file__).parents[1] / "config" / "nose_model.json"))
     parser.add_argument("--config", default=None, help="config file (default config/tofd.toml)")
+
+
+def model_setup(args: argparse.Namespace) -> tuple[Config, Candidates, Margin, NoseModel]:
+    """The config of --config, its detector's candidates and margin test, and the --model file checked against it."""
+    from tofd.algorithm.detector import Candidates, Margin, load_model
+    from tofd.config import load_config
+
+    cfg = load_config(args.config)
+    model = load_model(args.model)
+    model.check_compatible(cfg.features, cfg.segmentation)
+    return cfg, Candidates.from_config(cfg.detector, cfg.segmentation), Margin.from_config(cfg.detector), model
 
 
 def add_sequence_arguments(parser: argparse.ArgumentParser) -> None:
