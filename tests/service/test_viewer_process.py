@@ -13,7 +13,13 @@ import numpy as np
 from tests.service.test_track_reporting import MISS, hit, result
 from tofd.config import Config
 from tofd.service.viewer import blueprint as bp
-from tofd.service.viewer.process import VIEWER_NICE, ViewerProcess
+from tofd.service.viewer.process import (
+    LIVE_QUEUE_FRAMES,
+    QUEUE_FRAMES,
+    VIEWER_NICE,
+    ViewerProcess,
+    hand_off_frames,
+)
 from tofd_testing.rrd_helpers import image_at, read_entities
 
 
@@ -78,3 +84,13 @@ def test_a_wait_for_a_busy_viewer_ends_when_cancelled(tmp_path):
     assert not refused and v.stalled
     assert 0.5 <= waited < 300.0, waited  # it waited until cancelled, not for the 600 s asked
     assert v.close(60.0)["exit"] == "clean"
+
+
+def test_a_watched_live_viewer_gets_the_short_hand_off_and_a_record_the_long_one():
+    """A live run's viewer someone watches holds at most LIVE_QUEUE_FRAMES (the latest, not a backlog); a file, the
+    run's record, and any lossless run keep QUEUE_FRAMES to absorb the viewer's pauses."""
+    assert LIVE_QUEUE_FRAMES < QUEUE_FRAMES
+    for sink in ("web", "spawn", "connect", "foxglove"):
+        assert hand_off_frames("latest", sink) == LIVE_QUEUE_FRAMES
+        assert hand_off_frames("lossless", sink) == QUEUE_FRAMES
+    assert hand_off_frames("latest", "save") == hand_off_frames("lossless", "save") == QUEUE_FRAMES
