@@ -84,8 +84,10 @@ def test_run_on_the_playback_device_puts_the_foreground_on_the_moving_sphere(rec
     assert summary["viewer"]["exit"] == "clean"
     _, table = read_entities(str(rrd))[bp.FOREGROUND]
     counters = table.column("frame").to_pylist()
-    # real time on a loaded machine: the SDK may skip frames, so the 40 taken reach further into the recording
-    assert len(counters) >= 3 and all(FIRST <= c < FIRST + N_FRAMES for c in counters), counters
+    # real time on a loaded machine: the SDK may skip frames, so the 40 taken reach further into the recording, and
+    # the pipeline and the best-effort viewer drop what they cannot take in time (a quiet machine logs about 30)
+    assert 1 <= len(counters) == summary["viewer"]["frames"], (counters, summary["viewer"])
+    assert all(FIRST <= c < FIRST + N_FRAMES for c in counters), counters
     column = table.column("Points3D:positions")
     for row, counter in enumerate(counters):
         scene = SCENES[counter - FIRST]
