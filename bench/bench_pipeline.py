@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 from cameras import CAMERAS, MemoryCamera, write_face_clip
 from proc_stats import cpu_s, own_thread_cpu_s, rss_mb
-from report import write_json
+from report import run_to_end, write_json
 
 from tofd.config import load_config
 from tofd.drivers.emulator.backend import open_emulated_camera
@@ -207,12 +207,7 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     sampler = threading.Thread(target=sample, daemon=True)
     pipeline.start(source, max_frames)
     sampler.start()
-    t0 = time.monotonic()
-    if duration_s is not None:
-        time.sleep(duration_s)
-        pipeline.stop()
-    pipeline.wait()
-    elapsed = time.monotonic() - t0
+    elapsed = run_to_end(pipeline, duration_s)
     stop_sampling.set()
     usage = per_process(pipeline, viewer, lat, rss_each)
     summary = pipeline.close()

@@ -47,7 +47,7 @@ import numpy as np
 import websocket
 from bench_pipeline import CLIP, Latencies, with_detector
 from cameras import CAMERAS, FRAME_PERIOD_US, SENSOR_MODELS, MemoryCamera, range_noise_mm, write_face_clip
-from report import write_json
+from report import run_to_end, write_json
 
 from tofd.config import load_config
 from tofd.drivers.recording.replay import ReplaySource
@@ -176,12 +176,7 @@ def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: flo
     pipeline.start(source, frames)
     if client is not None:
         client.reset()
-    t0 = time.monotonic()
-    if seconds is not None:
-        time.sleep(seconds)
-        pipeline.stop()
-    pipeline.wait()
-    elapsed = time.monotonic() - t0
+    elapsed = run_to_end(pipeline, seconds)
     summary = pipeline.close()
     out: dict = {"frames_out": summary["frames_out"], "seconds": round(elapsed, 2),
                  "fps": round(lat.steady_fps() or summary["frames_out"] / elapsed, 2),

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from tofd.algorithm.detector import Candidates, Margin, NoseDetector, NoseModel
     from tofd.config import Config
+    from tofd.service.pipeline import Pipeline
 
 
 def write_json(path: str | Path, results: dict) -> Path:
@@ -25,6 +27,16 @@ def shown_path(path: str | Path) -> str:
     """A path as results show it: relative to the repository when inside it (no machine's checkout in the docs)."""
     resolved, root = Path(path).resolve(), Path(__file__).resolve().parents[1]
     return str(resolved.relative_to(root)) if resolved.is_relative_to(root) else str(path)
+
+
+def run_to_end(pipeline: Pipeline, seconds: float | None) -> float:
+    """Seconds from now until the started `pipeline` ends: at its source's end, or stopped after `seconds`."""
+    t0 = time.monotonic()
+    if seconds is not None:
+        time.sleep(seconds)
+        pipeline.stop()
+    pipeline.wait()
+    return time.monotonic() - t0
 
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:

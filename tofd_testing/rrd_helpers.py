@@ -38,6 +38,12 @@ def read_entities(path):
     return tables
 
 
+def foreground_clouds(path):
+    """The .rrd's foreground clouds in frame order: one (N, 3) float64 array of camera-frame points (m) a frame."""
+    _, table = read_entities(str(path))[bp.FOREGROUND]
+    return [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in table.column("Points3D:positions").to_pylist()]
+
+
 def image_at(table, archetype, row):
     fmt = table.column(f"{archetype}:format")[row].as_py()[0]
     blob = table.column(f"{archetype}:buffer")[row].values[0].values

@@ -22,7 +22,7 @@ from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import iter_frames
 from tofd_testing.k4a_helpers import CALIBRATION_JSON, K4A, k4a_libraries
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config, rejected_counters
-from tofd_testing.rrd_helpers import read_entities
+from tofd_testing.rrd_helpers import foreground_clouds
 from tofd_testing.wide_fov import SPHERE_RADIUS_M, sphere_before_wall
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -267,8 +267,7 @@ def test_wfov_recording_segments_the_near_sphere_in_every_frame(k4a, tmp_path):
     proc = tofd("replay", path, "--out", out, "--config",
                 bundled_config(tmp_path / "tofd.toml", pipeline=PATIENT_VIEWER))
     assert proc.returncode == 0, proc.stderr
-    _, table = read_entities(str(out / "wfov.rrd"))["/world/foreground"]
-    clouds = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in table.column("Points3D:positions").to_pylist()]
+    clouds = foreground_clouds(out / "wfov.rrd")
     assert len(clouds) == 30
     for points, scene in zip(clouds, scenes, strict=True):
         off = np.abs(np.linalg.norm(points - scene.centre, axis=1) - SPHERE_RADIUS_M)
@@ -328,8 +327,7 @@ def test_a_sphere_in_the_distorted_corner_comes_back_on_the_sphere(k4a, tmp_path
     proc = tofd("replay", path, "--out", out, "--config",
                 bundled_config(tmp_path / "tofd.toml", pipeline=PATIENT_VIEWER))
     assert proc.returncode == 0, proc.stderr
-    _, table = read_entities(str(out / "sphere.rrd"))["/world/foreground"]
-    clouds = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in table.column("Points3D:positions").to_pylist()]
+    clouds = foreground_clouds(out / "sphere.rrd")
     assert len(clouds) == 3 and all(len(c) > 500 for c in clouds)
     points = np.concatenate(clouds)
     off = np.abs(np.linalg.norm(points - centre, axis=1) - radius)
