@@ -34,6 +34,12 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def _read_bag(path):
+    """(frame counters read, counters lost, the damage named) of a RosbagSource over the bag at `path`."""
+    with RosbagSource(path, RangeOptions()) as source:
+        return [f.frame_counter for f in source], rejected_counters(source), source.bag.damage
+
+
 # ---------------------------------------------------------------- the ledger
 
 def test_the_ledger_keeps_ranges_and_its_summary_stays_small():
@@ -110,10 +116,7 @@ def test_a_ros1_chunk_bomb_is_damage_where_it_starts_and_never_decompressed_whol
                     chunk_bytes=1 << 10, compression=compression)
     bomb = ros1_chunk_bomb(bag, tmp_path / "bomb.bag", 24 << 20)
     before = _peak_rss_mb()
-    with RosbagSource(bomb, RangeOptions()) as source:
-        got = [f.frame_counter for f in source]
-        lost = rejected_counters(source)
-        damage = source.bag.damage
+    got, lost, damage = _read_bag(bomb)
     assert got == [f.frame_counter for f in frames[:len(got)]] and len(got) >= 4
     assert lost == [len(got)] and "decompresses to more than 4194304 bytes" in damage
     assert _peak_rss_mb() - before < 20  # 24 MiB if the chunk were decompressed whole
@@ -125,10 +128,7 @@ def test_a_ros2_mcap_chunk_bomb_is_damage_where_it_starts_and_never_decompressed
     (original,) = write_frames_bag(tmp_path, "mcap", frames).glob("*.mcap")
     bomb = mcap_chunk_bomb(original, tmp_path / "bomb.mcap", 24 << 20)
     before = _peak_rss_mb()
-    with RosbagSource(bomb, RangeOptions()) as source:
-        got = [f.frame_counter for f in source]
-        lost = rejected_counters(source)
-        damage = source.bag.damage
+    got, lost, damage = _read_bag(bomb)
     assert got + lost == [f.frame_counter for f in frames] and len(got) >= 4  # the frames before the bomb
     assert "decompresses to more than 4194304 bytes" in damage
     assert _peak_rss_mb() - before < 20  # 24 MiB if the chunk were decompressed whole
@@ -143,9 +143,7 @@ def test_a_cut_sqlite_bag_claiming_gigabytes_of_pages_is_read_as_the_pages_it_ha
     sqlite_page_claim(db3, cut / db3.name, 0.6, 2 << 30)
     shutil.copy(bag / "metadata.yaml", cut / "metadata.yaml")
     before = _peak_rss_mb()
-    with RosbagSource(cut, RangeOptions()) as source:
-        got = [f.frame_counter for f in source]
-        damage = source.bag.damage
+    got, _, damage = _read_bag(cut)
     assert got == [f.frame_counter for f in frames[:len(got)]] and 1 <= len(got) < len(frames)
     assert damage and "sqlite3" in damage
     assert _peak_rss_mb() - before < 50  # 2 GiB if padded to the claim
