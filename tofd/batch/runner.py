@@ -98,8 +98,10 @@ def run_plan(client: Client, inputs: list[InputPlan], job: dict, out: str, diges
     if todo:
         client.register_plugin(PrepareWorker())
     setup_s = time.perf_counter() - t_setup
-    job_future = client.scatter(json.dumps(job), broadcast=True) if todo else None
-    futures = {client.submit(run_partition, p.to_json(), job_future, key=f"tofd-batch-{_key(p)}",
+    # the job (config and model, a few kB) goes with each task: a broadcast scatter can wait forever on a worker
+    # that is still starting or has just died (dask/distributed#4907)
+    job_json = json.dumps(job)
+    futures = {client.submit(run_partition, p.to_json(), job_json, key=f"tofd-batch-{_key(p)}",
                              retries=options.retries, pure=False): p for p in todo}
     t_submit = time.perf_counter()
     for future in as_completed(futures):
