@@ -1,11 +1,13 @@
 """Robustness matrix of a nose model: held-out identities x unseen sensor conditions x nose distances.
 
 Drives tofd.lab.robustness (conditions: tofd.lab.conditions; identities: tofd.lab.faces.HOLDOUT_SUBJECTS, never
-trained or tuned on). Prints, per variant, a condition x distance table of the worst cell over subjects and the
-worst cell overall; writes everything as JSON.
+trained or tuned on, or --subjects). Prints, per variant, a condition x distance table of the worst cell over subjects
+and the worst cell overall; writes everything as JSON.
 
     .venv/bin/python bench/robustness.py [--model config/nose_model.json] [--frames 60] [--conditions all]
                                          [--distances 0.6,0.65,0.7] [--variants nfft_range,fft_range] [--seed 1000]
+    .venv/bin/python bench/robustness.py --subjects mp_bignose,lps_smallnose \
+                                         --out bench/results/robustness_old_holdout.json
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from report import add_model_arguments, shown_path, write_json
 from tofd.algorithm.detector import VARIANTS, Candidates, Margin, load_model
 from tofd.config import load_config
 from tofd.lab.conditions import parse_conditions
+from tofd.lab.faces import HOLDOUT_SUBJECTS, OLD_HOLDOUT_SUBJECTS, check_subjects
 from tofd.lab.robustness import MATRIX_VARIANTS, MatrixSpec, condition_table, run_matrix, summarize
 
 ABOUT = ("Shipped model, held-out identities (never trained or tuned on) x sensor conditions training never saw "
@@ -37,6 +40,9 @@ def main() -> int:
                         help="nose distances in metres (default: the test distances, tofd.lab.faces)")
     parser.add_argument("--variants", default=",".join(MATRIX_VARIANTS),
                         help=f"comma-separated detector variants (of {', '.join(VARIANTS)})")
+    parser.add_argument("--subjects", default=",".join(HOLDOUT_SUBJECTS),
+                        help="identities, comma-separated (default: the held-out ones; "
+                             f"{','.join(OLD_HOLDOUT_SUBJECTS)}: the old held-out variants)")
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "robustness.json"))
@@ -45,6 +51,12 @@ def main() -> int:
         spec = MatrixSpec(conditions=parse_conditions(args.conditions), frames=args.frames, seed=args.seed)
     except ValueError as exc:
         raise SystemExit(f"robustness: --conditions: {exc}") from None
+    subjects = tuple(s.strip() for s in args.subjects.split(",") if s.strip())
+    try:
+        check_subjects(subjects)
+    except ValueError as exc:
+        raise SystemExit(f"robustness: --subjects: {exc}") from None
+    spec = dataclasses.replace(spec, subjects=subjects)
     variants = tuple(args.variants.split(","))
     if unknown := [v for v in variants if v not in VARIANTS]:
         raise SystemExit(f"robustness: --variants: unknown {', '.join(unknown)} (known: {', '.join(VARIANTS)})")

@@ -117,16 +117,7 @@ class FoxglovePublisher:
         for name in SDK_LOGGERS:  # before the server starts, so its first lines go the same way
             limit_library_lines(name, "foxglove SDK: ")
         self.intrinsics = intrinsics = cfg.intrinsics
-        self.context = foxglove.Context()  # our channels only: another server in this process sees none of them
-        try:
-            self.server = foxglove.start_server(name="tofd", host=fc.bind, port=fc.port, context=self.context,
-                                                message_backlog_size=fc.backlog_messages)
-        except Exception as exc:  # the SDK raises its own error type for a port in use
-            raise RuntimeError(f"foxglove: cannot listen on {fc.bind}:{fc.port} (foxglove.bind / foxglove.port): "
-                               f"{exc}") from None
-        host = "127.0.0.1" if fc.bind in ("0.0.0.0", "") else fc.bind
-        self.web_url = f"ws://{host}:{self.server.port}"
-        ctx = self.context
+        self.context = ctx = foxglove.Context()  # our channels only: another server in this process sees none
         self.images = {topic: CompressedImageChannel(topic, context=ctx) for topic in (t.AMPLITUDE, t.MASK)}
         self.features = {name: CompressedImageChannel(topic, context=ctx, metadata=t.FEATURE_METADATA)
                          for name, topic in t.FEATURES.items()}
@@ -143,6 +134,16 @@ class FoxglovePublisher:
         self._ray_z = np.ascontiguousarray(self._rays[:, 2].reshape(intrinsics.shape))
         self._fields = [PackedElementField(name=name, offset=4 * i, type=PackedElementFieldNumericType.Float32)
                         for i, name in enumerate(CLOUD_FIELDS)]
+        # the server after the channels: the SDK advertises a channel opened while a client is connected a moment
+        # before it accepts subscriptions to it (the range channel, opened at the first frame, still is)
+        try:
+            self.server = foxglove.start_server(name="tofd", host=fc.bind, port=fc.port, context=ctx,
+                                                message_backlog_size=fc.backlog_messages)
+        except Exception as exc:  # the SDK raises its own error type for a port in use
+            raise RuntimeError(f"foxglove: cannot listen on {fc.bind}:{fc.port} (foxglove.bind / foxglove.port): "
+                               f"{exc}") from None
+        host = "127.0.0.1" if fc.bind in ("0.0.0.0", "") else fc.bind
+        self.web_url = f"ws://{host}:{self.server.port}"
 
     def __call__(self, r: FrameResult) -> None:
         wall_s = time.time() - (time.monotonic() - r.arrival_s)  # arrival_s: this host's monotonic clock
