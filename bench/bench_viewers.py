@@ -69,23 +69,24 @@ from tofd.service.viewer.encoding import (
 from tofd.service.viewer.logger import frames_per_send
 from tofd.service.viewer.process import ViewerProcess, hand_off_frames
 from tofd.service.viewer.targets import file_footer
-from tofd_testing.foxglove_client import RESUBSCRIBE_S, UNKNOWN_CHANNEL
+from tofd_testing.foxglove_client import MESSAGE_DATA, connect, refused_channel
 
 KINDS = ("none", "rerun", "foxglove")
 LIVE_FPS = 1e6 / FRAME_PERIOD_US
-SUBPROTOCOL = "foxglove.sdk.v1"
-MESSAGE_DATA = 0x01  # Foxglove WebSocket binary opcode: subscription id (uint32 LE), log time (uint64 LE), payload
+CONNECT_TIMEOUT_S = 60.0  # the Foxglove server listens from the pipeline's first frame on
 ROTATE_MB, KEEP_FILES = 2000.0, 24  # the [rerun] rotation docs/ARCHITECTURE.md suggests for a run of days
 
 
 class CountingClient:
-    """A Foxglove WebSocket client subscribed to every channel (advertised now or later) on a thread, counting the
-    messages and payload bytes it receives per topic. A subscription the server refuses as to an unknown channel
-    that it did advertise is made again (the SDK can advertise a channel opened while a client is connected a
-    moment before it accepts subscriptions to it)."""
+    """A Foxglove WebSocket client on a thread: it connects (once the server listens), subscribes to every channel
+    (advertised now or later) and counts the messages and payload bytes it receives per topic; `refused` counts
+    subscriptions the server refused to channels it advertised."""
 
     def __init__(self, url: str):
-        self.ws = websocket.create_connection(url, subprotocols=[SUBPROTOCOL], timeout=10)
+        self.url = url
+        self.ws: websocket.WebSocket | None = None
+        self.connected = threading.Event()
+        self.refused = 0
         self.topics: dict[int, str] = {}  # channel id -> topic
         self._subscriptions: dict[int, str] = {}  # subscription id -> topic
         self.messages: dict[str, int] = {}
@@ -97,10 +98,12 @@ class CountingClient:
         self._thread.start()
 
     def _read(self) -> None:
-        self.ws.settimeout(0.5)
+        self.ws = ws = connect(self.url, CONNECT_TIMEOUT_S)
+        ws.settimeout(0.5)
+        self.connected.set()
         while not self._stop.is_set():
             try:
-                data = self.ws.recv()
+                data = ws.recv()
             except websocket.WebSocketTimeoutException:
                 continue
             except (websocket.WebSocketConnectionClosedException, ConnectionError, OSError):
@@ -111,10 +114,7 @@ class CountingClient:
                     fresh = {c["id"]: c["topic"] for c in msg["channels"]}
                     self.topics.update(fresh)
                     self._subscribe(list(fresh))
-                refused = UNKNOWN_CHANNEL.search(msg.get("message", "")) if msg.get("op") == "status" else None
-                if refused and int(refused.group(1)) in self.topics:
-                    time.sleep(RESUBSCRIBE_S)  # the SDK had not registered the channel it advertised yet
-                    self._subscribe([int(refused.group(1))])
+                self.refused += refused_channel(msg) in self.topics
             elif data and data[0] == MESSAGE_DATA:
                 topic = self._subscriptions[struct.unpack_from("<I", data, 1)[0]]
                 self.received_ns[struct.unpack_from("<Q", data, 5)[0]] = time.time_ns()
@@ -127,10 +127,13 @@ class CountingClient:
         for channel in channels:
             self._subscriptions[len(self._subscriptions)] = self.topics[channel]
             subscriptions.append({"id": len(self._subscriptions) - 1, "channelId": channel})
+        assert self.ws is not None
         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
 
     def reset(self) -> None:
-        """Count from now on."""
+        """Count from now on (once connected: the server listens from the first frame on)."""
+        if not self.connected.wait(CONNECT_TIMEOUT_S):
+            raise RuntimeError(f"the Foxglove server at {self.url} did not listen in {CONNECT_TIMEOUT_S:g} s")
         self.messages, self.bytes, self.received_ns, self.started_s = {}, {}, {}, time.monotonic()
 
     def latencies_ms(self) -> np.ndarray:
@@ -143,7 +146,8 @@ class CountingClient:
         seconds = time.monotonic() - self.started_s
         self._stop.set()
         self._thread.join(5)
-        self.ws.close()
+        if self.ws is not None:
+            self.ws.close()
         return seconds
 
 
@@ -185,7 +189,7 @@ def run(cfg, source, kind: str, policy: str, *, frames: int | None, seconds: flo
     if client is not None:
         counted_s = client.close()
         out["client"] = {"seconds": round(counted_s, 2), "messages": client.messages, "bytes": client.bytes,
-                         "latency_ms": client.latencies_ms()}
+                         "latency_ms": client.latencies_ms(), "refused_subscriptions": client.refused}
     out["viewer_reports"] = [v.close(60.0) for v in (viewer, foxglove) if v is not None]
     if viewer is not None:
         out["rrd"] = str(rrd)
@@ -373,6 +377,7 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
         "foxglove_frame_bytes": frame_bytes,  # a published frame: every topic's mean message
         "foxglove_MB_per_s_at_30fps": round(frame_bytes * LIVE_FPS / 1e6, 2),
         "foxglove_topics": fox_topics,
+        "foxglove_refused_subscriptions": client["refused_subscriptions"],  # to channels it advertised
         "live_both_viewers": both,
     }
 

@@ -17,10 +17,26 @@ from google.protobuf import descriptor_pb2
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # binary opcode: subscription id (uint32 LE), log time (uint64 LE ns), payload
 UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)")  # the server's status message refusing a subscription
-RESUBSCRIBE_S = 0.05
-"""foxglove-sdk 0.30 can advertise a channel opened while a client is connected a moment before it accepts
-subscriptions to it (the range channel opens at the first frame): a refused subscription to an advertised channel
-is made again after this wait."""
+CONNECT_RETRY_S = 0.01  # tofd's server listens from the first frame on: until then a connection is refused
+
+
+def connect(url: str, timeout_s: float) -> websocket.WebSocket:
+    """A WebSocket connection to a Foxglove server at `url` with its subprotocol, tried again while refused (the
+    server not listening yet) for up to `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return websocket.create_connection(url, subprotocols=[SUBPROTOCOL], timeout=timeout_s)
+        except ConnectionRefusedError:
+            if time.monotonic() >= deadline:
+                raise
+            time.sleep(CONNECT_RETRY_S)
+
+
+def refused_channel(msg: dict) -> int | None:
+    """The channel id a server status message says a subscription was refused for (None: not such a message)."""
+    refused = UNKNOWN_CHANNEL.search(msg.get("message", "")) if msg.get("op") == "status" else None
+    return None if refused is None else int(refused.group(1))
 
 
 def wait_for_url(stream, pattern: str = r"foxglove: (ws://\S+)") -> tuple[str, list[str]]:
@@ -48,7 +64,7 @@ class Client:
     server_info: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.ws = websocket.create_connection(self.url, subprotocols=[SUBPROTOCOL], timeout=self.timeout_s)
+        self.ws = connect(self.url, self.timeout_s)
         self.subprotocol = self.ws.getsubprotocol()
         deadline = time.monotonic() + self.timeout_s
         while not self.channels and time.monotonic() < deadline:
@@ -58,23 +74,14 @@ class Client:
             elif msg["op"] == "advertise":
                 self.channels.update({c["id"]: c for c in msg["channels"]})
 
-    def wait_for(self, topics: set[str], seconds: float | None = None) -> None:
-        """Read advertisements until every topic of `topics` is advertised (a channel opened at the first frame)."""
-        deadline = time.monotonic() + (seconds or self.timeout_s)
-        while missing := topics - {c["topic"] for c in self.channels.values()}:
-            assert time.monotonic() < deadline, f"not advertised: {missing}"
-            msg = self.ws.recv()
-            if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
-                self.channels.update({c["id"]: c for c in json.loads(msg)["channels"]})
-
     def subscribe(self, topics: list[str] | None = None) -> None:
         """Subscribe to `topics` (all advertised when None); subscription id = channel id."""
         ids = [cid for cid, c in self.channels.items() if topics is None or c["topic"] in topics]
         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": i} for i in ids]}))
 
     def read(self, seconds: float, until: callable = lambda got: False) -> dict[str, list[tuple[int, object]]]:
-        """Topic -> [(log time ns, decoded message)] received for `seconds` (or until `until(got)`); a subscription
-        the server refused to a channel it advertised is made again (RESUBSCRIBE_S)."""
+        """Topic -> [(log time ns, decoded message)] received for `seconds` (or until `until(got)`); AssertionError
+        if the server refused a subscription to a channel it advertised."""
         got: dict[str, list[tuple[int, object]]] = {}
         deadline = time.monotonic() + seconds
         self.ws.settimeout(0.5)
@@ -86,11 +93,8 @@ class Client:
             except (websocket.WebSocketConnectionClosedException, ConnectionError):
                 break
             if isinstance(data, str):
-                msg = json.loads(data) if data.startswith("{") else {}
-                refused = UNKNOWN_CHANNEL.search(msg.get("message", "")) if msg.get("op") == "status" else None
-                if refused and int(refused.group(1)) in self.channels:
-                    time.sleep(RESUBSCRIBE_S)
-                    self.subscribe([self.channels[int(refused.group(1))]["topic"]])
+                refused = refused_channel(json.loads(data) if data.startswith("{") else {})
+                assert refused not in self.channels, f"subscription to advertised channel {refused} refused"
                 continue
             if data[0] != MESSAGE_DATA:
                 continue

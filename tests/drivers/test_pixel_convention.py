@@ -50,12 +50,14 @@ def test_rerun_pinhole_and_nose_points_share_the_corner_origin(tmp_path):
 def test_foxglove_annotations_use_the_corner_origin_and_the_calibration_ros_centres(tmp_path):
     publisher = FoxglovePublisher(parse_foxglove_spec("127.0.0.1:0", Config()))
     try:
+        tracker = NoseTracker()
+        results = [result(k, det, tracker.update(det, k * 0.04)) for k, det in enumerate(DETECTIONS)]
+        publisher(results[0])  # the server listens from the first frame on
         client = Client(publisher.web_url)
         client.subscribe([t.NOSE, t.CALIBRATION])
         client.read(0.5)  # the subscriptions are in
-        tracker = NoseTracker()
-        for k, det in enumerate(DETECTIONS):
-            publisher(result(k, det, tracker.update(det, k * 0.04)))
+        for r in results:
+            publisher(r)
         got = client.read(10, until=lambda got: len(got.get(t.NOSE, [])) == len(DETECTIONS))
         client.close()
     finally:

@@ -14,6 +14,7 @@ import numpy as np
 import psutil
 import pytest
 
+from tests.service.test_track_reporting import result
 from tofd.config import Config, ConfigError
 from tofd.drivers.recording.reader import read_recording_info
 from tofd.drivers.recording.replay import iter_frames
@@ -60,7 +61,8 @@ def test_replay_streams_every_topic_to_a_plain_websocket_client(tmp_path):
         assert url.startswith("ws://127.0.0.1:")
         client = Client(url)
         assert client.subprotocol == SUBPROTOCOL
-        client.wait_for(set(t.SCHEMAS))  # the range's channel opens at the first frame
+        # the server listens once every channel is open (the range's at the first frame): a client that connects
+        # at once is told of them all in its first advertisement, and no subscription of it is refused (read)
         advertised = {c["topic"]: c for c in client.channels.values()}
         assert set(advertised) == set(t.SCHEMAS)
         for topic, schemas in t.SCHEMAS.items():
@@ -195,8 +197,7 @@ def test_a_stalled_client_and_fifty_connections_cost_the_pipeline_nothing(tmp_pa
         url, _ = wait_for_url(proc.stderr)
         stalled = Client(url)
         stalled.ws.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        stalled.wait_for(set(t.SCHEMAS))  # the range's channel opens at the first frame
-        stalled.subscribe()  # and never reads again
+        stalled.subscribe()  # every channel (all advertised at connection), and never reads again
         first = Client(url)
         first.subscribe([t.RANGE])
         assert first.read(30, until=lambda got: len(got.get(t.RANGE, [])) >= 10)[t.RANGE]
@@ -305,6 +306,7 @@ def test_a_clients_bad_request_makes_a_few_prefixed_log_lines_not_one_per_item()
     logging.getLogger().addHandler(tofd_log)
     publisher = FoxglovePublisher(parse_foxglove_spec("127.0.0.1:0", Config()))
     try:
+        publisher(result(0, None, None))  # the server listens from the first frame on
         client = Client(publisher.web_url)
         client.ws.send(json.dumps({"op": "subscribe",
                                    "subscriptions": [{"id": i, "channelId": 9999} for i in range(1000)]}))

@@ -5,6 +5,9 @@ each subscribed client, at most `[foxglove] backlog_messages` per client (about 
 the client's oldest when its queue is full, so a slow client gets the latest frames, not a backlog; a log call
 never waits for a client. A message is only made for a channel some client subscribed to (Channel.has_sinks).
 The viewer process around it (tofd.service.viewer.process) keeps the pipeline from ever waiting on this one.
+The server listens from the first frame on, with every channel open (the range's form is the first frame's): a
+client that connects earlier is refused and reconnects, as Foxglove does, rather than miss a channel; its address
+(port 0: one the system had free) is known, and checked, at start.
 
 Per frame (topics.py): range (a 16-bit PNG in the source's unit where that is exact, else float metres),
 amplitude for viewing as an 8-bit JPEG with its scale (encoding.amplitude_u8), the mask as PNG, the calibration,
@@ -17,6 +20,7 @@ timestamp and log time. The SDK's own log lines go to tofd's log, prefixed and l
 from __future__ import annotations
 
 import logging
+import socket
 import threading
 import time
 
@@ -98,6 +102,15 @@ def _image(stamp: Timestamp, plane: np.ndarray, encoding: str) -> RawImage:
                                       encoding=encoding, step=width * plane.itemsize, data=plane.tobytes())
 
 
+def listen_port(bind: str, port: int) -> int:
+    """The port to listen on at `bind`: `port`, or for 0 one the system has free; OSError when it cannot be bound
+    (an address not of this host, a port in use)."""
+    with socket.socket(socket.AF_INET6 if ":" in bind else socket.AF_INET) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a server binds: TIME_WAIT does not count
+        probe.bind((bind, port))
+        return int(probe.getsockname()[1])
+
+
 def calibration(intrinsics: Intrinsics, stamp: Timestamp) -> CameraCalibration:
     """The camera's CameraCalibration (no distortion): K and P in ROS's convention, (0, 0) the top-left pixel's
     centre, as tofd's intrinsics and recordings."""
@@ -110,7 +123,8 @@ def calibration(intrinsics: Intrinsics, stamp: Timestamp) -> CameraCalibration:
 
 class FoxglovePublisher:
     """A viewer process's backend (viewer.process.ViewerBackend): the Foxglove WebSocket server on
-    cfg.foxglove's address and one channel per topic; call it with each frame."""
+    cfg.foxglove's address (`web_url`; listening from the first frame on) and one channel per topic; call it with
+    each frame."""
 
     def __init__(self, cfg: Config, sink: str = "foxglove", batch_frames: int = 1, footer: bool = False):
         fc = cfg.foxglove
@@ -134,16 +148,26 @@ class FoxglovePublisher:
         self._ray_z = np.ascontiguousarray(self._rays[:, 2].reshape(intrinsics.shape))
         self._fields = [PackedElementField(name=name, offset=4 * i, type=PackedElementFieldNumericType.Float32)
                         for i, name in enumerate(CLOUD_FIELDS)]
-        # the server after the channels: the SDK advertises a channel opened while a client is connected a moment
-        # before it accepts subscriptions to it (the range channel, opened at the first frame, still is)
+        self._fc = fc
+        self.server: foxglove.WebSocketServer | None = None  # started at the first frame, after its range channel
         try:
-            self.server = foxglove.start_server(name="tofd", host=fc.bind, port=fc.port, context=ctx,
+            self._port = listen_port(fc.bind, fc.port)
+        except OSError as exc:
+            raise RuntimeError(f"foxglove: cannot listen on {fc.bind}:{fc.port} (foxglove.bind / foxglove.port): "
+                               f"{exc.strerror or exc}") from None
+        host = "127.0.0.1" if fc.bind in ("0.0.0.0", "") else fc.bind
+        self.web_url = f"ws://{host}:{self._port}"
+
+    def _start_server(self) -> None:
+        """Listen (at the first frame, every channel open): the SDK advertises a channel opened while a client is
+        connected a moment before it takes subscriptions to it, and the range's form is the first frame's."""
+        fc = self._fc
+        try:
+            self.server = foxglove.start_server(name="tofd", host=fc.bind, port=self._port, context=self.context,
                                                 message_backlog_size=fc.backlog_messages)
         except Exception as exc:  # the SDK raises its own error type for a port in use
-            raise RuntimeError(f"foxglove: cannot listen on {fc.bind}:{fc.port} (foxglove.bind / foxglove.port): "
+            raise RuntimeError(f"foxglove: cannot listen on {fc.bind}:{self._port} (foxglove.bind / foxglove.port): "
                                f"{exc}") from None
-        host = "127.0.0.1" if fc.bind in ("0.0.0.0", "") else fc.bind
-        self.web_url = f"ws://{host}:{self.server.port}"
 
     def __call__(self, r: FrameResult) -> None:
         wall_s = time.time() - (time.monotonic() - r.arrival_s)  # arrival_s: this host's monotonic clock
@@ -152,6 +176,8 @@ class FoxglovePublisher:
         frame = r.frame
         if self.range is None:
             self._open_range(r)
+        if self.server is None:
+            self._start_server()
         assert self.range is not None
         # in rising importance: a slow client's full queue drops its oldest messages first
         if self.transform.has_sinks():
@@ -269,6 +295,8 @@ class FoxglovePublisher:
         """Stop the server (its clients are disconnected) within `timeout_s`: the SDK's stop() waits for every
         client's closing handshake, which a client that does not read never completes, so it runs on a thread
         that is left behind (the viewer process ends with os._exit, which does not wait for it)."""
+        if self.server is None:
+            return
         stopping = threading.Thread(target=self.server.stop, name="foxglove-stop", daemon=True)
         stopping.start()
         stopping.join(min(timeout_s, STOP_WAIT_S))
