@@ -332,3 +332,16 @@ def test_limited_lines_lets_a_burst_through_per_interval_and_counts_the_rest():
     time.sleep(0.25)  # a new interval: its first line says how many were left out
     assert limited.filter(records[5])
     assert records[5].getMessage() == "lib: item 5 (3 more lines left out before this one)"
+
+
+def test_a_port_in_use_or_an_address_not_here_is_refused_at_start_not_at_the_first_frame():
+    from tofd.service.foxglove.publisher import FoxglovePublisher
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        with pytest.raises(RuntimeError, match=rf"cannot listen on 127.0.0.1:{port} \(foxglove.bind / foxglove.port\)"):
+            FoxglovePublisher(parse_foxglove_spec(f"127.0.0.1:{port}", Config()))
+    with pytest.raises(RuntimeError, match=r"cannot listen on 192.0.2.1:0"):  # TEST-NET-1: no host's own address
+        FoxglovePublisher(parse_foxglove_spec("192.0.2.1:0", Config()))
