@@ -154,7 +154,8 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             if viewer is not None and viewer.web_url:
                 log.info("web viewer: %s", viewer.web_url)
             if foxglove is not None and foxglove.web_url:
-                log.info("foxglove: %s (Foxglove: Open connection, Foxglove WebSocket)", foxglove.web_url)
+                log.info("foxglove: %s (Foxglove: Open connection, Foxglove WebSocket; listening from the first frame "
+                         "on)", foxglove.web_url)
             supervise(pipeline, stop, progress)
             if not stop:
                 pipeline.wait(pc.drain_timeout_s)
