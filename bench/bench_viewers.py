@@ -58,14 +58,14 @@ from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline, maps_read
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.encoding import (
-    JPEG_QUALITY,
-    PNG_PARAMS,
     amplitude_u8,
     amplitude_u16,
     in_units,
+    jpeg,
     source_unit_m,
     z_depth_m,
 )
+from tofd.service.viewer.encoding import png as tofd_png
 from tofd.service.viewer.logger import frames_per_send
 from tofd.service.viewer.process import ViewerProcess, hand_off_frames
 from tofd.service.viewer.targets import file_footer
@@ -297,9 +297,10 @@ def timed(encode, repeats: int = 7) -> tuple[int, float]:
 
 def encodings(clip: Path) -> dict:
     """Bytes and ms of the clip's first frame's planes in the codecs the viewers could use: the depth (its source's
-    integers, when whole) as 16-bit PNG at zlib levels 1, 3, 6 with the run-length (tofd's) and default strategies;
-    the amplitude as lossless 16-bit PNG, 8-bit PNG and 8-bit JPEG; tofd's depth and amplitude encoded one after
-    the other and on two threads (cv2 releases the GIL)."""
+    integers, when whole) as 16-bit PNG by tofd (encoding.png: Sub filter, ISA-L's deflate) and, the baseline, by
+    OpenCV's libpng at zlib levels 1, 3, 6 with the run-length and default strategies; the amplitude as lossless
+    16-bit PNG, 8-bit PNG and 8-bit JPEG; tofd's depth and amplitude encodings one after the other and on two
+    threads (both release the GIL)."""
     with ReplaySource(clip) as source:
         frame = next(iter(source))
     out: dict = {}
@@ -315,6 +316,7 @@ def encodings(clip: Path) -> dict:
         return lambda: cv2.imencode(".jpg", plane, [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
 
     if depth is not None:
+        out["depth png16 tofd (isal)"] = timed(lambda: tofd_png(depth))
         for level in (1, 3, 6):
             for label, strategy in STRATEGIES.items():
                 out[f"depth png16 level {level} {label}"] = timed(png(depth, level, strategy))
@@ -324,8 +326,7 @@ def encodings(clip: Path) -> dict:
     for quality in (75, 90, 95):
         out[f"amplitude jpeg q{quality}"] = timed(jpg(amp8, quality))
     if depth is not None:
-        serial = [lambda: cv2.imencode(".png", depth, PNG_PARAMS)[1],
-                  lambda: cv2.imencode(".jpg", amp8, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1]]
+        serial = [lambda: tofd_png(depth), lambda: jpeg(amp8)]
         with concurrent.futures.ThreadPoolExecutor(2) as pool:
             out["depth + amplitude, two threads"] = timed(
                 lambda: b"".join(f.result() for f in [pool.submit(e) for e in serial]))

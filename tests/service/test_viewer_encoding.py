@@ -52,6 +52,22 @@ def test_whole_units_are_recognised_and_round_trip_through_png():
     assert not in_units(np.float32([[0.5004]]), 1e-3)[1]  # not a whole millimetre
 
 
+def test_png_decodes_exactly_with_libpng_and_refuses_what_it_cannot_hold():
+    """tofd's PNG writer (Sub filter, ISA-L deflate) read back by OpenCV's libpng, bit for bit: both depths, odd
+    sizes, one pixel, the extremes, a crop that is a view, and a plane's runs of zeros."""
+    rng = np.random.default_rng(5)
+    planes = [rng.integers(0, 65536, (7, 13)).astype(np.uint16), rng.integers(0, 256, (13, 7)).astype(np.uint8),
+              np.array([[65535]], np.uint16), np.array([[0, 255]], np.uint8),
+              rng.integers(0, 65536, (40, 50)).astype(np.uint16)[5:30:2, 3:41:3],  # strided view
+              np.pad(rng.integers(900, 1100, (30, 40)).astype(np.uint16), 20)]
+    for plane in planes:
+        decoded = unpng(png(plane))
+        assert decoded.dtype == plane.dtype and np.array_equal(decoded, plane)
+    for bad in (np.zeros((0, 4), np.uint8), np.zeros((3, 3), np.float32), np.zeros((2, 2, 3), np.uint8)):
+        with pytest.raises(ValueError, match="PNG of a"):
+            png(bad)
+
+
 def test_the_amplitude_for_viewing_is_within_half_a_level_of_its_recorded_scale():
     """8 bits, the positive amplitudes' 99.5th percentile the brightest level: each pixel's level times the scale
     is its amplitude within half a level (brighter ones saturate at 255); NaN and negatives are 0; the JPEG keeps
