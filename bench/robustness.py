@@ -22,7 +22,7 @@ from report import add_model_arguments, shown_path, write_json
 from tofd.algorithm.detector import VARIANTS, Candidates, Margin, load_model
 from tofd.config import load_config
 from tofd.lab.conditions import parse_conditions
-from tofd.lab.faces import HOLDOUT_SUBJECTS, OLD_HOLDOUT_SUBJECTS, check_subjects
+from tofd.lab.faces import HOLDOUT_SUBJECTS, OLD_HOLDOUT_SUBJECTS, parse_subjects
 from tofd.lab.robustness import MATRIX_VARIANTS, MatrixSpec, condition_table, run_matrix, summarize
 
 ABOUT = ("Shipped model, held-out identities (never trained or tuned on) x sensor conditions training never saw "
@@ -51,9 +51,8 @@ def main() -> int:
         spec = MatrixSpec(conditions=parse_conditions(args.conditions), frames=args.frames, seed=args.seed)
     except ValueError as exc:
         raise SystemExit(f"robustness: --conditions: {exc}") from None
-    subjects = tuple(s.strip() for s in args.subjects.split(",") if s.strip())
     try:
-        check_subjects(subjects)
+        subjects = parse_subjects(args.subjects)
     except ValueError as exc:
         raise SystemExit(f"robustness: --subjects: {exc}") from None
     spec = dataclasses.replace(spec, subjects=subjects)

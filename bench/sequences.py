@@ -20,7 +20,7 @@ from report import add_model_arguments, shown_path, write_json
 
 from tofd.lab.cameras import INTRINSICS_HELP, parse_intrinsics
 from tofd.lab.conditions import CONDITIONS, parse_conditions
-from tofd.lab.faces import HOLDOUT_SUBJECTS, check_subjects
+from tofd.lab.faces import HOLDOUT_SUBJECTS, parse_subjects
 from tofd.lab.sequences import ISSUE_MOTION, BinScore, detect_sequence, score_bins
 
 SHARES = tuple(f.name for f in dataclasses.fields(BinScore) if f.name not in ("distance_m", "frames")
@@ -90,8 +90,7 @@ def main() -> int:
     try:
         intrinsics = parse_intrinsics(args.camera)
         conditions = parse_conditions(args.conditions)
-        subjects = tuple(s.strip() for s in args.subjects.split(",") if s.strip())
-        check_subjects(subjects)
+        subjects = parse_subjects(args.subjects)
     except ValueError as exc:
         raise SystemExit(f"sequences: {exc}") from None
     cfg = load_config(args.config)

@@ -28,7 +28,7 @@ from tofd.algorithm.segmentation import rotation_to_z
 from tofd.config import load_config
 from tofd.drivers.emulator.render import render_face
 from tofd.lab.cameras import parse_intrinsics
-from tofd.lab.faces import CV_SUBJECTS, SUBJECTS, check_subjects, make_subject
+from tofd.lab.faces import CV_SUBJECTS, SUBJECTS, make_subject, parse_subjects
 from tofd.lab.sequences import ISSUE_MOTION, head_motion
 
 STEPS = (math.inf, 1.0, 0.75, 0.5, 0.35)
@@ -69,9 +69,8 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=602)
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "tune_tip.json"))
     args = parser.parse_args()
-    subjects = tuple(s.strip() for s in args.subjects.split(",") if s.strip())
     try:
-        check_subjects(subjects)
+        subjects = parse_subjects(args.subjects)
         if not set(subjects) <= set(CV_SUBJECTS):
             raise ValueError(f"--subjects: only training identities ({', '.join(CV_SUBJECTS)})")
         cameras = {name: parse_intrinsics(name) for name in args.cameras.split(",")}

@@ -147,6 +147,13 @@ def generate(
                          progress)
 
 
+def parse_subjects(text: str) -> tuple[str, ...]:
+    """Comma-separated subject names; ValueError names the unknown ones (check_subjects)."""
+    subjects = tuple(name.strip() for name in text.split(",") if name.strip())
+    check_subjects(subjects)
+    return subjects
+
+
 def check_subjects(subjects: tuple[str, ...]) -> None:
     """ValueError naming unknown subjects (or an empty list) and the known ones."""
     unknown = [s for s in subjects if s not in SUBJECTS]
