@@ -350,27 +350,19 @@ def test_a_port_in_use_or_an_address_not_here_is_refused_at_start_not_at_the_fir
 def test_the_servers_connections_send_without_delay():
     """foxglove-sdk's server leaves Nagle's algorithm on; tofd turns it off on the listening socket, which the
     connections it accepts inherit: a frame's last small messages do not wait for the client's delayed ACK."""
-    import stat
-
-    from tofd.service.foxglove.publisher import FoxglovePublisher
+    from tofd.service.foxglove.publisher import FoxglovePublisher, tcp_sockets
 
     publisher = FoxglovePublisher(parse_foxglove_spec("127.0.0.1:0", Config()))
     port = int(publisher.web_url.rsplit(":", 1)[1])
     try:
         publisher(result(0, None, None))  # the server listens from the first frame on
         client = Client(publisher.web_url)
-        nodelay = {}  # this process's TCP sockets on the server's port: listening or accepted -> TCP_NODELAY
-        for fd in map(int, os.listdir("/proc/self/fd")):
-            try:
-                if not stat.S_ISSOCK(os.fstat(fd).st_mode):
-                    continue
-                with socket.socket(fileno=os.dup(fd)) as sock:
-                    if sock.family == socket.AF_INET and sock.getsockname()[1] == port:
-                        listening = bool(sock.getsockopt(socket.SOL_SOCKET, socket.SO_ACCEPTCONN))
-                        nodelay[fd] = (listening, sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY))
-            except OSError:
-                continue
+        # this process's TCP sockets on the server's port: (listening, TCP_NODELAY) of the listener and of the
+        # connection it accepted (the client's own socket has the port as its peer, not as its name)
+        nodelay = [(bool(sock.getsockopt(socket.SOL_SOCKET, socket.SO_ACCEPTCONN)),
+                    sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY))
+                   for sock in tcp_sockets() if sock.getsockname()[1] == port]
         client.close()
     finally:
         publisher.close(1.0)
-    assert sorted(nodelay.values()) == [(False, 1), (True, 1)], nodelay  # the client's connection and the listener
+    assert sorted(nodelay) == [(False, 1), (True, 1)], nodelay  # the client's connection and the listener

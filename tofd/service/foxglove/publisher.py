@@ -25,6 +25,7 @@ import socket
 import stat
 import threading
 import time
+from collections.abc import Iterator
 
 import foxglove
 import numpy as np
@@ -113,27 +114,33 @@ def listen_port(bind: str, port: int) -> int:
         return int(probe.getsockname()[1])
 
 
-def send_without_delay(port: int) -> bool:
-    """Turn off Nagle's algorithm (TCP_NODELAY) on this process's socket listening on `port`; the sockets it accepts
-    inherit it (Linux). foxglove-sdk leaves it on, so the small messages that end a frame waited for the client's
-    delayed acknowledgement of the ones before (about 30 ms). False when no such socket was found (/proc/self/fd:
-    Linux)."""
+def tcp_sockets() -> Iterator[socket.socket]:
+    """This process's TCP sockets (IPv4 and IPv6), each through a duplicate of its descriptor that is closed once
+    the next is asked for; none where /proc/self/fd is not (Linux only)."""
     try:
         fds = [int(fd) for fd in os.listdir("/proc/self/fd")]
     except OSError:
-        return False
+        return
     for fd in fds:
         try:
             if not stat.S_ISSOCK(os.fstat(fd).st_mode):
                 continue
-            with socket.socket(fileno=os.dup(fd)) as sock:
-                if (sock.family in (socket.AF_INET, socket.AF_INET6) and sock.type == socket.SOCK_STREAM
-                        and sock.getsockopt(socket.SOL_SOCKET, socket.SO_ACCEPTCONN)
-                        and sock.getsockname()[1] == port):
-                    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                    return True
+            sock = socket.socket(fileno=os.dup(fd))
         except OSError:  # closed meanwhile
             continue
+        with sock:
+            if sock.family in (socket.AF_INET, socket.AF_INET6) and sock.type == socket.SOCK_STREAM:
+                yield sock
+
+
+def send_without_delay(port: int) -> bool:
+    """Turn off Nagle's algorithm (TCP_NODELAY) on this process's socket listening on `port`; the sockets it accepts
+    inherit it (Linux). foxglove-sdk leaves it on, so the small messages that end a frame waited for the client's
+    delayed acknowledgement of the ones before (about 30 ms). False when no such socket was found."""
+    for sock in tcp_sockets():
+        if sock.getsockopt(socket.SOL_SOCKET, socket.SO_ACCEPTCONN) and sock.getsockname()[1] == port:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            return True
     return False
 
 
