@@ -1,6 +1,7 @@
 """The box detector on identities it has never seen: static poses at one distance, per identity, per variant.
 
-Test frames: each identity of tofd.lab.faces.HOLDOUT_SUBJECTS (drawn face shapes never trained or tuned on) and,
+Test frames: each identity of tofd.lab.faces.HOLDOUT_SUBJECTS (heads of the ICT model and drawn face shapes,
+never trained or tuned on) and,
 as a second table, OLD_HOLDOUT_SUBJECTS (the earlier held-out pair: scaled copies of the training meshes),
 rendered at --distance (SR3000 geometry, yaw +-30, pitch +-15 deg; the training sensor, or --condition). Models
 (all four of the paper's variants each, the box of Haker et al.; candidates and margin test from the config):

@@ -39,7 +39,7 @@ class FaceMesh:
         return replace(self, vertices=np.asarray(vertices, dtype=np.float64), name=name or self.name)
 
 
-FACE_NAMES = ("lee_perry_smith", "mediapipe_canonical")
+FACE_NAMES = ("lee_perry_smith", "mediapipe_canonical", "ict_face_model")  # the last: the ICT model's neutral head
 
 
 def load_face(name: str) -> FaceMesh:

@@ -20,6 +20,7 @@ from tofd.lab.face_shapes import (
 from tofd.lab.faces import (
     CV_SUBJECTS,
     HOLDOUT_SUBJECTS,
+    ICT_HOLDOUT_SUBJECTS,
     OLD_HOLDOUT_SUBJECTS,
     SHAPE_TRAIN_SUBJECTS,
     SHAPE_TUNE_SUBJECTS,
@@ -98,8 +99,12 @@ def test_the_identity_lists_do_not_overlap():
     assert held.isdisjoint({*SHAPE_TRAIN_SUBJECTS, *SHAPE_TUNE_SUBJECTS, *TRAIN_SUBJECTS, *CV_SUBJECTS,
                             *TEST_SUBJECTS, *OLD_HOLDOUT_SUBJECTS})
     assert set(SHAPE_TRAIN_SUBJECTS).isdisjoint(SHAPE_TUNE_SUBJECTS)
-    assert all(SUBJECTS[s].shape_seed is not None for s in (*SHAPE_TRAIN_SUBJECTS, *SHAPE_TUNE_SUBJECTS, *held))
-    assert len({SUBJECTS[s].mesh for s in held}) == 2  # held-out shapes on both base meshes
+    drawn = (*SHAPE_TRAIN_SUBJECTS, *SHAPE_TUNE_SUBJECTS, *held)
+    assert all((SUBJECTS[s].shape_seed is None) != (SUBJECTS[s].identity_seed is None) for s in drawn)
+    assert len({SUBJECTS[s].mesh for s in held}) == 3  # held-out shapes on both base meshes, and the model's heads
+    assert set(ICT_HOLDOUT_SUBJECTS) < held
+    seeds = [SUBJECTS[s].identity_seed for s in SUBJECTS if SUBJECTS[s].identity_seed is not None]
+    assert len(seeds) == len(set(seeds)) >= 16  # every head its own draw
 
 
 def test_the_shipped_model_is_trained_on_the_training_shapes_and_no_test_identity():

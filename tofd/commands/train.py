@@ -6,11 +6,11 @@ the log10 features of the pixels within --positive-radius-mm of the nose tip, it
 feature to minimise the training per-image EER; its operating scale is the middle of
 the training frames' zero-error scales, else their equal-error scale.
 
-The shipped config/nose_model.json is trained, 40 frames each, on the five hand-made identities that are neither
-the evaluation's test subject nor held out plus the drawn face shapes for training (tofd.lab.faces CV_SUBJECTS and
-SHAPE_TRAIN_SUBJECTS; never SHAPE_TUNE_SUBJECTS or the held-out ones): tofd train --train-subjects
-lps,mp,mp_broad,mp_chin,lps_flat,lps_s1,lps_s2,lps_s3,mp_s1,mp_s2,mp_s3 --train-frames 440 --out
-config/nose_model.json (docs/ARCHITECTURE.md: how this recipe compares with the five identities alone).
+The shipped config/nose_model.json is trained, 80 frames each, on the five hand-made identities that are neither
+the evaluation's test subject nor held out, the drawn face shapes and the ICT model's heads for training
+(tofd.lab.faces CV_SUBJECTS and SHAPE_TRAIN_SUBJECTS; never SHAPE_TUNE_SUBJECTS or the held-out ones): tofd train
+--train-subjects lps,mp,mp_broad,mp_chin,lps_flat,lps_s1,lps_s2,lps_s3,mp_s1,mp_s2,mp_s3,ict_1,ict_2,ict_3,ict_4,
+ict_5,ict_6,ict_7,ict_8 --train-frames 1520 --out config/nose_model.json.
 """
 
 from __future__ import annotations

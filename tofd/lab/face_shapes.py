@@ -36,9 +36,9 @@ HEAD_SCALE = (0.90, 1.10)  # isotropic, about the nose tip
 BRIDGE_MM, CHEEKS_MM, BROW_MM, CHIN_MM = 3.0, 5.0, 3.0, 7.0  # +- about the base mesh
 BASE_NOSE_WIDTH_MM = 35.0  # al-al taken for both base meshes (the middle of the norm): the width is a ratio to it
 FRONT_DEPTH_MM = 70.0  # fields fade to zero between this and 30 mm more behind the nose tip
-LANDMARKS = {"lee_perry_smith": (4909, 5334), "mediapipe_canonical": (2, 168)}
-"""Base mesh -> vertex numbers of its subnasale and nasion: MediaPipe's own landmark numbers; on the head scan
-the deepest midline vertices below and above the nose tip."""
+LANDMARKS = {"lee_perry_smith": (4909, 5334), "mediapipe_canonical": (2, 168), "ict_face_model": (2189, 1358)}
+"""Base mesh -> vertex numbers of its subnasale and nasion: MediaPipe's own landmark numbers; on the head scan and
+the ICT model's neutral head the deepest midline vertices 8-22 mm below and 25-60 mm above the nose tip."""
 
 
 @dataclass(frozen=True, slots=True)

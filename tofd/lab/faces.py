@@ -4,14 +4,15 @@ Subjects are the two bundled meshes plus identity variations of them: anisotropi
 and smooth local displacements (Gaussian radial-basis bumps, metres) around landmark vertices -- nose tip,
 cheeks, chin -- found on each mesh by their position relative to the nose tip; and face shapes drawn over the
 adult range of nose protrusion, width and height, bridge, cheeks, brow and chin (tofd.lab.face_shapes), six on
-each base mesh, each with its own seed (`<mesh>_s<k>`).
+each base mesh, each with its own seed (`<mesh>_s<k>`); and sixteen heads of the ICT Face Model, a morphable
+model of scanned people (tofd.lab.morphable_faces, `ict_<k>`): whole heads of their own, not variations.
 
 Default split (the paper's experiment): train on three subjects at 0.60 m, test on a fourth subject at
 0.35-0.70 m; yaw uniform in +-30 deg, pitch in +-15 deg, the nose tip a few pixels off the image centre;
 range noise and flying pixels from the renderer's sensor model. Other subjects can take either role
 (`tofd train --train-subjects`, `tofd evaluate --test-subjects`). This module owns the identity lists: the
-drawn shapes split into SHAPE_TRAIN_SUBJECTS (training), SHAPE_TUNE_SUBJECTS (choosing settings) and
-HOLDOUT_SUBJECTS (unseen-face checks: never trained or tuned on); OLD_HOLDOUT_SUBJECTS, a larger and a smaller
+drawn shapes and the model's heads split into SHAPE_TRAIN_SUBJECTS (training), SHAPE_TUNE_SUBJECTS (choosing
+settings) and HOLDOUT_SUBJECTS (unseen-face checks: never trained or tuned on; ICT_HOLDOUT_SUBJECTS the heads); OLD_HOLDOUT_SUBJECTS, a larger and a smaller
 nose on the training meshes, are the earlier unseen-face checks, kept for comparison.
 """
 
@@ -26,6 +27,8 @@ from tofd.drivers.emulator.render import FaceMesh, Pose, SensorModel, load_face,
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.lab.dataset import Dataset
 from tofd.lab.face_shapes import deform, draw_shape
+from tofd.lab.morphable_faces import MESH as ICT_MESH
+from tofd.lab.morphable_faces import draw_identity
 
 LANDMARK_OFFSETS_M: dict[str, tuple[float, float]] = {
     "nose": (0.0, 0.0),
@@ -48,13 +51,15 @@ class Bump:
 @dataclass(frozen=True, slots=True)
 class Subject:
     """An identity: a base mesh, an anisotropic scale about the nose tip, and local bumps; or a base mesh deformed
-    to the face shape drawn with `shape_seed` (tofd.lab.face_shapes)."""
+    to the face shape drawn with `shape_seed` (tofd.lab.face_shapes); or the head of the morphable model drawn with
+    `identity_seed` (tofd.lab.morphable_faces; mesh: its MESH)."""
 
     name: str
     mesh: str  # tofd.drivers.emulator.render.FACE_NAMES
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     bumps: tuple[Bump, ...] = ()
     shape_seed: int | None = None
+    identity_seed: int | None = None
 
 
 SUBJECTS: dict[str, Subject] = {s.name: s for s in (
@@ -80,15 +85,18 @@ SUBJECTS: dict[str, Subject] = {s.name: s for s in (
         Bump("cheek_left", (0.0, 0.0, 0.005), 0.022), Bump("cheek_right", (0.0, 0.0, 0.005), 0.022))),
     *(Subject(f"{short}_s{k}", mesh, shape_seed=seed + k) for short, mesh, seed in (
         ("lps", "lee_perry_smith", 4600), ("mp", "mediapipe_canonical", 4700)) for k in range(1, 7)),
+    *(Subject(f"ict_{k}", ICT_MESH, identity_seed=5000 + k) for k in range(1, 17)),
 )}
 
 TRAIN_SUBJECTS = ("lps", "mp", "mp_broad")
 CV_SUBJECTS = (*TRAIN_SUBJECTS, "mp_chin", "lps_flat")  # bench/tune_detector.py: never the test subject
 TEST_SUBJECTS = ("lps_long",)
 OLD_HOLDOUT_SUBJECTS = ("mp_bignose", "lps_smallnose")  # scaled/bumped copies of training meshes, never trained on
-SHAPE_TRAIN_SUBJECTS = ("lps_s1", "lps_s2", "lps_s3", "mp_s1", "mp_s2", "mp_s3")  # drawn face shapes for training
-SHAPE_TUNE_SUBJECTS = ("lps_s4", "mp_s4")  # for choosing settings (cross-validation, thresholds)
-HOLDOUT_SUBJECTS = ("lps_s5", "lps_s6", "mp_s5", "mp_s6")  # unseen-face checks only: never trained or tuned on
+ICT_TRAIN_SUBJECTS = tuple(f"ict_{k}" for k in range(1, 9))  # heads of the morphable model for training
+SHAPE_TRAIN_SUBJECTS = ("lps_s1", "lps_s2", "lps_s3", "mp_s1", "mp_s2", "mp_s3", *ICT_TRAIN_SUBJECTS)
+SHAPE_TUNE_SUBJECTS = ("lps_s4", "mp_s4", "ict_9", "ict_10")  # for choosing settings (cross-validation, thresholds)
+ICT_HOLDOUT_SUBJECTS = tuple(f"ict_{k}" for k in range(11, 17))  # unseen heads: never trained or tuned on
+HOLDOUT_SUBJECTS = (*ICT_HOLDOUT_SUBJECTS, "lps_s5", "lps_s6", "mp_s5", "mp_s6")  # never trained or tuned on
 TRAIN_DISTANCES_M = (0.60,)
 TEST_DISTANCES_M = (0.35, 0.40, 0.45, 0.50, 0.55, 0.60, 0.65, 0.70)
 YAW_DEG, PITCH_DEG = 30.0, 15.0  # poses uniform in +-these
@@ -109,7 +117,8 @@ def landmark_vertices(mesh: FaceMesh) -> dict[str, int]:
 def make_subject(subject: Subject) -> FaceMesh:
     """The subject's mesh: base mesh (deformed to its drawn face shape, if any) scaled about its nose tip, then
     displaced by its bumps (vectorised)."""
-    base = load_face(subject.mesh)
+    base = load_face(subject.mesh) if subject.identity_seed is None else draw_identity(subject.identity_seed,
+                                                                                       subject.name)
     if subject.shape_seed is not None:
         base = deform(base, draw_shape(subject.shape_seed), subject.name)
     marks = landmark_vertices(base)
