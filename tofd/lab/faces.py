@@ -12,8 +12,9 @@ Default split (the paper's experiment): train on three subjects at 0.60 m, test 
 range noise and flying pixels from the renderer's sensor model. Other subjects can take either role
 (`tofd train --train-subjects`, `tofd evaluate --test-subjects`). This module owns the identity lists: the
 drawn shapes and the model's heads split into SHAPE_TRAIN_SUBJECTS (training), SHAPE_TUNE_SUBJECTS (choosing
-settings) and HOLDOUT_SUBJECTS (unseen-face checks: never trained or tuned on; ICT_HOLDOUT_SUBJECTS the heads); OLD_HOLDOUT_SUBJECTS, a larger and a smaller
-nose on the training meshes, are the earlier unseen-face checks, kept for comparison.
+settings) and HOLDOUT_SUBJECTS (unseen-face checks: never trained or tuned on; ICT_HOLDOUT_SUBJECTS the heads);
+OLD_HOLDOUT_SUBJECTS, a larger and a smaller nose on the training meshes, are the earlier unseen-face checks, kept
+for comparison.
 """
 
 from __future__ import annotations
