@@ -4,7 +4,7 @@ Subjects are the two bundled meshes plus identity variations of them: anisotropi
 and smooth local displacements (Gaussian radial-basis bumps, metres) around landmark vertices -- nose tip,
 cheeks, chin -- found on each mesh by their position relative to the nose tip; and face shapes drawn over the
 adult range of nose protrusion, width and height, bridge, cheeks, brow and chin (tofd.lab.face_shapes), six on
-each base mesh, each with its own seed (`<mesh>_s<k>`); and sixteen heads of the ICT Face Model, a morphable
+each base mesh, each with its own seed (`<mesh>_s<k>`); and 22 heads of the ICT Face Model, a morphable
 model of scanned people (tofd.lab.morphable_faces, `ict_<k>`): whole heads of their own, not variations.
 
 Default split (the paper's experiment): train on three subjects at 0.60 m, test on a fourth subject at
@@ -86,7 +86,7 @@ SUBJECTS: dict[str, Subject] = {s.name: s for s in (
         Bump("cheek_left", (0.0, 0.0, 0.005), 0.022), Bump("cheek_right", (0.0, 0.0, 0.005), 0.022))),
     *(Subject(f"{short}_s{k}", mesh, shape_seed=seed + k) for short, mesh, seed in (
         ("lps", "lee_perry_smith", 4600), ("mp", "mediapipe_canonical", 4700)) for k in range(1, 7)),
-    *(Subject(f"ict_{k}", ICT_MESH, identity_seed=5000 + k) for k in range(1, 17)),
+    *(Subject(f"ict_{k}", ICT_MESH, identity_seed=5000 + k) for k in range(1, 23)),
 )}
 
 TRAIN_SUBJECTS = ("lps", "mp", "mp_broad")
@@ -95,7 +95,8 @@ TEST_SUBJECTS = ("lps_long",)
 OLD_HOLDOUT_SUBJECTS = ("mp_bignose", "lps_smallnose")  # scaled/bumped copies of training meshes, never trained on
 ICT_TRAIN_SUBJECTS = tuple(f"ict_{k}" for k in range(1, 9))  # heads of the morphable model for training
 SHAPE_TRAIN_SUBJECTS = ("lps_s1", "lps_s2", "lps_s3", "mp_s1", "mp_s2", "mp_s3", *ICT_TRAIN_SUBJECTS)
-SHAPE_TUNE_SUBJECTS = ("lps_s4", "mp_s4", "ict_9", "ict_10")  # for choosing settings (cross-validation, thresholds)
+ICT_TUNE_SUBJECTS = ("ict_9", "ict_10", *(f"ict_{k}" for k in range(17, 23)))
+SHAPE_TUNE_SUBJECTS = ("lps_s4", "mp_s4", *ICT_TUNE_SUBJECTS)  # for choosing settings (cross-validation, thresholds)
 ICT_HOLDOUT_SUBJECTS = tuple(f"ict_{k}" for k in range(11, 17))  # unseen heads: never trained or tuned on
 HOLDOUT_SUBJECTS = (*ICT_HOLDOUT_SUBJECTS, "lps_s5", "lps_s6", "mp_s5", "mp_s6")  # never trained or tuned on
 TRAIN_DISTANCES_M = (0.60,)
