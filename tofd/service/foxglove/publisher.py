@@ -61,6 +61,7 @@ from tofd.config import Config
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.logs import limit_library_lines
 from tofd.service.foxglove import topics as t
+from tofd.service.foxglove.spec import listen_port
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer.encoding import (
     amplitude_u8,
@@ -105,13 +106,9 @@ def _image(stamp: Timestamp, plane: np.ndarray, encoding: str) -> RawImage:
                                       encoding=encoding, step=width * plane.itemsize, data=plane.tobytes())
 
 
-def listen_port(bind: str, port: int) -> int:
-    """The port to listen on at `bind`: `port`, or for 0 one the system has free; OSError when it cannot be bound
-    (an address not of this host, a port in use)."""
-    with socket.socket(socket.AF_INET6 if ":" in bind else socket.AF_INET) as probe:
-        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a server binds: TIME_WAIT does not count
-        probe.bind((bind, port))
-        return int(probe.getsockname()[1])
+def cannot_listen(bind: str, port: int, reason: object) -> RuntimeError:
+    """The error of a server that cannot listen on bind:port, naming the config keys."""
+    return RuntimeError(f"foxglove: cannot listen on {bind}:{port} (foxglove.bind / foxglove.port): {reason}")
 
 
 def tcp_sockets() -> Iterator[socket.socket]:
@@ -186,8 +183,7 @@ class FoxglovePublisher:
         try:
             self._port = listen_port(fc.bind, fc.port)
         except OSError as exc:
-            raise RuntimeError(f"foxglove: cannot listen on {fc.bind}:{fc.port} (foxglove.bind / foxglove.port): "
-                               f"{exc.strerror or exc}") from None
+            raise cannot_listen(fc.bind, fc.port, exc.strerror or exc) from None
         host = "127.0.0.1" if fc.bind in ("0.0.0.0", "") else fc.bind
         self.web_url = f"ws://{host}:{self._port}"
 
@@ -199,8 +195,7 @@ class FoxglovePublisher:
             self.server = foxglove.start_server(name="tofd", host=fc.bind, port=self._port, context=self.context,
                                                 message_backlog_size=fc.backlog_messages)
         except Exception as exc:  # the SDK raises its own error type for a port in use
-            raise RuntimeError(f"foxglove: cannot listen on {fc.bind}:{self._port} (foxglove.bind / foxglove.port): "
-                               f"{exc}") from None
+            raise cannot_listen(fc.bind, self._port, exc) from None
         if not send_without_delay(self._port):
             log.warning("foxglove: no listening socket on port %d found to send without delay; a frame's messages may "
                         "reach a client tens of milliseconds late", self._port)

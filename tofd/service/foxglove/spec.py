@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import socket
 from dataclasses import replace
 
@@ -24,11 +25,23 @@ def parse_foxglove_spec(spec: str | None, cfg: Config) -> Config:
                                          port=int(port)))
 
 
+def listen_port(bind: str, port: int) -> int:
+    """The port to listen on at `bind`: `port`, or for 0 one the system has free; OSError when it cannot be bound
+    (an address not of this host, a port in use)."""
+    with socket.socket(socket.AF_INET6 if ":" in bind else socket.AF_INET) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a server binds: TIME_WAIT does not count
+        probe.bind((bind, port))
+        return int(probe.getsockname()[1])
+
+
 def check_port_free(fc: FoxgloveConfig) -> None:
-    """ConfigError naming foxglove.port when something already listens on it (port 0: any free one, never)."""
+    """ConfigError naming foxglove.port when the port is in use at foxglove.bind (listen_port; port 0: any free one,
+    never); any other reason it cannot be bound is the Foxglove viewer process's to report."""
     if fc.port == 0:
         return
-    with socket.socket() as s:
-        s.settimeout(0.2)
-        if s.connect_ex(("127.0.0.1" if fc.bind in ("0.0.0.0", "") else fc.bind, fc.port)) == 0:
-            raise ConfigError(f"foxglove.port: port {fc.port} on {fc.bind} is already in use (--foxglove HOST:PORT)")
+    try:
+        listen_port(fc.bind, fc.port)
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            raise ConfigError(f"foxglove.port: port {fc.port} on {fc.bind} is already in use "
+                              "(--foxglove HOST:PORT)") from None
