@@ -12,7 +12,7 @@ from tofd.errors import UsageError
 from tofd.lab.cameras import INTRINSICS_HELP, parse_intrinsics
 from tofd.lab.dataset import Dataset, load_labelled
 from tofd.lab.evaluation import NOSE_RADIUS_M, FrameSamples, extract_samples
-from tofd.lab.faces import SUBJECTS, check_subjects
+from tofd.lab.faces import SUBJECTS, parse_subjects
 from tofd.progress import Progress
 
 DEFAULT_FRAMES = {"train": 120, "test": 960}  # test: 120 per distance, EER steps of 0.8 %
@@ -40,8 +40,9 @@ def add_data_arguments(parser: argparse.ArgumentParser, splits: tuple[str, ...])
 
 
 def _subjects(args: argparse.Namespace, split: str) -> tuple[str, ...] | None:
+    """The split's --*-subjects (None: not given); ValueError names unknown ones (faces.parse_subjects)."""
     names = getattr(args, f"{split}_subjects")
-    return tuple(n.strip() for n in names.split(",") if n.strip()) if names is not None else None
+    return None if names is None else parse_subjects(names)
 
 
 def check_data_arguments(args: argparse.Namespace, splits: tuple[str, ...]) -> None:
@@ -49,7 +50,6 @@ def check_data_arguments(args: argparse.Namespace, splits: tuple[str, ...]) -> N
     if args.workers < 1:
         raise UsageError(f"--workers must be >= 1, got {args.workers}")
     for split in splits:
-        subjects = _subjects(args, split)
         if getattr(args, split) is not None:
             for option in ("subjects", "intrinsics"):
                 if getattr(args, f"{split}_{option}") is not None:
@@ -60,11 +60,10 @@ def check_data_arguments(args: argparse.Namespace, splits: tuple[str, ...]) -> N
         frames = getattr(args, f"{split}_frames")
         if frames < 1:
             raise UsageError(f"--{split}-frames must be >= 1, got {frames}")
-        if subjects is not None:
-            try:
-                check_subjects(subjects)
-            except ValueError as exc:
-                raise UsageError(f"--{split}-subjects: {exc}") from None
+        try:
+            _subjects(args, split)
+        except ValueError as exc:
+            raise UsageError(f"--{split}-subjects: {exc}") from None
 
 
 def intrinsics_for(args: argparse.Namespace, split: str) -> Intrinsics:
