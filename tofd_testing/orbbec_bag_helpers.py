@@ -11,6 +11,7 @@ uncompressed: the SDK's roslz4 refuses rosbags' LZ4 chunks ("ROSLZ4_DATA_ERROR: 
 
 from __future__ import annotations
 
+import multiprocessing
 import struct
 import time
 from pathlib import Path
@@ -124,10 +125,37 @@ def write_seed_bag(path: Path, depth: list[np.ndarray], infrared: list[np.ndarra
     return path
 
 
+SDK_ATTEMPTS = 2  # the SDK's native code now and then crashes (SIGSEGV) while a recording is played and recorded
+
+
 def sdk_rerecord(seed: Path, out: Path, compressed: bool = True, timeout_s: float = 60.0) -> Path:
-    """`out`: the SDK's RecordDevice recording the SDK's PlaybackDevice as it plays `seed` to its end."""
+    """`out`: the SDK's RecordDevice recording the SDK's PlaybackDevice as it plays `seed` to its end, in a child
+    process: a crash of the SDK's native code ends that child, not the test process (under pytest-xdist a crashed
+    worker can leave the whole run waiting), and a crashed child is tried again, SDK_ATTEMPTS in all; a Python
+    error in the child (a timeout, no file written) is not."""
+    spawn = multiprocessing.get_context("spawn")
+    for _ in range(SDK_ATTEMPTS):
+        child = spawn.Process(target=_sdk_rerecord, args=(str(seed), str(out), compressed, timeout_s))
+        child.start()
+        child.join(timeout_s + 60.0)
+        if child.is_alive():
+            child.kill()
+            child.join()
+            raise TimeoutError(f"the SDK's recording of {seed} did not end within {timeout_s + 60.0:g} s")
+        if child.exitcode == 0:
+            return out
+        if child.exitcode > 0:
+            raise RuntimeError(f"the SDK's recording of {seed} failed (exit {child.exitcode}; its error is above)")
+        out.unlink(missing_ok=True)  # killed by a signal: whatever it wrote is incomplete
+    raise RuntimeError(f"the SDK crashed in each of {SDK_ATTEMPTS} recordings of {seed} (last signal: "
+                       f"{-child.exitcode})")
+
+
+def _sdk_rerecord(seed_path: str, out_path: str, compressed: bool, timeout_s: float) -> None:
+    """sdk_rerecord's child: the SDK's recording of the seed bag."""
     import pyorbbecsdk as ob
 
+    seed, out = Path(seed_path), Path(out_path)
     ob.Context.set_logger_to_file(ob.OBLogLevel.NONE, "")  # the SDK's default logs into ./Log of the cwd
     ob.Context.set_logger_to_console(ob.OBLogLevel.ERROR)
     player = ob.PlaybackDevice(str(seed))
@@ -151,7 +179,6 @@ def sdk_rerecord(seed: Path, out: Path, compressed: bool = True, timeout_s: floa
     del recorder  # the SDK writes the stream profiles and closes the bag when its recorder goes
     if not out.exists():
         raise RuntimeError(f"the SDK's RecordDevice wrote no {out} (an {out.name}_error means it failed)")
-    return out
 
 
 def write_orbbec_bag(path: Path, depth: list[np.ndarray], infrared: list[np.ndarray],
