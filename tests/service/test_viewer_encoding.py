@@ -16,7 +16,18 @@ from tofd.service.foxglove.publisher import FoxglovePublisher
 from tofd.service.foxglove.spec import parse_foxglove_spec
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer import blueprint as bp
-from tofd.service.viewer.encoding import amplitude_u8, code_unit_m, in_units, jpeg, png, unpng, z_depth_m
+from tofd.service.viewer.encoding import (
+    amplitude_u8,
+    code_unit_m,
+    in_units,
+    jpeg,
+    png,
+    scaled_u8,
+    scaled_u16,
+    units_per_range_m,
+    unpng,
+    z_depth_m,
+)
 from tofd.service.viewer.pixels import CLOUD_POINTS, cloud_pixels
 from tofd_testing.foxglove_client import Client
 
@@ -50,6 +61,31 @@ def test_whole_units_are_recognised_and_round_trip_through_png():
     assert exact and np.array_equal(codes, raw)
     assert not in_units(z_depth_m(radial, Intrinsics().unit_rays()[..., 2].astype(np.float32)), code_unit_m(sr))[1]
     assert not in_units(np.float32([[0.5004]]), 1e-3)[1]  # not a whole millimetre
+
+
+def test_one_pass_scaling_rounds_and_saturates_as_numpy_does():
+    """scaled_u16 / scaled_u8 (OpenCV's saturating multiply) against numpy's rint, clip and cast: ties to even, NaN
+    and negatives 0, the top saturates, infinities 0; per pixel factors too; and a millimetre camera's radial
+    range goes to its whole millimetres of z-depth in one pass."""
+    rng = np.random.default_rng(11)
+    plane = rng.uniform(-50, 70000, (61, 83)).astype(np.float32)
+    plane[::7, ::3] = np.nan
+    plane[0, :6] = [0.5, 1.5, 2.5, -0.4, 65535.4, 65535.6]
+    factor = rng.uniform(0.5, 1.5, plane.shape).astype(np.float32)
+
+    def reference(x: np.ndarray, top: int) -> np.ndarray:
+        return np.minimum(np.rint(np.fmax(x, np.float32(0))), top)
+
+    assert np.array_equal(scaled_u16(plane, 1.0), reference(plane, 65535))
+    assert list(scaled_u16(plane, 1.0)[0, :6]) == [0, 2, 2, 0, 65535, 65535]
+    assert np.array_equal(scaled_u16(plane, factor), reference(plane * factor, 65535))
+    small = plane / np.float32(200)
+    assert np.array_equal(scaled_u8(small, 0.5), reference(small * np.float32(0.5), 255))
+    assert scaled_u8(small, 1.0).dtype == np.uint8 and scaled_u16(plane, 1.0).dtype == np.uint16
+    assert not scaled_u16(np.float32([[np.inf, -np.inf]]), 1.0).any()
+    frame, z_mm = millimetre_frame(3)
+    ray_z = K4A.unit_rays()[..., 2].astype(np.float32)
+    assert np.array_equal(scaled_u16(frame.range_m, units_per_range_m(ray_z, 1e-3)), z_mm)
 
 
 def test_png_decodes_exactly_with_libpng_and_refuses_what_it_cannot_hold():

@@ -70,7 +70,9 @@ from tofd.service.viewer.encoding import (
     in_units,
     jpeg,
     png,
+    scaled_u16,
     source_unit_m,
+    units_per_range_m,
     z_depth_m,
 )
 from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
@@ -168,7 +170,7 @@ class FoxglovePublisher:
         self.feature_box = foxglove.Channel(t.FEATURE_BOX, schema=t.FEATURE_BOX_SCHEMA, context=ctx)
         self.amplitude_scale = foxglove.Channel(t.AMPLITUDE_SCALE, schema=t.AMPLITUDE_SCALE_SCHEMA, context=ctx)
         self.range: RawImageChannel | CompressedImageChannel | None = None  # opened at the first frame
-        self._range_unit: tuple[str, float] | None = None  # ("z" or "radial", metres per step) of a PNG range
+        self._range_factor: np.ndarray | float | None = None  # radial metres -> the PNG range's units (scaled_u16)
         self.calibration = CameraCalibrationChannel(t.CALIBRATION, context=ctx)
         self.nose = ImageAnnotationsChannel(t.NOSE, context=ctx)
         self.track = ImageAnnotationsChannel(t.NOSE_TRACK, context=ctx)
@@ -260,7 +262,7 @@ class FoxglovePublisher:
                       ("radial", code_unit_m(frame), np.fmax(frame.range_m, np.float32(0)))]
         for kind, unit, plane in candidates:
             if unit is not None and in_units(plane, unit)[1]:
-                self._range_unit = (kind, unit)
+                self._range_factor = units_per_range_m(self._ray_z, unit) if kind == "z" else 1.0 / unit
                 self.range = CompressedImageChannel(t.RANGE, context=self.context,
                                                     metadata=t.range_metadata(kind, unit))
                 return
@@ -268,10 +270,8 @@ class FoxglovePublisher:
 
     def _log_range(self, r: FrameResult, stamp: Timestamp, ns: int) -> None:
         """Log the frame's range image as its channel carries it (_open_range)."""
-        if isinstance(self.range, CompressedImageChannel) and self._range_unit is not None:
-            kind, unit = self._range_unit
-            plane = z_depth_m(r.frame.range_m, self._ray_z) if kind == "z" else np.fmax(r.frame.range_m, 0)
-            self.range.log(_png(stamp, in_units(plane, unit)[0]), log_time=ns)
+        if isinstance(self.range, CompressedImageChannel) and self._range_factor is not None:
+            self.range.log(_png(stamp, scaled_u16(r.frame.range_m, self._range_factor)), log_time=ns)
         elif isinstance(self.range, RawImageChannel):
             self.range.log(_image(stamp, np.ascontiguousarray(r.frame.range_m), "32FC1"), log_time=ns)
 

@@ -56,7 +56,9 @@ from tofd.service.viewer.encoding import (
     in_units,
     jpeg,
     png,
+    scaled_u16,
     source_unit_m,
+    units_per_range_m,
     z_depth_m,
 )
 from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
@@ -186,12 +188,11 @@ class RerunLogger:
         self.intrinsics = intrinsics
         self._rays = intrinsics.unit_rays().astype(np.float32)
         self._ray_z = np.ascontiguousarray(self._rays[..., 2])  # z-depth = radial range * cos(angle to the axis)
-        self._z = np.empty(intrinsics.shape, np.float32)  # the frame's z-depth, metres, when it goes encoded
         self._images = {bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8)}  # raw planes (and a float depth)
         # encoded planes: archetype; the depth's joins at the first frame if its unit is exact
         self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage,
                                           **dict.fromkeys(bp.FEATURES.values(), rr.EncodedDepthImage)}
-        self._depth_unit_m: float | None = None  # the depth's unit when it goes as PNG
+        self._units_per_range: np.ndarray | None = None  # (H, W) radial metres -> depth units, when it goes as PNG
         self._depth_chosen = False
         self._shape = height, width = intrinsics.shape
         # as arrow, built once: Rerun's conversion is slow
@@ -260,11 +261,10 @@ class RerunLogger:
         shown = self._shown
         if not self._depth_chosen:
             self._choose_depth(r)
-        if self._depth_unit_m is None:
+        if self._units_per_range is None:
             z_depth_m(r.frame.range_m, self._ray_z, out=shown.images[bp.RANGE][row])
         else:
-            units, _ = in_units(z_depth_m(r.frame.range_m, self._ray_z, out=self._z), self._depth_unit_m)
-            shown.encoded.setdefault(bp.RANGE, []).append(png(units))
+            shown.encoded.setdefault(bp.RANGE, []).append(png(scaled_u16(r.frame.range_m, self._units_per_range)))
         amplitude, scale = amplitude_u8(r.frame.amplitude)
         shown.encoded.setdefault(bp.AMPLITUDE, []).append(jpeg(amplitude))
         shown.add(bp.AMPLITUDE_SCALE, row, scalars=[scale])  # with its image, not with the lagging series
@@ -274,8 +274,8 @@ class RerunLogger:
         """At the first frame: the depth goes as a 16-bit PNG in the source's unit when the frame's z-depth is
         exactly that (encoding.in_units), else as float32 metres; its static style (metre, colour map)."""
         unit = source_unit_m(r.frame)
-        if unit is not None and in_units(z_depth_m(r.frame.range_m, self._ray_z, out=self._z), unit)[1]:
-            self._depth_unit_m = unit
+        if unit is not None and in_units(z_depth_m(r.frame.range_m, self._ray_z), unit)[1]:
+            self._units_per_range = units_per_range_m(self._ray_z, unit)
             self._encoded[bp.RANGE] = rr.EncodedDepthImage
             style: rr.AsComponents = rr.EncodedDepthImage.from_fields(media_type=PNG_MEDIA_TYPE, meter=1.0 / unit,
                                                                      colormap="turbo")
