@@ -26,6 +26,7 @@ from tofd.service.pipeline.slots import SlotRing
 from tofd.service.pipeline.stats import TrackSnapshot, TrackStats
 from tofd.service.viewer import RerunLogger, RerunTarget, wire
 from tofd.service.viewer import blueprint as bp
+from tofd.service.viewer.pixels import foreground_box
 from tofd_testing.pipeline_sources import RenderedSource, write_config
 from tofd_testing.rrd_helpers import read_entities
 
@@ -123,6 +124,29 @@ def test_wire_format_carries_the_track():
     finally:
         ring.close()
     assert track_from(None) is None
+
+
+def test_wire_format_carries_the_feature_maps_over_the_foreground_box_only():
+    """Each viewed map arrives equal over the mask's bounding box; the slot outside it is not written (it keeps
+    the previous frame's values, which the viewers never read)."""
+    ring = SlotRing.create(1, INTRINSICS.shape, wire.PLANES)
+    rng = np.random.default_rng(2)
+    try:
+        for i, (rows, cols) in enumerate(((slice(20, 90), slice(30, 120)), (slice(50, 60), slice(70, 75)))):
+            r = result(i, MISS, None)
+            r.mask[rows, cols] = rng.random((rows.stop - rows.start, cols.stop - cols.start)) < 0.7
+            box = foreground_box(r.mask)
+            for plane in r.features.values():
+                plane[box] = rng.random(plane[box].shape)
+            before = {name: view.copy() for name, view in ring.views(0).items()}
+            back = wire.read(wire.write(r, 0, ring.views(0)), ring, INTRINSICS)
+            outside = np.ones(INTRINSICS.shape, bool)
+            outside[box] = False
+            for name, plane in back.features.items():
+                assert np.array_equal(plane[box], r.features[name][box])
+                assert np.array_equal(plane[outside], before[name][outside], equal_nan=True)
+    finally:
+        ring.close()
 
 
 def test_viewer_logs_the_track_box_with_its_confidence(tmp_path):

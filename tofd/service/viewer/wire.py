@@ -3,6 +3,9 @@
 The planes (PLANES: the frame's, the mask and the viewed feature maps, (H, W) each) are copied once into a
 SlotRing slot with these fields; the header (scalars, detection, track, timings, the slot index) goes over the
 pipe. No pickle, and no large message: a pipe carries each byte through two kernel copies and many wake-ups.
+A feature map is copied over the foreground's box only (pixels.foreground_box of the mask): the viewers read
+nothing of it elsewhere (it is NaN there), and at a modern camera's resolution the box is a fraction of the
+frame. Outside the box the slot keeps an earlier frame's values.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from tofd.service.pipeline.messages import DetectionMessage
 from tofd.service.pipeline.results import FrameResult, track_dict, track_from
 from tofd.service.pipeline.slots import SLOT_FIELDS, SlotRing
 from tofd.service.pipeline.stages import detection_dict, detection_from
+from tofd.service.viewer.pixels import foreground_box
 
 PLANES = tuple((name, dtype) for name, dtype in SLOT_FIELDS if name in ("range_m", "amplitude", "mask", *VIEWED_MAPS))
 """The planes the viewer logs (the fields of its slots): the frame's, the mask and the viewed feature maps."""
@@ -48,11 +52,14 @@ class FrameHeader(TypedDict):
 
 
 def write(r: FrameResult, slot: int, planes: dict[str, np.ndarray]) -> bytes:
-    """Copy r's planes into `planes` (one slot's views, PLANES) and return the header naming `slot`."""
+    """Copy r's planes into `planes` (one slot's views, PLANES; the feature maps over the foreground's box) and
+    return the header naming `slot`."""
     f, det = r.frame, r.detection
-    source = {"range_m": f.range_m, "amplitude": f.amplitude, "mask": r.mask, **r.features}
-    for name, _ in PLANES:
-        np.copyto(planes[name], source[name], casting="unsafe")
+    box = foreground_box(r.mask)
+    for name, plane in (("range_m", f.range_m), ("amplitude", f.amplitude), ("mask", r.mask)):
+        np.copyto(planes[name], plane, casting="unsafe")
+    for name in VIEWED_MAPS:
+        np.copyto(planes[name][box], r.features[name][box], casting="unsafe")
     header = FrameHeader(slot=slot, seq=r.seq, frame_counter=f.frame_counter, timestamp_us=f.timestamp_us,
                          host_monotonic_s=f.host_monotonic_s, arrival_s=r.arrival_s, gap_before=r.gap_before,
                          nfft_iterations=r.nfft_iterations, nfft_residual=r.nfft_residual,
@@ -65,7 +72,7 @@ def write(r: FrameResult, slot: int, planes: dict[str, np.ndarray]) -> bytes:
 
 def read(header: bytes, ring: SlotRing, intrinsics: Intrinsics) -> FrameResult:
     """The FrameResult of a header, whose arrays are views of the slot it names (use them before the slot is
-    written again)."""
+    written again; its feature maps only over the mask's foreground_box)."""
     h: FrameHeader = json.loads(header)
     planes = ring.views(h["slot"])
     frame = Frame(planes["range_m"], planes["amplitude"], h["frame_counter"], h["timestamp_us"],
