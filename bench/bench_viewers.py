@@ -20,11 +20,10 @@ Then --live-seconds of the clip replayed in real time (30 fps, looped, latest-wi
 the Foxglove viewer and a client subscribed to every channel: bytes per message and MB/s received per topic; then as
 long with both viewers on (Rerun sent each frame at once, as to a live viewer): frames delivered per second, capture
 to the Rerun viewer process's send and to the Foxglove client's receipt of a frame's last message, median and p99
-(live_both_viewers). Rerun's live rate is its bytes per frame times 30 fps; with the rotation budget
-docs/ARCHITECTURE.md suggests for a run of days ([rerun] rotate_mb = 2000, keep_files = 24: 2000 MB x 25 segments,
-the most a live .rrd then takes on disk), the hours of recording that budget keeps; and per camera the least bytes a
-lossless coder predicting from the left neighbour gets the first frame's depth and amplitude to (the entropy of
-their row differences). Prints tables,
+(live_both_viewers). Rerun's live rate is its bytes per frame times 30 fps; with the default rotation budget
+([rerun] rotate_mb x (keep_files + 1): 2000 MB x 25 segments, the most a live .rrd takes on disk), the hours of
+recording that budget keeps; and per camera the least bytes a lossless coder predicting from the left neighbour gets
+the first frame's depth and amplitude to (the entropy of their row differences). Prints tables,
 writes bench/results/bench_viewers.json.
 """
 
@@ -49,7 +48,7 @@ from bench_pipeline import CLIP, Latencies, with_detector
 from cameras import CAMERAS, FRAME_PERIOD_US, SENSOR_MODELS, MemoryCamera, range_noise_mm, write_face_clip
 from report import run_to_end, write_json
 
-from tofd.config import load_config
+from tofd.config import RerunConfig, load_config
 from tofd.drivers.recording.replay import ReplaySource
 from tofd.lab.conditions import TRAIN_CONDITION
 from tofd.process_setup import prepare_service_process
@@ -74,7 +73,7 @@ from tofd_testing.foxglove_client import MESSAGE_DATA, connect, refused_channel
 KINDS = ("none", "rerun", "foxglove")
 LIVE_FPS = 1e6 / FRAME_PERIOD_US
 CONNECT_TIMEOUT_S = 60.0  # the Foxglove server listens from the pipeline's first frame on
-ROTATE_MB, KEEP_FILES = 2000.0, 24  # the [rerun] rotation docs/ARCHITECTURE.md suggests for a run of days
+ROTATE_MB, KEEP_FILES = RerunConfig().rotate_mb, RerunConfig().keep_files  # the default [rerun] rotation
 
 
 class CountingClient:
@@ -155,7 +154,7 @@ def viewers(cfg, kind: str, policy: str, rrd: Path) -> tuple[ViewerProcess | Non
     """The (Rerun viewer process saving `rrd`, Foxglove viewer process on a free port) of a run of `kind`."""
     rerun = foxglove = None
     if kind in ("rerun", "both"):
-        sink_cfg = replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd)))
+        sink_cfg = replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd), rotate_mb=0.0, rotate_s=0.0))
         # both (live): each frame sent at once and handed off as to a watched viewer, not as into a file
         sends = 1 if kind == "both" else frames_per_send(sink_cfg.rerun, policy)
         rerun = ViewerProcess(sink_cfg, "save", sends, hand_off_frames(policy, "web" if kind == "both" else "save"),

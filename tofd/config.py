@@ -193,9 +193,9 @@ class RerunConfig:
     point_cloud: bool = True  # log the foreground as a 3-D point cloud coloured by NFFT eps0
     batch_frames: int = 15  # frames sent to Rerun together in replay and to .rrd files; live viewers get each at once
     analytics: bool = False  # let the Rerun SDK/viewer send anonymous usage data (off: tofd sets CI=1 for them)
-    rotate_mb: float = 0.0  # live "save": start a new numbered .rrd segment at this size, MB (0: one file)
+    rotate_mb: float = 2000.0  # live "save": start a new numbered .rrd segment at this size, MB (0: one file)
     rotate_s: float = 0.0  # "save": ... or after this many seconds (0: no time limit)
-    keep_files: int = 0  # segments kept, the oldest deleted beyond it (0: keep all)
+    keep_files: int = 24  # segments kept, the oldest deleted beyond it (0: keep all): by default at most 50 GB
 
     def validate(self) -> None:
         if self.sink not in RERUN_SINKS:

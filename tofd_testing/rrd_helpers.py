@@ -171,3 +171,11 @@ def check_rrd(path, counters, results_by_counter=None):
             assert feature_crop_at(tables[entity][1], last)[0].size < 0.5 * shown.size
         assert static_value(tables, entity, "EncodedDepthImage:media_type") == "image/png"
     return tables
+
+
+def live_recording(path) -> str:
+    """The one segment a short live run with the .rrd `path` wrote (a live file is cut into numbered segments by
+    default, [rerun] rotate_mb: STEM.00000.rrd, ...)."""
+    segments = sorted(path.parent.glob(f"{path.stem}.*.rrd"))
+    assert [s.name for s in segments] == [f"{path.stem}.00000.rrd"] and not path.exists(), segments
+    return str(segments[0])

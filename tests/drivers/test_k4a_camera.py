@@ -23,7 +23,7 @@ from tofd.drivers.recording.replay import iter_frames
 from tofd.drivers.source import DriverError
 from tofd_testing.k4a_helpers import K4A
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
-from tofd_testing.rrd_helpers import foreground_clouds
+from tofd_testing.rrd_helpers import foreground_clouds, live_recording
 
 RADIUS = 0.10
 
@@ -107,7 +107,7 @@ def test_tofd_run_on_a_playback_puts_the_foreground_on_the_sphere(k4a, tmp_path)
     assert proc.returncode == 0, proc.stderr
     s = json.loads(summary.read_text())
     assert s["frames_in"] == s["frames_out"] + s["frames_dropped"] and s["frames_out"] >= 1, s
-    clouds = foreground_clouds(rrd)
+    clouds = foreground_clouds(live_recording(rrd))
     assert clouds and all(len(c) > 300 for c in clouds)
     for points in clouds:
         off = np.abs(np.linalg.norm(points - centre, axis=1) - RADIUS)

@@ -29,7 +29,7 @@ from tofd_testing.bag_scenes import RS_LIKE, RS_SCENE, Scene, depth_units, rende
 from tofd_testing.chaos_helpers import free_port, metric, metrics, wait_for
 from tofd_testing.chaos_helpers import tofd as chaos_tofd
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, bundled_config
-from tofd_testing.rrd_helpers import read_entities
+from tofd_testing.rrd_helpers import live_recording, read_entities
 from tofd_testing.vendor_bag_helpers import pinhole_errors, realsense_env, record_realsense
 
 RS_640 = Intrinsics(640, 480, 500.0, 502.5, 323.3, 236.6, "plumb_bob", (-0.25, 0.09, 0.0012, -0.0009, -0.012))
@@ -82,7 +82,7 @@ def test_run_on_the_playback_device_puts_the_foreground_on_the_moving_sphere(rec
     assert summary["error"] is None and summary["consistent"] and summary["frames_in"] == 40, summary
     assert summary["frames_in"] == summary["frames_out"] + summary["frames_dropped"]
     assert summary["viewer"]["exit"] == "clean"
-    _, table = read_entities(str(rrd))[bp.FOREGROUND]
+    _, table = read_entities(live_recording(rrd))[bp.FOREGROUND]
     counters = table.column("frame").to_pylist()
     # real time on a loaded machine: the SDK may skip frames, so the 40 taken reach further into the recording, and
     # the pipeline and the best-effort viewer drop what they cannot take in time (a quiet machine logs about 30)

@@ -15,9 +15,10 @@ from rerun.chunk import RrdReader
 
 from tests.service.test_track_reporting import MISS, result
 from tofd.algorithm.tracking import NoseTracker
-from tofd.config import Config, ConfigError, config_from_dict
+from tofd.config import Config, ConfigError, config_from_dict, load_config
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.rerun_sink import RerunBackend
+from tofd.service.viewer.rotation import FileRotation
 from tofd_testing.pipeline_sources import PATIENT_VIEWER, write_config
 from tofd_testing.rrd_helpers import read_entities
 
@@ -52,6 +53,13 @@ def test_time_limit_starts_numbered_segments_and_keeps_the_newest(tmp_path):
     assert ids == {backend.recording_id}
     for name in names:
         assert any(c.is_static for c in read_entities(str(tmp_path / name))[bp.CAMERA][0])
+
+
+def test_by_default_a_live_file_is_segmented_within_50_gb_and_a_replay_is_one_file():
+    rerun = replace(Config().rerun, sink="save")
+    assert FileRotation.wanted(rerun, "save", footer=False) and not FileRotation.wanted(rerun, "save", footer=True)
+    assert rerun.rotate_mb * (rerun.keep_files + 1) <= 50_000  # MB, however long the run
+    assert load_config().rerun == Config().rerun  # the shipped config file says the same
 
 
 def test_limits_are_checked():

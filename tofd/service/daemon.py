@@ -117,6 +117,7 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
         try:
             from tofd.service.viewer.logger import frames_per_send  # these import the Rerun SDK: only when serving
             from tofd.service.viewer.process import ViewerProcess, hand_off_frames
+            from tofd.service.viewer.rotation import FileRotation
             from tofd.service.viewer.targets import file_footer
 
             start_resource_tracker()
@@ -153,6 +154,8 @@ def serve(cfg: Config, source: FrameSource, policy: Policy, *, live_source: bool
             sd_notify("READY=1")
             if viewer is not None and viewer.web_url:
                 log.info("web viewer: %s", viewer.web_url)
+            if viewer is not None and FileRotation.wanted(cfg.rerun, cfg.rerun.sink, file_footer(policy)):
+                log.info("rerun: live recording in segments %s", FileRotation(cfg.rerun).describe())
             if foxglove is not None and foxglove.web_url:
                 log.info("foxglove: %s (Foxglove: Open connection, Foxglove WebSocket; listening from the first frame "
                          "on)", foxglove.web_url)

@@ -58,3 +58,11 @@ class FileRotation:
         if self.keep > 0 and self.index >= self.keep:
             self.segment(self.index - self.keep).unlink(missing_ok=True)
         return self.segment()
+
+    def describe(self) -> str:
+        """What the segments are, for the run's log."""
+        limits = [f"{self.max_bytes / 1e6:g} MB"] if self.max_bytes > 0 else []
+        limits += [f"{self.max_s:g} s"] if self.max_s > 0 else []
+        kept = f"the newest {self.keep} kept" if self.keep > 0 else "all kept"
+        return (f"{self.segment(0)}, {self.segment(1).name}, ... ({' or '.join(limits)} each, {kept}; "
+                "[rerun] rotate_mb = 0 and rotate_s = 0: one file)")
