@@ -148,6 +148,7 @@ def test_a_missing_sdk_names_the_extra(monkeypatch):
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # a live segment has none
 def test_tofd_run_on_an_sdk_recording_puts_the_foreground_on_the_sphere(femto_bag, tmp_path):
     """The done-when: `tofd run --camera orbbec --playback` on a bag the SDK's RecordDevice wrote."""
     rrd, summary = tmp_path / "orbbec.rrd", tmp_path / "summary.json"

@@ -69,6 +69,7 @@ def on_sphere(points: np.ndarray, scene: Scene, pixels: int) -> tuple[float, flo
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # a live segment has none
 def test_run_on_the_playback_device_puts_the_foreground_on_the_moving_sphere(recording, tmp_path):
     rrd, summary_path = tmp_path / "x.rrd", tmp_path / "s.json"
     config = bundled_config(tmp_path / "patient.toml", pipeline=PATIENT_VIEWER)
