@@ -2,7 +2,7 @@
 the replay rate with and without each viewer, from one run.
 
     python bench/bench_viewers.py                      # sr3000 (the bundled clip) and 640x576
-    python bench/bench_viewers.py --replay-frames 300 --runs 3 --live-seconds 10
+    python bench/bench_viewers.py --replay-frames 300 --runs 3 --live-seconds 10 --live-runs 3
 
 Per camera (bench/cameras.py): the SR3000's bundled clip (replay_data/emulated_face_035_070.mcap) and a clip of the
 emulator's face rendered in the Azure Kinect NFOV geometry (640x576) as a millimetre camera delivers it (z-depth in
@@ -17,10 +17,11 @@ interleaved, fps is the median run's, ratios against no viewer in the same run. 
 bytes per frame on disk (Rerun's LZ4 chunks), per view the bytes on disk of its chunks written alone by Rerun's writer,
 and the bytes its rows hold (an encoded image's PNG, a raw image's pixels, the points) before that compression.
 Then --live-seconds of the clip replayed in real time (30 fps, looped, latest-wins, bench/cameras.MemoryCamera) with
-the Foxglove viewer and a client subscribed to every channel: bytes per message and MB/s received per topic; then as
-long with both viewers on (Rerun sent each frame at once, as to a live viewer): frames delivered per second, capture
-to the Rerun viewer process's send and to the Foxglove client's receipt of a frame's last message, median and p99
-(live_both_viewers). Rerun's live rate is its bytes per frame times 30 fps; with the default rotation budget
+the Foxglove viewer and a client subscribed to every channel: bytes per message and MB/s received per topic; then
+--live-runs times as long with both viewers on (Rerun sent each frame at once, as to a live viewer): frames delivered
+per second, capture to the Rerun viewer process's send and to the Foxglove client's receipt of a frame's last
+message, median and p99, each run (live_both_viewers; a 2-core machine's p99 varies by tens of ms between runs).
+Rerun's live rate is its bytes per frame times 30 fps; with the default rotation budget
 ([rerun] rotate_mb x (keep_files + 1): 2000 MB x 25 segments, the most a live .rrd takes on disk), the hours of
 recording that budget keeps; and per camera the least bytes a lossless coder predicting from the left neighbour gets
 the first frame's depth and amplitude to (the entropy of their row differences). Prints tables,
@@ -333,8 +334,8 @@ def encodings(clip: Path) -> dict:
     return {codec: {"bytes": size, "ms": ms} for codec, (size, ms) in out.items()}
 
 
-def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs: int, live_s: float, tmp: Path
-            ) -> dict:
+def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs: int, live_s: float, live_runs: int,
+            tmp: Path) -> dict:
     """Replay rates with each viewer, the .rrd's and the live Foxglove stream's sizes, of one camera's clip."""
     cam_cfg = replace(cfg, intrinsics=CAMERAS[name])
     each: dict[str, list[dict]] = {kind: [] for kind in KINDS}
@@ -346,7 +347,7 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
     last_rerun = each["rerun"][-1]
     rrd = rrd_views(Path(last_rerun["rrd"]), last_rerun["frames_out"])
     live = run(cam_cfg, MemoryCamera(clip), "foxglove", "latest", frames=None, seconds=live_s, tmp=tmp)
-    both = live_both(cam_cfg, clip, live_s, tmp)
+    both = [live_both(cam_cfg, clip, live_s, tmp) for _ in range(live_runs)]
     client = live["client"]
     seconds = client["seconds"]
     fox_topics = {topic: {"bytes_per_message": round(client["bytes"][topic] / n),
@@ -379,6 +380,8 @@ def compare(cfg, name: str, condition: str, clip: Path, replay_frames: int, runs
         "foxglove_topics": fox_topics,
         "foxglove_refused_subscriptions": client["refused_subscriptions"],  # to channels it advertised
         "live_both_viewers": both,
+        "live_both_p99_ms": {viewer: [run[key].get("p99") for run in both] for viewer, key in
+                             (("rerun", "rerun_capture_to_send_ms"), ("foxglove", "foxglove_capture_to_client_ms"))},
     }
 
 
@@ -399,10 +402,10 @@ def print_tables(rows: list[dict]) -> None:
             print(f"  {entity:40s} {b:>10} {arrow.get(entity, 0):>10}")
         print(f"  {'(headers, footer index)':40s} {r['rerun_rest_disk_bytes_per_frame']:>10}")
         print(f"  lossless bound (entropy of row differences): {r['lossless_bound_bytes']}")
-        both = r["live_both_viewers"]
-        print(f"{r['camera']} ({r['sensor_model']}): live with both viewers: {both['fps_delivered']} fps delivered, "
-              f"capture to Rerun's send {both['rerun_capture_to_send_ms']}, to the Foxglove client "
-              f"{both['foxglove_capture_to_client_ms']} ms, viewer drops {both['viewer_dropped']}")
+        for both in r["live_both_viewers"]:
+            print(f"{r['camera']} ({r['sensor_model']}): live with both viewers: {both['fps_delivered']} fps "
+                  f"delivered, capture to Rerun's send {both['rerun_capture_to_send_ms']}, to the Foxglove client "
+                  f"{both['foxglove_capture_to_client_ms']} ms, viewer drops {both['viewer_dropped']}")
         print(f"{r['camera']} ({r['sensor_model']}): Foxglove per topic (live, {r['foxglove_live_fps']} fps)")
         for topic, t in r["foxglove_topics"].items():
             print(f"  {topic:40s} {t['bytes_per_message']:>10} B  {t['MB_per_s']:>8} MB/s")
@@ -415,7 +418,8 @@ def main() -> None:
     ap.add_argument("--replay-frames", type=int, default=300, help="frames per lossless replay (the clip looped)")
     ap.add_argument("--runs", type=int, default=3, help="replay runs per viewer kind (interleaved; the median)")
     ap.add_argument("--camera-frames", type=int, default=60, help="frames of a rendered clip")
-    ap.add_argument("--live-seconds", type=float, default=10.0, help="seconds of the real-time Foxglove run")
+    ap.add_argument("--live-seconds", type=float, default=10.0, help="seconds of each real-time run")
+    ap.add_argument("--live-runs", type=int, default=3, help="real-time runs with both viewers (each reported)")
     ap.add_argument("--conditions", type=lambda text: text.split(","),
                     default=[TRAIN_CONDITION, "noise_constant", "k4a_spec_noise"],
                     help=f"sensor models the rendered clips are made with (of: {', '.join(SENSOR_MODELS)})")
@@ -433,7 +437,9 @@ def main() -> None:
         "about": (f"bench/bench_viewers.py: lossless replay of {args.replay_frames} frames, {args.runs} runs per "
                   f"viewer (median); Rerun: the .rrd a replay saves (MB per frame on disk; MB/s live = that at "
                   f"30 fps); Foxglove: {args.live_seconds:g} s real-time replay at 30 fps, one client subscribed to "
-                  "every channel. 640x576: the emulator's face rendered as a millimetre camera (z-depth in whole "
+                  f"every channel; then {args.live_runs} runs as long with both viewers (live_both_viewers: each "
+                  "run's capture to viewer p50 and p99; live_both_p99_ms: each run's p99). 640x576: the emulator's "
+                  "face rendered as a millimetre camera (z-depth in whole "
                   "mm) delivers it, under each sensor model (range_noise_mm: the noise it puts on the scene; "
                   "k4a_spec_noise: at most the Azure Kinect's specified 17 mm)."),
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
@@ -447,7 +453,8 @@ def main() -> None:
                 clip = CLIP if name == "sr3000" else write_face_clip(
                     tmp_path / f"{name}-{condition}.mcap", CAMERAS[name], args.camera_frames, millimetres=True,
                     model=SENSOR_MODELS[condition])
-                row = compare(cfg, name, condition, clip, args.replay_frames, args.runs, args.live_seconds, tmp_path)
+                row = compare(cfg, name, condition, clip, args.replay_frames, args.runs, args.live_seconds,
+                              args.live_runs, tmp_path)
                 if name != "sr3000":
                     row["range_noise_mm"] = range_noise_mm(CAMERAS[name], SENSOR_MODELS[condition])
                 rows.append(row)
