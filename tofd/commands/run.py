@@ -36,7 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None, help="config file (default: the bundled tofd.toml)")
     parser.add_argument("--emulate", action="store_true", help="use the emulated SR3000 camera (no hardware)")
     arguments.add_camera_arguments(parser)
-    parser.add_argument("--rerun", default=None, metavar="SINK", help=RERUN_SPEC_HELP)
+    parser.add_argument("--rerun", default=None, metavar="SINK",
+                        help=f"{RERUN_SPEC_HELP}; save:PATH writes numbered segments beside PATH "
+                             "(STEM.00000.rrd, ...; [rerun] rotate_mb, keep_files)")
     parser.add_argument("--foxglove", default=None, metavar="HOST:PORT", help=FOXGLOVE_SPEC_HELP)
     parser.add_argument("--frames", type=arguments.positive_int, default=None, metavar="N", help="stop after N frames")
     parser.add_argument("--health-port", type=int, default=None, metavar="PORT",
