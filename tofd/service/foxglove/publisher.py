@@ -66,14 +66,12 @@ from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer.encoding import (
     amplitude_u8,
     code_unit_m,
+    exact_z_units,
     feature_u8,
     in_units,
     jpeg,
     png,
     scaled_u16,
-    source_unit_m,
-    units_per_range_m,
-    z_depth_m,
 )
 from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
 
@@ -258,15 +256,15 @@ class FoxglovePublisher:
         in them (z-depth in SensorInfo's unit: millimetre cameras; radial range codes: the SR3000), its depth
         kind and unit in the channel's metadata; else float32 radial range in metres (RawImage 32FC1)."""
         frame = r.frame
-        candidates = [("z", source_unit_m(frame), z_depth_m(frame.range_m, self._ray_z)),
-                      ("radial", code_unit_m(frame), np.fmax(frame.range_m, np.float32(0)))]
-        for kind, unit, plane in candidates:
-            if unit is not None and in_units(plane, unit)[1]:
-                self._range_factor = units_per_range_m(self._ray_z, unit) if kind == "z" else 1.0 / unit
-                self.range = CompressedImageChannel(t.RANGE, context=self.context,
-                                                    metadata=t.range_metadata(kind, unit))
-                return
-        self.range = RawImageChannel(t.RANGE, context=self.context, metadata=t.range_metadata("radial", 1.0))
+        exact, code = exact_z_units(frame, self._ray_z), code_unit_m(frame)
+        if exact is not None:
+            kind, (unit, self._range_factor) = "z", exact
+        elif code is not None and in_units(np.fmax(frame.range_m, np.float32(0)), code)[1]:
+            kind, unit, self._range_factor = "radial", code, 1.0 / code
+        else:
+            self.range = RawImageChannel(t.RANGE, context=self.context, metadata=t.range_metadata("radial", 1.0))
+            return
+        self.range = CompressedImageChannel(t.RANGE, context=self.context, metadata=t.range_metadata(kind, unit))
 
     def _log_range(self, r: FrameResult, stamp: Timestamp, ns: int) -> None:
         """Log the frame's range image as its channel carries it (_open_range)."""

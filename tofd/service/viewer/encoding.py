@@ -99,6 +99,16 @@ def units_per_range_m(ray_z: np.ndarray, unit_m: float) -> np.ndarray:
     return (ray_z / np.float32(unit_m)).astype(np.float32)
 
 
+def exact_z_units(frame: Frame, ray_z: np.ndarray) -> tuple[float, np.ndarray] | None:
+    """The source's unit (metres) and the (H, W) factor from radial range to z-depth in it (units_per_range_m) when
+    the frame's z-depth is a whole number of that unit at every pixel (in_units); None when the source gives no
+    unit or its z-depth is not whole in it (the viewers then show float metres). Decided at a run's first frame."""
+    unit = source_unit_m(frame)
+    if unit is None or not in_units(z_depth_m(frame.range_m, ray_z), unit)[1]:
+        return None
+    return unit, units_per_range_m(ray_z, unit)
+
+
 def amplitude_u16(amplitude: np.ndarray) -> np.ndarray:
     """(H, W) uint16 amplitude: sensor units rounded to integers (scaled_u16), NaN and negatives 0, clipped at
     65535."""

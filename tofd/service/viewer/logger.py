@@ -52,13 +52,11 @@ from tofd.service.viewer.encoding import (
     JPEG_MEDIA_TYPE,
     PNG_MEDIA_TYPE,
     amplitude_u8,
+    exact_z_units,
     feature_u8,
-    in_units,
     jpeg,
     png,
     scaled_u16,
-    source_unit_m,
-    units_per_range_m,
     z_depth_m,
 )
 from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
@@ -272,10 +270,10 @@ class RerunLogger:
 
     def _choose_depth(self, r: FrameResult) -> None:
         """At the first frame: the depth goes as a 16-bit PNG in the source's unit when the frame's z-depth is
-        exactly that (encoding.in_units), else as float32 metres; its static style (metre, colour map)."""
-        unit = source_unit_m(r.frame)
-        if unit is not None and in_units(z_depth_m(r.frame.range_m, self._ray_z), unit)[1]:
-            self._units_per_range = units_per_range_m(self._ray_z, unit)
+        exactly that (encoding.exact_z_units), else as float32 metres; its static style (metre, colour map)."""
+        exact = exact_z_units(r.frame, self._ray_z)
+        if exact is not None:
+            unit, self._units_per_range = exact
             self._encoded[bp.RANGE] = rr.EncodedDepthImage
             style: rr.AsComponents = rr.EncodedDepthImage.from_fields(media_type=PNG_MEDIA_TYPE, meter=1.0 / unit,
                                                                      colormap="turbo")
