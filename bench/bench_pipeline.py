@@ -161,6 +161,11 @@ def per_process(pipeline: Pipeline, viewer: ViewerProcess | None, lat: Latencies
             "cpu_bound_fps": round((os.cpu_count() or 1) * 1e3 / every, 1) if every > 0 else None}
 
 
+def one_rrd(cfg, path: Path):
+    """The config with Rerun saving one .rrd at `path`, never cut into segments (a bench reads it back whole)."""
+    return replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(path), rotate_mb=0.0, rotate_s=0.0))
+
+
 def with_detector(cfg, tmp: Path):
     """The config, with a nose model learned on rendered frames for the current feature settings
     (tofd_testing/pipeline_sources.py) if the shipped model does not load, so detection is always in the loop."""
@@ -185,8 +190,7 @@ def run(cfg, source, policy, *, live: bool, rerun: bool, duration_s: float | Non
     rrd = tmp / f"{policy}-{time.monotonic_ns()}.rrd"
     if rerun:  # the daemon's viewer process, sending as it would to a connected viewer (live: frame by frame)
         sends = frames_per_send(replace(cfg.rerun, sink="connect"), policy)
-        one_file = replace(cfg.rerun, sink="save", path=str(rrd), rotate_mb=0.0, rotate_s=0.0)  # read back whole
-        viewer = ViewerProcess(replace(cfg, rerun=one_file), "save", sends,
+        viewer = ViewerProcess(one_rrd(cfg, rrd), "save", sends,
                                footer=file_footer(policy))
     pipeline: Pipeline
     warmup = max(1, (max_frames or 300) // 10)

@@ -45,7 +45,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import websocket
-from bench_pipeline import CLIP, Latencies, with_detector
+from bench_pipeline import CLIP, Latencies, one_rrd, with_detector
 from cameras import CAMERAS, FRAME_PERIOD_US, SENSOR_MODELS, MemoryCamera, range_noise_mm, write_face_clip
 from report import run_to_end, write_json
 
@@ -155,7 +155,7 @@ def viewers(cfg, kind: str, policy: str, rrd: Path) -> tuple[ViewerProcess | Non
     """The (Rerun viewer process saving `rrd`, Foxglove viewer process on a free port) of a run of `kind`."""
     rerun = foxglove = None
     if kind in ("rerun", "both"):
-        sink_cfg = replace(cfg, rerun=replace(cfg.rerun, sink="save", path=str(rrd), rotate_mb=0.0, rotate_s=0.0))
+        sink_cfg = one_rrd(cfg, rrd)
         # both (live): each frame sent at once and handed off as to a watched viewer, not as into a file
         sends = 1 if kind == "both" else frames_per_send(sink_cfg.rerun, policy)
         rerun = ViewerProcess(sink_cfg, "save", sends, hand_off_frames(policy, "web" if kind == "both" else "save"),

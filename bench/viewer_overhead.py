@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_pipeline import CLIP, Latencies, per_process, processes, with_detector
+from bench_pipeline import CLIP, Latencies, one_rrd, per_process, processes, with_detector
 from report import run_to_end, write_json
 
 from tofd.config import Config, load_config
@@ -64,11 +64,6 @@ class NullBackend:
         return None
 
 
-def save_config(cfg: Config, path: Path) -> Config:
-    """cfg with Rerun saving one .rrd at `path` (a replay's file is one file)."""
-    return dataclasses.replace(cfg, rerun=dataclasses.replace(cfg.rerun, sink="save", path=str(path)))
-
-
 def run(cfg: Config, kind: str, frames: int, tmp: Path) -> dict:
     """One lossless replay of `frames` frames of the clip with the viewer of `kind`: steady fps and CPU per frame."""
     rrd = tmp / f"{kind}-{time.monotonic_ns()}.rrd"
@@ -77,9 +72,9 @@ def run(cfg: Config, kind: str, frames: int, tmp: Path) -> dict:
     if kind == "handoff":
         viewer = ViewerProcess(cfg, "save", sends, open_backend=NullBackend, name="handoff")
     elif kind == "process":
-        viewer = ViewerProcess(save_config(cfg, rrd), "save", sends, footer=file_footer("lossless"))
+        viewer = ViewerProcess(one_rrd(cfg, rrd), "save", sends, footer=file_footer("lossless"))
     elif kind == "inline":
-        inline = RerunBackend(save_config(cfg, rrd), "save", sends, footer=True)
+        inline = RerunBackend(one_rrd(cfg, rrd), "save", sends, footer=True)
     pipeline: Pipeline
     lat = Latencies(frames // 10, lambda: processes(pipeline, viewer))
     pipeline = Pipeline(cfg, "lossless", viewer=viewer, inline_viewer=inline, writers=(lat,),
@@ -121,7 +116,7 @@ def logger_alone(cfg: Config, frames: int, tmp: Path) -> dict:
         pipeline.start(source, None)
         run_to_end(pipeline, None)
         pipeline.close()
-    backend = RerunBackend(save_config(cfg, tmp / "alone.rrd"), "save", frames_per_send(cfg.rerun, "lossless"),
+    backend = RerunBackend(one_rrd(cfg, tmp / "alone.rrd"), "save", frames_per_send(cfg.rerun, "lossless"),
                            footer=True)
     for r in keep.results[:20]:
         backend(r)
