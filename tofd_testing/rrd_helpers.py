@@ -100,10 +100,27 @@ def check_amplitude(image, scale, amplitude):
     assert np.sqrt(np.mean(error**2)) <= 2.0 and abs(error.mean()) <= 0.5
 
 
+def placed_at(table, row, crop, shape):
+    """`crop` (h, w) at the entity's translation at `row` in an (H, W) image of zeros (float64)."""
+    x, y, z = table.column("Transform3D:translation")[row].as_py()[0]
+    assert z == 0 and x == int(x) and y == int(y), (x, y, z)
+    full = np.zeros(shape, np.float64)
+    full[int(y): int(y) + crop.shape[0], int(x): int(x) + crop.shape[1]] = crop
+    return full
+
+
+def mask_at(table, row, shape):
+    """The (H, W) bool mask at `row` as the viewer draws it: its crop (a SegmentationImage) placed at its
+    translation."""
+    crop = image_at(table, "SegmentationImage", row)
+    assert crop.dtype == np.uint8 and set(np.unique(crop)) <= {0, 1}
+    return placed_at(table, row, crop, shape) > 0
+
+
 def feature_crop_at(table, row):
-    """A feature entity's crop at `row`: its 8-bit levels (a PNG depth image) and its meter (levels per unit)."""
-    levels = unpng(blob_at(table, "EncodedDepthImage", row))
-    return levels, table.column("EncodedDepthImage:meter")[row].as_py()[0]
+    """A feature entity's crop at `row`: its 8-bit levels (a depth image) and its meter (levels per unit)."""
+    levels = image_at(table, "DepthImage", row)
+    return levels, table.column("DepthImage:meter")[row].as_py()[0]
 
 
 def feature_map_at(table, row, shape):
@@ -111,11 +128,7 @@ def feature_map_at(table, row, shape):
     its meter, placed at its translation in an (H, W) image of zeros."""
     levels, meter = feature_crop_at(table, row)
     assert levels.dtype == np.uint8
-    x, y, z = table.column("Transform3D:translation")[row].as_py()[0]
-    assert z == 0 and x == int(x) and y == int(y), (x, y, z)
-    full = np.zeros(shape, np.float64)
-    full[int(y): int(y) + levels.shape[0], int(x): int(x) + levels.shape[1]] = levels / meter
-    return full
+    return placed_at(table, row, levels / meter, shape)
 
 
 def check_feature_map(shown, values):
@@ -155,6 +168,9 @@ def check_rrd(path, counters, results_by_counter=None):
             np.testing.assert_array_equal(stored, np.rint(z_m / unit))
             np.testing.assert_allclose(depth_m, z_m, atol=unit * 0.05)
         check_amplitude(*amplitude_at(tables, last), results_by_counter[c].frame.amplitude)
+        mask = results_by_counter[c].mask
+        np.testing.assert_array_equal(mask_at(tables[bp.MASK][1], last, mask.shape), mask)  # the crop, in place
+        assert image_at(tables[bp.MASK][1], "SegmentationImage", last).size < 0.5 * mask.size
         cloud = tables[bp.FOREGROUND][1].column("Points3D:positions")[len(counters) - 1]
         at = cloud_pixels(results_by_counter[c].mask)
         assert len(cloud) == len(at)
@@ -169,7 +185,6 @@ def check_rrd(path, counters, results_by_counter=None):
             shown = feature_map_at(tables[entity][1], last, frame.range_m.shape)
             check_feature_map(shown, results_by_counter[c].features[name])
             assert feature_crop_at(tables[entity][1], last)[0].size < 0.5 * shown.size
-        assert static_value(tables, entity, "EncodedDepthImage:media_type") == "image/png"
     return tables
 
 

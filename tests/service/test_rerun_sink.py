@@ -204,7 +204,7 @@ def test_millimetre_depth_is_stored_as_the_sources_integers_and_lines_up_with_th
     from tofd.drivers.frame import Frame, SensorInfo
     from tofd.lab.cameras import CAMERAS
     from tofd.service.viewer.pixels import CLOUD_POINTS, cloud_pixels
-    from tofd_testing.rrd_helpers import amplitude_at, check_amplitude, depth_at
+    from tofd_testing.rrd_helpers import amplitude_at, check_amplitude, depth_at, image_at, mask_at
 
     intr = CAMERAS["k4a-nfov"]
     v, u = np.indices(intr.shape)
@@ -224,6 +224,8 @@ def test_millimetre_depth_is_stored_as_the_sources_integers_and_lines_up_with_th
     assert stored.dtype == np.uint16
     np.testing.assert_array_equal(stored, z_mm)  # exactly the source's millimetres
     check_amplitude(*amplitude_at(tables, 0), amplitude)  # for viewing: 8 bits at the recorded scale
+    np.testing.assert_array_equal(mask_at(tables[bp.MASK][1], 0, intr.shape), mask)  # its box, put in place
+    assert image_at(tables[bp.MASK][1], "SegmentationImage", 0).shape == (200, 200)
     pinhole = tables[bp.CAMERA][0][0].to_record_batch()
     matrix = np.array(pinhole.column("Pinhole:image_from_camera")[0].as_py()[0]).reshape(3, 3).T
     fx, fy, px, py = matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2]

@@ -11,7 +11,7 @@ IMAGE = f"{CAMERA}/image"  # the camera's image plane: 2-D views of range, ampli
 RANGE = f"{IMAGE}/depth"  # DepthImage: z-depth (planar, along the optical axis), metres: projects correctly in 3-D
 AMPLITUDE = f"{IMAGE}/amplitude"  # EncodedImage: amplitude for viewing, 8-bit JPEG, AMPLITUDE_SCALE units per level
 AMPLITUDE_SCALE = "/amplitude_scale"  # Scalars: sensor units per level of AMPLITUDE (its level 255: a robust top)
-MASK = f"{IMAGE}/mask"  # SegmentationImage: 0 background, 1 foreground
+MASK = f"{IMAGE}/mask"  # SegmentationImage: 1 foreground, 0 background, over the foreground's box, translated to it
 NOSE_2D = f"{IMAGE}/nose"  # Points2D: detected nose tip, pixels
 FOREGROUND = "/world/foreground"  # Points3D: foreground points, metres, coloured by NFFT eps0
 NOSE_3D = "/world/nose"  # Points3D: detected nose tip, metres
@@ -29,17 +29,18 @@ EVENTS = "/events"  # TextLog: device gaps and reconnects
 
 def build_blueprint(image_shape: tuple[int, int]) -> rrb.Blueprint:
     """Camera images (left), feature maps (middle), 3-D scene, stage timings, track confidence and device events
-    (right); `image_shape` (rows, columns): the feature views show the whole image, not just the crop."""
+    (right); `image_shape` (rows, columns): the 2-D views show the whole image, not just a crop."""
+
+    whole_image = rrb.VisualBounds2D(x_range=[0, image_shape[1]], y_range=[0, image_shape[0]])
 
     def image_view(name: str, entity: str) -> rrb.Spatial2DView:
-        return rrb.Spatial2DView(name=name, origin=IMAGE, contents=[entity, NOSE_2D, TRACK_2D])
+        return rrb.Spatial2DView(name=name, origin=IMAGE, contents=[entity, NOSE_2D, TRACK_2D],
+                                 visual_bounds=whole_image)
 
     def feature_view(name: str) -> rrb.Spatial2DView:
         family, eps = map_parts(name)
         return rrb.Spatial2DView(name=f"{family.method.upper()} {eps}", origin=FEATURES_ORIGIN,
-                                 contents=[FEATURES[name]],
-                                 visual_bounds=rrb.VisualBounds2D(x_range=[0, image_shape[1]],
-                                                                  y_range=[0, image_shape[0]]))
+                                 contents=[FEATURES[name]], visual_bounds=whole_image)
 
     return rrb.Blueprint(
         rrb.Horizontal(

@@ -92,6 +92,16 @@ def image_columns(archetype: type, buffers: pa.ListArray, formats: pa.StructArra
                        (component_descriptor(archetype, "format"), formats), *more)
 
 
+def image_formats(template: pa.StructArray, shapes: Sequence[tuple[int, int]]) -> pa.StructArray:
+    """One image format per (height, width) of `shapes`, each otherwise the one-row `template`'s (image_format):
+    the formats of a batch of crops of one kind of image."""
+    heights, widths = np.asarray(shapes, np.uint32).reshape(-1, 2).T
+    at = np.zeros(len(heights), np.intp)
+    fields = {field.name: template.field(field.name).take(at) for field in template.type}
+    fields["width"], fields["height"] = pa.array(widths, pa.uint32()), pa.array(heights, pa.uint32())
+    return pa.StructArray.from_arrays(list(fields.values()), fields=list(template.type))
+
+
 def image_format(*, height: int, width: int, color_model: ColorModelLike | None, dtype: type) -> pa.StructArray:
     """The one-row image format (Rerun's ImageFormat arrow type) of (height, width) images of `dtype` pixels."""
     return ImageFormatBatch([ImageFormat(width=width, height=height, color_model=color_model,

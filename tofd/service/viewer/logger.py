@@ -3,10 +3,11 @@
 Per frame: z-depth under the Pinhole (what Rerun's depth images mean, so the 3-D projection is right; the camera's
 radial range is it over each ray's z) as a 16-bit PNG in the source's unit where that is exact, else float32 metres
 (tofd.service.viewer.encoding), amplitude for viewing as an 8-bit JPEG (its scale, sensor units per level, a
-time series beside it: encoding.amplitude_u8), the mask (Rerun's chunk compression shrinks it to a few kB), four
-feature maps cropped to the foreground's bounding box (they are 0 outside it) as 8-bit PNG depth images whose meter
-(levels per unit) gives their values back (encoding.feature_u8), with the translation that puts the crop where it
-lies in the image, the foreground cloud (at most pixels.CLOUD_POINTS points, an even
+time series beside it: encoding.amplitude_u8), the mask and four feature maps cropped to the foreground's
+bounding box (they are 0 outside it) with the translation that puts each crop where it lies in the image, as raw
+8-bit images (Rerun's chunk compression shrinks them; its viewer plays encoded images as a video stream, whose size
+must not change): the maps as depth images whose meter (levels per unit) gives their values back
+(encoding.feature_u8); the foreground cloud (at most pixels.CLOUD_POINTS points, an even
 subsample of a large foreground), the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of
 pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D point) and the track's confidence,
 one scalar per stage timing.
@@ -30,7 +31,6 @@ from functools import cache
 import numpy as np
 import pyarrow as pa
 import rerun as rr
-from rerun.encodings import ColorModelLike
 
 from tofd.algorithm.names import FAMILY_TABLE
 from tofd.config import RerunConfig
@@ -44,6 +44,7 @@ from tofd.service.viewer.columns import (
     component_type,
     image_columns,
     image_format,
+    image_formats,
     offsets_of,
     row_columns,
 )
@@ -101,13 +102,14 @@ def colour_by(values: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, slots=True)
 class ImageEntity:
-    """A per-frame image: its archetype, pixel type, colour model and the static style logged once."""
+    """A per-frame full-frame image sent as raw pixels: its archetype and pixel type."""
 
     archetype: type
     dtype: type
-    style: rr.AsComponents | None = None
-    color_model: ColorModelLike | None = None
 
+
+CROPPED = {bp.MASK: rr.SegmentationImage, **dict.fromkeys(bp.FEATURES.values(), rr.DepthImage)}
+"""Entities sent over the foreground's box only, as uint8 images: their archetypes."""
 
 # entities with a variable number of instances per frame (0 = none): archetype, static style
 PARTS: dict[str, tuple[type, rr.AsComponents | None]] = {
@@ -168,9 +170,11 @@ class Shown(Batch):
     logging time and row in the series batch."""
 
     images: dict[str, np.ndarray] = field(default_factory=dict)  # entity -> (batch_frames, H, W), row per frame
+    crops: dict[str, list[np.ndarray]] = field(default_factory=dict)  # CROPPED entity -> its uint8 crop per frame
     encoded: dict[str, list[bytes]] = field(default_factory=dict)  # entity -> its PNG or JPEG per frame
     feature_meters: dict[str, list[float]] = field(default_factory=dict)  # feature entity -> levels per unit
     corners: list[tuple[int, int]] = field(default_factory=list)  # per frame: the crops' top-left pixel (x, y)
+    crop_shapes: list[tuple[int, int]] = field(default_factory=list)  # per frame: the crops' (rows, columns)
     arrival_s: list[float] = field(default_factory=list)
     call_ms: list[float] = field(default_factory=list)
     series_row: list[int] = field(default_factory=list)
@@ -186,16 +190,14 @@ class RerunLogger:
         self.intrinsics = intrinsics
         self._rays = intrinsics.unit_rays().astype(np.float32)
         self._ray_z = np.ascontiguousarray(self._rays[..., 2])  # z-depth = radial range * cos(angle to the axis)
-        self._images = {bp.MASK: ImageEntity(rr.SegmentationImage, np.uint8)}  # raw planes (and a float depth)
+        self._images: dict[str, ImageEntity] = {}  # raw full-frame planes: the depth, when it goes as float metres
+        self._crop_format = image_format(height=1, width=1, color_model=None, dtype=np.uint8)  # sized: image_formats
         # encoded planes: archetype; the depth's joins at the first frame if its unit is exact
-        self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage,
-                                          **dict.fromkeys(bp.FEATURES.values(), rr.EncodedDepthImage)}
+        self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage}
         self._units_per_range: np.ndarray | None = None  # (H, W) radial metres -> depth units, when it goes as PNG
         self._depth_chosen = False
-        self._shape = height, width = intrinsics.shape
-        # as arrow, built once: Rerun's conversion is slow
-        self._formats = {path: image_format(height=height, width=width, color_model=image.color_model,
-                                            dtype=image.dtype) for path, image in self._images.items()}
+        self._shape = intrinsics.shape
+        self._formats: dict[str, pa.StructArray] = {}  # raw images' format, as arrow: Rerun's conversion is slow
         self._format_columns: dict[tuple[str, int], pa.Array] = {}
         self._shown, self._series = self._new_shown(), Batch()
         rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Y_DOWN, static=True)
@@ -204,10 +206,8 @@ class RerunLogger:
                                       width=intrinsics.width, height=intrinsics.height), static=True)
         rec.log(bp.MASK, rr.AnnotationContext([(0, "background", (0, 0, 0)), (1, "foreground", (230, 60, 40))]),
                 static=True)
-        styles = {**{path: image.style for path, image in self._images.items()},
-                  # a depth image is Rerun's colour-mapped scalar image; the eccentricities are not depths
-                  **dict.fromkeys(bp.FEATURES.values(), rr.EncodedDepthImage.from_fields(media_type=PNG_MEDIA_TYPE,
-                                                                                         colormap="viridis")),
+        styles = {# a depth image is Rerun's colour-mapped scalar image; the eccentricities are not depths
+                  **dict.fromkeys(bp.FEATURES.values(), rr.DepthImage.from_fields(colormap="viridis")),
                   bp.AMPLITUDE: rr.EncodedImage.from_fields(media_type=JPEG_MEDIA_TYPE),
                   **{path: style for path, (_, style) in PARTS.items()}}
         for path, style in styles.items():
@@ -234,9 +234,11 @@ class RerunLogger:
         self._add_planes(r, row)
         box = foreground_box(r.mask)
         shown.corners.append((box[1].start, box[0].start))
+        shown.crop_shapes.append((box[0].stop - box[0].start, box[1].stop - box[1].start))
+        shown.crops.setdefault(bp.MASK, []).append(r.mask[box].astype(np.uint8))  # a copy: the slot is written again
         for name, path in bp.FEATURES.items():  # eccentricities are >= 0; NaN outside the foreground
             levels, top = feature_u8(r.features[name][box])
-            shown.encoded.setdefault(path, []).append(png(levels))
+            shown.crops.setdefault(path, []).append(levels)
             shown.feature_meters.setdefault(path, []).append(FEATURE_LEVELS / top if top > 0 else 1.0)
         if self.point_cloud:
             at = cloud_pixels(r.mask)  # np.take of a flat index is far faster than a 2-D mask or fancy index
@@ -254,8 +256,8 @@ class RerunLogger:
             self._send_shown()
 
     def _add_planes(self, r: FrameResult, row: int) -> None:
-        """The frame's depth (z-depth: PNG in the source's unit or float32 metres), amplitude (8-bit JPEG and its scale)
-        and mask."""
+        """The frame's depth (z-depth: PNG in the source's unit or float32 metres) and amplitude (8-bit JPEG and its
+        scale)."""
         shown = self._shown
         if not self._depth_chosen:
             self._choose_depth(r)
@@ -266,7 +268,6 @@ class RerunLogger:
         amplitude, scale = amplitude_u8(r.frame.amplitude)
         shown.encoded.setdefault(bp.AMPLITUDE, []).append(jpeg(amplitude))
         shown.add(bp.AMPLITUDE_SCALE, row, scalars=[scale])  # with its image, not with the lagging series
-        shown.images[bp.MASK][row] = r.mask
 
     def _choose_depth(self, r: FrameResult) -> None:
         """At the first frame: the depth goes as a 16-bit PNG in the source's unit when the frame's z-depth is
@@ -326,24 +327,34 @@ class RerunLogger:
             self._send(path, b, rows, image_columns(
                 image.archetype, blobs(frames.reshape(-1), np.full(len(rows), frames[0].size)),
                 self._formats_of(path, len(rows))))
-        if b.corners:  # the feature maps' crops: each with the translation that puts it back in the image
-            descriptor, datatype = component_type(rr.Transform3D, "translation")
-            place = (descriptor, component_array(datatype, np.c_[b.corners, np.zeros(len(b.corners))]))  # z = 0
+        self._send_crops(b, rows)
         for path, encoded in b.encoded.items():
-            archetype = self._encoded[path]
-            descriptor, datatype = component_type(archetype, "blob")
+            descriptor, datatype = component_type(self._encoded[path], "blob")
             flat = np.frombuffer(b"".join(encoded), np.uint8)
-            columns = [(descriptor, blobs(flat, [len(e) for e in encoded], datatype))]
-            if path in b.feature_meters:  # its value scale (levels per unit) and place
-                meter, meter_type = component_type(archetype, "meter")
-                columns += [(meter, component_array(meter_type, b.feature_meters[path])), place]
-            self._send(path, b, rows, row_columns(*columns))
+            self._send(path, b, rows, row_columns((descriptor, blobs(flat, [len(e) for e in encoded], datatype))))
         self._send_parts(b)
         share_ms = (time.perf_counter() - t0) * 1e3 / len(rows)
         now = time.monotonic()
         for i, at in enumerate(b.series_row):
             self._series.add(f"{bp.TIMINGS}/logging", at, scalars=[b.call_ms[i] + share_ms])
             self._series.add(f"{bp.TIMINGS}/latency", at, scalars=[(now - b.arrival_s[i]) * 1e3])
+
+    def _send_crops(self, b: Shown, rows: Sequence[int]) -> None:
+        """Send the CROPPED entities' crops, each with the translation that puts it back in the image (and a feature
+        map's meter, levels per unit)."""
+        if not b.crop_shapes:
+            return
+        descriptor, datatype = component_type(rr.Transform3D, "translation")
+        place = (descriptor, component_array(datatype, np.c_[b.corners, np.zeros(len(b.corners))]))  # z = 0
+        formats = image_formats(self._crop_format, b.crop_shapes)
+        sizes = [height * width for height, width in b.crop_shapes]
+        for path, crops in b.crops.items():
+            archetype, more = CROPPED[path], [place]
+            if path in b.feature_meters:
+                meter, meter_type = component_type(archetype, "meter")
+                more.append((meter, component_array(meter_type, b.feature_meters[path])))
+            flat = np.concatenate([crop.reshape(-1) for crop in crops])
+            self._send(path, b, rows, image_columns(archetype, blobs(flat, sizes), formats, *more))
 
     def _formats_of(self, path: str, frames: int) -> pa.Array:
         """The entity's one image format, once per frame of a batch of `frames` (built once per length)."""
