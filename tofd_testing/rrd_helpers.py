@@ -151,6 +151,12 @@ def check_rrd(path, counters, results_by_counter=None):
         rows = tables[entity][1].column("frame").to_pylist()
         assert rows == counters, entity
     assert tables[bp.CAMERA][0], "the Pinhole is logged statically"
+    for entity, (_, table) in tables.items():  # Rerun's viewer plays encoded images as a video: one size
+        archetype = next((a for a in ("EncodedImage", "EncodedDepthImage") if table is not None
+                          and f"{a}:blob" in table.column_names), None)
+        if archetype is not None:
+            sizes = {unpng(blob_at(table, archetype, row)).shape for row in range(table.num_rows)}
+            assert len(sizes) == 1, (entity, sizes)
     device_time = tables[bp.RANGE][1].column("device_time").cast(pa.int64()).to_numpy()
     assert np.all(np.diff(device_time) > 0)
     if results_by_counter:
