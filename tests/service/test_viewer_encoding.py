@@ -89,8 +89,9 @@ def test_one_pass_scaling_rounds_and_saturates_as_numpy_does():
 
 
 def test_png_decodes_exactly_with_libpng_and_refuses_what_it_cannot_hold():
-    """tofd's PNG writer (Sub filter, ISA-L deflate) read back by OpenCV's libpng, bit for bit: both depths, odd
-    sizes, one pixel, the extremes, a crop that is a view, and a plane's runs of zeros."""
+    """tofd's PNG writer (Sub filter, ISA-L deflate) read back by OpenCV's libpng, bit for bit: every depth, odd
+    sizes, one pixel, the extremes, a crop that is a view, and a plane's runs of zeros; a mask (bool) as 1-bit
+    black and white, which libpng gives back as 0 and 255."""
     rng = np.random.default_rng(5)
     planes = [rng.integers(0, 65536, (7, 13)).astype(np.uint16), rng.integers(0, 256, (13, 7)).astype(np.uint8),
               np.array([[65535]], np.uint16), np.array([[0, 255]], np.uint8),
@@ -99,6 +100,11 @@ def test_png_decodes_exactly_with_libpng_and_refuses_what_it_cannot_hold():
     for plane in planes:
         decoded = unpng(png(plane))
         assert decoded.dtype == plane.dtype and np.array_equal(decoded, plane)
+    for mask in (rng.random((9, 13)) < 0.5, np.ones((1, 1), bool), rng.random((40, 64)) < 0.1,
+                 (rng.random((50, 70)) < 0.5)[3:47:2, 5:66:3]):  # widths not a multiple of 8; a strided view
+        decoded = unpng(png(mask))
+        assert decoded.dtype == np.uint8 and np.array_equal(decoded, np.where(mask, 255, 0))
+        assert len(png(mask)) < len(png(mask.astype(np.uint8))) or mask.size < 100
     for bad in (np.zeros((0, 4), np.uint8), np.zeros((3, 3), np.float32), np.zeros((2, 2, 3), np.uint8)):
         with pytest.raises(ValueError, match="PNG of a"):
             png(bad)

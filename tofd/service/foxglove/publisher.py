@@ -220,7 +220,7 @@ class FoxglovePublisher:
         if self.cloud.has_sinks():
             self.cloud.log(self._foreground(r, stamp), log_time=ns)
         if self.images[t.MASK].has_sinks():
-            self.images[t.MASK].log(_png(stamp, np.where(r.mask, np.uint8(255), np.uint8(0))), log_time=ns)
+            self.images[t.MASK].log(_png(stamp, r.mask), log_time=ns)  # black and white, 1 bit a pixel
         if self.calibration.has_sinks():
             self.calibration.log(calibration(self.intrinsics, stamp), log_time=ns)
         if self.images[t.AMPLITUDE].has_sinks() or self.amplitude_scale.has_sinks():

@@ -25,7 +25,7 @@ AMPLITUDE_SCALE_SCHEMA = {
     "type": "object", "title": "tofd.AmplitudeScale",
     "properties": {"timestamp": TIMESTAMP_SCHEMA,
                    "units_per_level": {"type": "number"}}}
-MASK = "/camera/mask"  # foxglove.CompressedImage, 8-bit PNG: 255 foreground, 0 background
+MASK = "/camera/mask"  # foxglove.CompressedImage, 1-bit PNG: white foreground, black background
 CALIBRATION = "/camera/calibration"  # foxglove.CameraCalibration: the intrinsics (K, P; ROS pixel convention)
 NOSE = "/camera/nose"  # foxglove.ImageAnnotations: the detected nose tip (none: no annotation)
 NOSE_TRACK = "/camera/nose_track"  # foxglove.ImageAnnotations: the confirmed nose track's box and confidence

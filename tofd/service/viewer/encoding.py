@@ -150,17 +150,23 @@ def jpeg(plane: np.ndarray) -> bytes:
 
 
 def png(plane: np.ndarray) -> bytes:
-    """The lossless PNG (greyscale, 8 or 16 bits) of a (H, W) uint8 or uint16 plane, H and W >= 1."""
-    if plane.ndim != 2 or plane.dtype not in (np.uint8, np.uint16) or 0 in plane.shape:
-        raise ValueError(f"PNG of a {plane.dtype} {plane.shape} plane: expected a non-empty (H, W) uint8 or uint16")
+    """The lossless PNG (greyscale: 1, 8 or 16 bits) of a (H, W) bool, uint8 or uint16 plane, H and W >= 1 (a bool
+    plane, a mask, is black and white: PNG's 1-bit greyscale, an eighth of its bytes)."""
+    if plane.ndim != 2 or plane.dtype not in (np.bool_, np.uint8, np.uint16) or 0 in plane.shape:
+        raise ValueError(f"PNG of a {plane.dtype} {plane.shape} plane: expected a non-empty (H, W) bool, uint8 or "
+                         "uint16")
     height, width = plane.shape
-    depth = plane.dtype.itemsize  # bytes per pixel
-    rows = np.ascontiguousarray(plane, ">u2" if depth == 2 else np.uint8).view(np.uint8).reshape(height, width * depth)
-    filtered = np.empty((height, 1 + width * depth), np.uint8)
+    if plane.dtype == np.bool_:
+        rows, bits, depth = np.packbits(plane, axis=1), 1, 1  # PNG packs pixels from each byte's top bit
+    else:
+        depth = plane.dtype.itemsize  # bytes per pixel
+        rows = np.ascontiguousarray(plane, ">u2" if depth == 2 else np.uint8).view(np.uint8).reshape(height, -1)
+        bits = 8 * depth
+    filtered = np.empty((height, 1 + rows.shape[1]), np.uint8)
     filtered[:, 0] = PNG_SUB_FILTER
-    filtered[:, 1:1 + depth] = rows[:, :depth]  # the first pixel has nothing to its left
+    filtered[:, 1:1 + depth] = rows[:, :depth]  # the first pixel (byte, below 8 bits) has nothing to its left
     np.subtract(rows[:, depth:], rows[:, :-depth], out=filtered[:, 1 + depth:])  # modulo 256, as PNG's Sub
-    header = struct.pack(">IIBBBBB", width, height, 8 * depth, 0, 0, 0, 0)  # greyscale, deflate, no interlace
+    header = struct.pack(">IIBBBBB", width, height, bits, 0, 0, 0, 0)  # greyscale, deflate, no interlace
     return b"".join((PNG_SIGNATURE, _png_chunk(b"IHDR", header),
                      _png_chunk(b"IDAT", isal_zlib.compress(filtered, PNG_DEFLATE_LEVEL)), _png_chunk(b"IEND", b"")))
 
