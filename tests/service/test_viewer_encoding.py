@@ -130,9 +130,11 @@ def test_the_amplitude_for_viewing_is_within_half_a_level_of_its_recorded_scale(
     assert amplitude_u8(np.full((4, 4), np.nan, np.float32))[1] == 1.0  # nothing positive: scale 1
 
 
-@pytest.mark.parametrize("fill", [0.01, 0.3, 1.0])
-def test_the_cloud_is_every_pixel_of_a_small_foreground_and_an_even_grid_of_a_large_one(fill):
-    mask = np.random.default_rng(1).random(K4A.shape) < fill
+@pytest.mark.parametrize("fill, region", [(0.01, np.s_[:, :]), (0.3, np.s_[:, :]), (1.0, np.s_[:, :]),
+                                          (0.5, np.s_[101:400, 203:518])])  # a box off the grid's origin
+def test_the_cloud_is_every_pixel_of_a_small_foreground_and_an_even_grid_of_a_large_one(fill, region):
+    mask = np.zeros(K4A.shape, bool)
+    mask[region] = np.random.default_rng(1).random(K4A.shape)[region] < fill
     at = cloud_pixels(mask)
     assert len(at) <= CLOUD_POINTS and mask.reshape(-1)[at].all() and np.all(np.diff(at) > 0)
     if mask.sum() <= CLOUD_POINTS:

@@ -241,7 +241,7 @@ class RerunLogger:
             shown.crops.setdefault(path, []).append(levels)
             shown.feature_meters.setdefault(path, []).append(FEATURE_LEVELS / top if top > 0 else 1.0)
         if self.point_cloud:
-            at = cloud_pixels(r.mask)  # np.take of a flat index is far faster than a 2-D mask or fancy index
+            at = cloud_pixels(r.mask, box=box)  # np.take of a flat index: far faster than a 2-D mask or fancy index
             ranges = np.take(frame.range_m.reshape(-1), at)
             shown.add(bp.FOREGROUND, row, positions=np.take(self._rays.reshape(-1, 3), at, axis=0) * ranges[:, None],
                       colors=colour_by(np.take(r.features[POINT_COLOUR_MAP].reshape(-1), at)))

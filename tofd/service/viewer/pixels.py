@@ -49,16 +49,17 @@ CLOUD_POINTS = 6000
 """Most foreground points a viewer's 3-D view gets per frame (a density it draws at the camera's rate)."""
 
 
-def cloud_pixels(mask: np.ndarray, most: int = CLOUD_POINTS) -> np.ndarray:
+def cloud_pixels(mask: np.ndarray, most: int = CLOUD_POINTS, box: tuple[slice, slice] | None = None) -> np.ndarray:
     """Flat indices of the (H, W) mask's pixels on the grid of every k-th row and column (k >= 1 the least that
     keeps at most `most` of them), in row-major order: every pixel while the foreground is small, else an even
-    subsample of it."""
-    count = int(np.count_nonzero(mask))
+    subsample of it. `box`: the mask's foreground_box, if known (only it is searched)."""
+    rows, cols = foreground_box(mask) if box is None else box
     step = 1
-    while count > most:
+    while True:
+        first_row, first_col = -(-rows.start // step) * step, -(-cols.start // step) * step  # on the grid
+        on_grid = mask[first_row:rows.stop:step, first_col:cols.stop:step]
+        if np.count_nonzero(on_grid) <= most:
+            break
         step += 1
-        count = int(np.count_nonzero(mask[::step, ::step]))
-    if step == 1:
-        return np.flatnonzero(mask)
-    rows, cols = np.nonzero(mask[::step, ::step])
-    return (rows * step) * mask.shape[1] + cols * step
+    at_row, at_col = np.nonzero(on_grid)
+    return (at_row * step + first_row) * mask.shape[1] + at_col * step + first_col
