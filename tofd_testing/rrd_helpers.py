@@ -2,6 +2,7 @@
 
 import warnings
 
+import matplotlib
 import numpy as np
 import pyarrow as pa
 import pytest
@@ -180,13 +181,16 @@ def check_rrd(path, counters, results_by_counter=None):
         cloud = tables[bp.FOREGROUND][1].column("Points3D:positions")[len(counters) - 1]
         at = cloud_pixels(results_by_counter[c].mask)
         assert len(cloud) == len(at)
-        # coloured by NFFT eps0 on viridis: the smallest point value dark blue, the largest yellow
+        # coloured as the NFFT eps0 view shows their pixels: its 8-bit level on viridis, the largest value yellow
         colours = tables[bp.FOREGROUND][1].column("Points3D:colors")[len(counters) - 1].values.to_numpy()
-        eps0 = results_by_counter[c].features["range_nfft_eps0"].reshape(-1)[at]
-        assert len(colours) == len(eps0)
-        rgb = [(int(colours[i]) >> 24, int(colours[i]) >> 16 & 0xFF, int(colours[i]) >> 8 & 0xFF)
-               for i in (np.nanargmin(eps0), np.nanargmax(eps0))]
-        assert rgb == [(68, 1, 84), (253, 231, 36)], rgb  # viridis at 0 and 1
+        eps0 = tables[bp.FEATURES["range_nfft_eps0"]][1]
+        levels = np.rint(feature_map_at(eps0, last, frame.range_m.shape) * feature_crop_at(eps0, last)[1])
+        assert len(colours) == len(at)
+        rgb = np.stack([colours >> 24, colours >> 16 & 0xFF, colours >> 8 & 0xFF], axis=1)
+        viridis = (matplotlib.colormaps["viridis"](levels.reshape(-1)[at] / 255)[:, :3] * 255).astype(int)
+        np.testing.assert_array_equal(rgb, viridis)
+        top = np.nanargmax(results_by_counter[c].features["range_nfft_eps0"].reshape(-1)[at])
+        assert tuple(rgb[top]) == (253, 231, 36)  # viridis at 1
         for name, entity in bp.FEATURES.items():  # each map, cropped to the foreground, is the whole map in place
             shown = feature_map_at(tables[entity][1], last, frame.range_m.shape)
             check_feature_map(shown, results_by_counter[c].features[name])

@@ -63,7 +63,7 @@ from tofd.service.viewer.encoding import (
 from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
 from tofd.service.viewer.wire import OWN_TIMINGS
 
-POINT_COLOUR_MAP = FAMILY_TABLE["range_nfft"].map_name("eps0")  # colours the foreground's 3-D points
+POINT_COLOUR_MAP = FAMILY_TABLE["range_nfft"].map_name("eps0")  # the foreground's 3-D points take its view's colours
 NOSE_COLOR = (255, 0, 255)
 TRACK_COLOR = (0, 200, 255)
 MAX_BATCH_AGE_S = 0.5  # a batch is sent once its first frame waited this long, however few frames it holds
@@ -83,21 +83,6 @@ def viridis_rgba() -> np.ndarray:
 
     rgb = (colormaps["viridis"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint32)
     return (rgb[:, 0] << 24) | (rgb[:, 1] << 16) | (rgb[:, 2] << 8) | 0xFF
-
-
-def colour_by(values: np.ndarray) -> np.ndarray:
-    """(N,) packed viridis colours (viridis_rgba) of log10(values), scaled to their 2nd-98th percentile (nearest
-    rank); non-finite values get the first colour."""
-    lut = viridis_rgba()
-    logv = np.log10(np.maximum(values, 1e-30))
-    finite = np.isfinite(logv)
-    kept = logv[finite]
-    if not kept.size:
-        return np.full(len(values), lut[0])
-    ranks = [round(0.02 * (kept.size - 1)), round(0.98 * (kept.size - 1))]
-    lo, hi = np.partition(kept, ranks)[ranks]
-    idx = np.clip((logv - lo) * (255 / max(hi - lo, 1e-12)), 0, 255)
-    return np.take(lut, np.where(finite, idx, 0).astype(np.intp))
 
 
 @dataclass(frozen=True, slots=True)
@@ -243,8 +228,10 @@ class RerunLogger:
         if self.point_cloud:
             at = cloud_pixels(r.mask, box=box)  # np.take of a flat index: far faster than a 2-D mask or fancy index
             ranges = np.take(frame.range_m.reshape(-1), at)
+            rows, cols = np.divmod(at, frame.range_m.shape[1])
+            levels = shown.crops[bp.FEATURES[POINT_COLOUR_MAP]][-1]  # each point's colour in that map's view
             shown.add(bp.FOREGROUND, row, positions=np.take(self._rays.reshape(-1, 3), at, axis=0) * ranges[:, None],
-                      colors=colour_by(np.take(r.features[POINT_COLOUR_MAP].reshape(-1), at)))
+                      colors=np.take(viridis_rgba(), levels[rows - box[0].start, cols - box[1].start]))
         self._add_nose_and_track(r, row, shown.series_row[row])
         for stage, ms in r.timings_ms.items():
             if stage not in OWN_TIMINGS:
