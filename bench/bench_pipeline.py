@@ -59,6 +59,7 @@ from tofd.drivers.recording.replay import ReplaySource
 from tofd.process_setup import prepare_service_process
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline, maps_read
+from tofd.service.pipeline.stats import TIMED_STAGES
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.logger import frames_per_send
 from tofd.service.viewer.process import ViewerProcess
@@ -122,9 +123,9 @@ def processes(pipeline: Pipeline, viewer: ViewerProcess | None) -> dict[str, int
 
 
 def viewer_latencies_ms(rrd: Path) -> np.ndarray:
-    """Each frame's capture -> viewer latency (ms), as the viewer process logged it (/timings/latency), read back
-    from the .rrd with Rerun's own reader, in frame order; in a child process, so the reader's memory does not
-    count as this process's RSS in the runs after it."""
+    """Each frame's capture -> viewer latency (ms), as the viewer process logged it (the "latency" series of
+    /timings), read back from the .rrd with Rerun's own reader, in frame order; in a child process, so the reader's
+    memory does not count as this process's RSS in the runs after it."""
     with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as child:
         return np.array(child.submit(read_latencies_ms, str(rrd)).result())
 
@@ -135,9 +136,10 @@ def read_latencies_ms(rrd: str) -> list[float]:
 
     rows = []
     for chunk in RrdReader(str(rrd)).stream().to_chunks():
-        if chunk.entity_path == f"{bp.TIMINGS}/latency" and not chunk.is_static:
+        if chunk.entity_path == bp.TIMINGS and not chunk.is_static:
             batch = chunk.to_record_batch()
-            rows += zip(batch.column("frame").to_pylist(), (v[0] for v in batch.column("Scalars:scalars").to_pylist()),
+            at = TIMED_STAGES.index("latency")
+            rows += zip(batch.column("frame").to_pylist(), (v[at] for v in batch.column("Scalars:scalars").to_pylist()),
                         strict=True)
     return [ms for _, ms in sorted(rows)]
 

@@ -56,6 +56,7 @@ from tofd.process_setup import prepare_service_process
 from tofd.service.foxglove.publisher import FoxglovePublisher
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline, maps_read
+from tofd.service.pipeline.stats import TIMED_STAGES
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.encoding import (
     amplitude_u8,
@@ -209,11 +210,11 @@ def rrd_views(path: Path, frames: int) -> dict:
     for chunk in RrdReader(str(path)).stream().to_chunks():
         batch = chunk.to_record_batch()
         per_entity[chunk.entity_path] = per_entity.get(chunk.entity_path, 0) + (0 if chunk.is_static else batch.nbytes)
-        if not chunk.is_static and chunk.entity_path == f"{bp.TIMINGS}/logging":
-            own_ms += [row[0] for row in batch.column("Scalars:scalars").to_pylist()]
-        if not chunk.is_static and chunk.entity_path == f"{bp.TIMINGS}/latency":
+        if not chunk.is_static and chunk.entity_path == bp.TIMINGS:
+            timings = batch.column("Scalars:scalars").to_pylist()
+            own_ms += [row[TIMED_STAGES.index("logging")] for row in timings]
             latency.update(zip(batch.column("frame").to_pylist(),
-                               (row[0] for row in batch.column("Scalars:scalars").to_pylist()), strict=True))
+                               (row[TIMED_STAGES.index("latency")] for row in timings), strict=True))
     alone = path.with_suffix(".view.rrd")
 
     def written_alone(content: str) -> int:

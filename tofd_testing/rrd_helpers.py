@@ -13,8 +13,7 @@ from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.encoding import unpng
 from tofd.service.viewer.pixels import cloud_pixels
 
-PER_FRAME = [bp.RANGE, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(),
-             f"{bp.TIMINGS}/nfft", f"{bp.TIMINGS}/logging", f"{bp.TIMINGS}/latency"]
+PER_FRAME = [bp.RANGE, bp.AMPLITUDE, bp.MASK, bp.FOREGROUND, *bp.FEATURES.values(), bp.TIMINGS]
 
 
 def has_footer(path) -> bool:

@@ -23,7 +23,7 @@ FEATURES = {name: f"{FEATURES_ORIGIN}/{family.method}/{eps}"
             for name in VIEWED_MAPS for family, eps in [map_parts(name)]}
 """Feature map name -> entity (range_fft_eps0 -> /features/fft/eps0; the viewed maps are the range's): colour-mapped
 scalar images of the foreground's bounding box, each translated to where that box lies in the image."""
-TIMINGS = "/timings"  # Scalars per stage, milliseconds
+TIMINGS = "/timings"  # Scalars: milliseconds, one per stage of stats.TIMED_STAGES, in its order (NaN: not timed)
 EVENTS = "/events"  # TextLog: device gaps and reconnects
 
 

@@ -10,7 +10,7 @@ must not change): the maps as depth images whose meter (levels per unit) gives t
 (encoding.feature_u8); the foreground cloud (at most pixels.CLOUD_POINTS points, an even
 subsample of a large foreground), the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of
 pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D point) and the track's confidence,
-one scalar per stage timing.
+the stage timings (one entity, a series per stage in TIMED_STAGES' order: one send for all).
 Timelines: `frame` (device frame counter) and `device_time` (device clock).
 
 Everything per frame goes out as columns (Rerun's send_columns), `batch_frames` frames per send: a log call
@@ -68,6 +68,7 @@ NOSE_COLOR = (255, 0, 255)
 TRACK_COLOR = (0, 200, 255)
 MAX_BATCH_AGE_S = 0.5  # a batch is sent once its first frame waited this long, however few frames it holds
 SERIES_FRAMES = 15  # the time series (stage timings, track confidence) go out at least this many frames at once
+LOGGING, LATENCY = (TIMED_STAGES.index(stage) for stage in OWN_TIMINGS)  # the timings this process measures
 
 
 def frames_per_send(cfg: RerunConfig, policy: str) -> int:
@@ -105,7 +106,7 @@ PARTS: dict[str, tuple[type, rr.AsComponents | None]] = {
     bp.TRACK_3D: (rr.Points3D, rr.Points3D.from_fields(radii=0.006, colors=[TRACK_COLOR])),
     bp.TRACK_CONFIDENCE: (rr.Scalars, None),
     bp.AMPLITUDE_SCALE: (rr.Scalars, rr.SeriesLines(names="amplitude units per level")),
-    **{f"{bp.TIMINGS}/{stage}": (rr.Scalars, rr.SeriesLines(names=f"{stage} [ms]")) for stage in TIMED_STAGES},
+    bp.TIMINGS: (rr.Scalars, rr.SeriesLines(names=[f"{stage} [ms]" for stage in TIMED_STAGES])),
 }
 
 
@@ -162,6 +163,7 @@ class Shown(Batch):
     crop_shapes: list[tuple[int, int]] = field(default_factory=list)  # per frame: the crops' (rows, columns)
     arrival_s: list[float] = field(default_factory=list)
     call_ms: list[float] = field(default_factory=list)
+    stage_ms: list[list[float]] = field(default_factory=list)  # per frame: its timings in TIMED_STAGES' order
     series_row: list[int] = field(default_factory=list)
 
 
@@ -233,9 +235,7 @@ class RerunLogger:
             shown.add(bp.FOREGROUND, row, positions=np.take(self._rays.reshape(-1, 3), at, axis=0) * ranges[:, None],
                       colors=np.take(viridis_rgba(), levels[rows - box[0].start, cols - box[1].start]))
         self._add_nose_and_track(r, row, shown.series_row[row])
-        for stage, ms in r.timings_ms.items():
-            if stage not in OWN_TIMINGS:
-                series.add(f"{bp.TIMINGS}/{stage}", shown.series_row[row], scalars=[ms])
+        shown.stage_ms.append([r.timings_ms.get(stage, np.nan) for stage in TIMED_STAGES])  # own ones: at the send
         shown.call_ms.append((time.perf_counter() - t0) * 1e3)
         if series.due(max(self.batch_frames, SERIES_FRAMES)):
             self.flush()  # the views' batch first: its frames' logging times and latencies join the series
@@ -323,8 +323,9 @@ class RerunLogger:
         share_ms = (time.perf_counter() - t0) * 1e3 / len(rows)
         now = time.monotonic()
         for i, at in enumerate(b.series_row):
-            self._series.add(f"{bp.TIMINGS}/logging", at, scalars=[b.call_ms[i] + share_ms])
-            self._series.add(f"{bp.TIMINGS}/latency", at, scalars=[(now - b.arrival_s[i]) * 1e3])
+            timings = b.stage_ms[i]
+            timings[LOGGING], timings[LATENCY] = b.call_ms[i] + share_ms, (now - b.arrival_s[i]) * 1e3
+            self._series.add(bp.TIMINGS, at, scalars=timings)
 
     def _send_crops(self, b: Shown, rows: Sequence[int]) -> None:
         """Send the CROPPED entities' crops, each with the translation that puts it back in the image (and a feature
