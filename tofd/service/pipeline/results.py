@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -38,9 +38,15 @@ def finite_or_none(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def flat_dict(obj: Any) -> dict[str, Any]:
+    """A dataclass whose fields are plain values (numbers, strings, None, tuples of numbers) as a dict of them:
+    dataclasses.asdict without its recursive copies, several times as fast (the viewer's wire, every frame)."""
+    return {f.name: getattr(obj, f.name) for f in fields(obj)}
+
+
 def track_dict(state: TrackState | None) -> dict | None:
     """A TrackState as a JSON-ready dict (the viewer's wire format), or None."""
-    return None if state is None else asdict(state)
+    return None if state is None else flat_dict(state)
 
 
 def track_from(d: dict | None) -> TrackState | None:

@@ -10,7 +10,6 @@ frame. Outside the box the slot keeps an earlier frame's values.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from typing import TypedDict
 
@@ -20,7 +19,7 @@ from tofd.algorithm.names import VIEWED_MAPS
 from tofd.drivers.frame import Frame, Registers, SensorInfo
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.pipeline.messages import DetectionMessage
-from tofd.service.pipeline.results import FrameResult, track_dict, track_from
+from tofd.service.pipeline.results import FrameResult, flat_dict, track_dict, track_from
 from tofd.service.pipeline.slots import SLOT_FIELDS, SlotRing
 from tofd.service.pipeline.stages import detection_dict, detection_from
 from tofd.service.viewer.pixels import foreground_box
@@ -65,7 +64,7 @@ def write(r: FrameResult, slot: int, planes: dict[str, np.ndarray]) -> bytes:
                          nfft_iterations=r.nfft_iterations, nfft_residual=r.nfft_residual,
                          timings_ms={k: v for k, v in r.timings_ms.items() if k not in OWN_TIMINGS},
                          detection=None if det is None else detection_dict(det), track=track_dict(r.track),
-                         registers=None if f.registers is None else dataclasses.asdict(f.registers),
+                         registers=None if f.registers is None else flat_dict(f.registers),
                          sensor=None if f.sensor is None else f.sensor.to_dict())
     return json.dumps(header).encode()
 
