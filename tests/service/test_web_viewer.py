@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tofd.service.viewer.blueprint import COLUMN_SHARES
 from tofd_testing.cdp_screenshot import chromium, free_port, screenshot
 from tofd_testing.pipeline_sources import write_config
 
@@ -49,8 +50,16 @@ def thirds_variety(img: np.ndarray) -> list[int]:
     return [colour_variety(t) for t in (body[:, : w // 3], body[:, w // 3: 2 * w // 3], body[:, 2 * w // 3:])]
 
 
+def feature_maps_variety(img: np.ndarray) -> int:
+    """colour_variety of the feature maps' column (blueprint.COLUMN_SHARES) below the page's top bar: viridis maps,
+    or (as when Rerun's viewer would not play the maps' images) grey panels and loading dots, about 20."""
+    h, w, _ = img.shape
+    left, width, total = COLUMN_SHARES[0], COLUMN_SHARES[1], sum(COLUMN_SHARES)
+    return colour_variety(img[60:h - 60, w * left // total: w * (left + width) // total])
+
+
 def views_shown(img: np.ndarray) -> bool:
-    return min(thirds_variety(img)) >= 40
+    return min(thirds_variety(img)) >= 40 and feature_maps_variety(img) >= 40
 
 
 def readme_viewer_url() -> str:
@@ -88,4 +97,4 @@ def test_web_viewer_shows_the_views_of_a_live_run(tmp_path):
             raise
     assert proc.returncode == 0, err
     img = np.asarray(Image.open(png).convert("RGB"))
-    assert views_shown(img), (thirds_variety(img), url, str(png), page_text)
+    assert views_shown(img), (thirds_variety(img), feature_maps_variety(img), url, str(png), page_text)

@@ -27,6 +27,10 @@ TIMINGS = "/timings"  # Scalars: milliseconds, one per stage of stats.TIMED_STAG
 EVENTS = "/events"  # TextLog: device gaps and reconnects
 
 
+COLUMN_SHARES = (1, 2, 2)
+"""Widths of the layout's columns, left to right: camera images, feature maps, 3-D scene and time series."""
+
+
 def build_blueprint(image_shape: tuple[int, int]) -> rrb.Blueprint:
     """Camera images (left), feature maps (middle), 3-D scene, stage timings, track confidence and device events
     (right); `image_shape` (rows, columns): the 2-D views show the whole image, not just a crop."""
@@ -54,5 +58,5 @@ def build_blueprint(image_shape: tuple[int, int]) -> rrb.Blueprint:
                 rrb.TimeSeriesView(name="nose track confidence", origin=TRACK_CONFIDENCE),
                 rrb.TextLogView(name="events", origin=EVENTS),
                 row_shares=[3, 2, 1, 1]),
-            column_shares=[1, 2, 2]),
+            column_shares=list(COLUMN_SHARES)),
         collapse_panels=True)
