@@ -160,7 +160,6 @@ class Shown(Batch):
     encoded: dict[str, list[bytes]] = field(default_factory=dict)  # entity -> its PNG or JPEG per frame
     feature_meters: dict[str, list[float]] = field(default_factory=dict)  # feature entity -> levels per unit
     corners: list[tuple[int, int]] = field(default_factory=list)  # per frame: the crops' top-left pixel (x, y)
-    crop_shapes: list[tuple[int, int]] = field(default_factory=list)  # per frame: the crops' (rows, columns)
     arrival_s: list[float] = field(default_factory=list)
     call_ms: list[float] = field(default_factory=list)
     stage_ms: list[list[float]] = field(default_factory=list)  # per frame: its timings in TIMED_STAGES' order
@@ -221,7 +220,6 @@ class RerunLogger:
         self._add_planes(r, row)
         box = foreground_box(r.mask)
         shown.corners.append((box[1].start, box[0].start))
-        shown.crop_shapes.append((box[0].stop - box[0].start, box[1].stop - box[1].start))
         shown.crops.setdefault(bp.MASK, []).append(r.mask[box].astype(np.uint8))  # a copy: the slot is written again
         for name, path in bp.FEATURES.items():  # eccentricities are >= 0; NaN outside the foreground
             levels, top = feature_u8(r.features[name][box])
@@ -330,12 +328,13 @@ class RerunLogger:
     def _send_crops(self, b: Shown, rows: Sequence[int]) -> None:
         """Send the CROPPED entities' crops, each with the translation that puts it back in the image (and a feature
         map's meter, levels per unit)."""
-        if not b.crop_shapes:
+        if not b.corners:
             return
         descriptor, datatype = component_type(rr.Transform3D, "translation")
         place = (descriptor, component_array(datatype, np.c_[b.corners, np.zeros(len(b.corners))]))  # z = 0
-        formats = image_formats(self._crop_format, b.crop_shapes)
-        sizes = [height * width for height, width in b.crop_shapes]
+        masks = b.crops[bp.MASK]  # every crop of a frame has its mask crop's shape
+        formats = image_formats(self._crop_format, [mask.shape for mask in masks])
+        sizes = [mask.size for mask in masks]
         for path, crops in b.crops.items():
             archetype, more = CROPPED[path], [place]
             if path in b.feature_meters:
