@@ -120,6 +120,11 @@ def test_lossless_delivers_every_frame_in_order_with_the_in_process_features():
         for name, ref_map in ref.maps.items():
             np.testing.assert_array_equal(r.features[name], ref_map, err_msg=name)
         assert r.mask.sum() > 300  # a face, not an empty frame
+        rows, cols = r.box  # the foreground's bounding box, which the maps are NaN outside
+        assert r.mask[rows, cols].sum() == r.mask.sum()
+        assert r.mask[rows.start].any() and r.mask[rows.stop - 1].any()
+        assert r.mask[:, cols.start].any() and r.mask[:, cols.stop - 1].any()
+        assert np.isnan(np.delete(r.features["range_nfft_eps0"], np.s_[rows], axis=0)).all()
     assert {"capture", "queue", "segmentation", "fft", "nfft", "latency"} <= set(sink.results[0].timings_ms)
     assert not pipeline.running
 

@@ -13,6 +13,7 @@ import pytest
 from tests.service.test_health import metric_values
 from tofd.algorithm.detector import Detection
 from tofd.algorithm.names import MAP_NAMES
+from tofd.algorithm.segmentation import foreground_box
 from tofd.algorithm.tracking import NoseTracker, TrackerConfig
 from tofd.batch.rows import frame_row
 from tofd.config import Config, load_config
@@ -26,7 +27,6 @@ from tofd.service.pipeline.slots import SlotRing
 from tofd.service.pipeline.stats import TrackSnapshot, TrackStats
 from tofd.service.viewer import RerunLogger, RerunTarget, wire
 from tofd.service.viewer import blueprint as bp
-from tofd.service.viewer.pixels import foreground_box
 from tofd_testing.pipeline_sources import RenderedSource, write_config
 from tofd_testing.rrd_helpers import read_entities
 
@@ -49,7 +49,8 @@ def result(counter: int, detection: Detection, track) -> FrameResult:
                   intrinsics=INTRINSICS)
     return FrameResult(seq=counter, frame=frame, mask=np.zeros(shape, bool),
                        features={n: np.full(shape, np.nan, np.float32) for n in MAP_NAMES}, nfft_iterations=3,
-                       nfft_residual=1e-3, arrival_s=time.monotonic(), detection=detection, track=track)
+                       nfft_residual=1e-3, arrival_s=time.monotonic(), box=(slice(0, 0), slice(0, 0)),
+                       detection=detection, track=track)
 
 
 def tracked_results(detections: list[Detection], cfg: TrackerConfig | None = None) -> list[FrameResult]:
@@ -135,11 +136,12 @@ def test_wire_format_carries_the_feature_maps_over_the_foreground_box_only():
         for i, (rows, cols) in enumerate(((slice(20, 90), slice(30, 120)), (slice(50, 60), slice(70, 75)))):
             r = result(i, MISS, None)
             r.mask[rows, cols] = rng.random((rows.stop - rows.start, cols.stop - cols.start)) < 0.7
-            box = foreground_box(r.mask)
+            box = r.box = foreground_box(r.mask)
             for plane in r.features.values():
                 plane[box] = rng.random(plane[box].shape)
             before = {name: view.copy() for name, view in ring.views(0).items()}
             back = wire.read(wire.write(r, 0, ring.views(0)), ring, INTRINSICS)
+            assert back.box == box
             outside = np.ones(INTRINSICS.shape, bool)
             outside[box] = False
             for name, plane in back.features.items():

@@ -6,6 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tofd.algorithm.segmentation import foreground_box
 from tofd.config import Config
 from tofd.drivers import sr3000
 from tofd.drivers.frame import Frame, Registers, SensorInfo
@@ -153,14 +154,15 @@ def test_foxglove_range_of_a_millimetre_camera_is_its_millimetres_and_lines_up_w
     mask[150:450, 200:500] = True  # 90000 pixels: the cloud is a subsample
     feats = {name: np.where(mask, np.float32(2.0), np.float32(np.nan)) for name in bp.FEATURES}
     frames = [millimetre_frame(k) for k in range(3)]
+    box = foreground_box(mask)
     try:
-        publisher(FrameResult(0, frames[0][0], mask, feats, 0, 0.0, arrival_s=0.0))  # the server listens from here
+        publisher(FrameResult(0, frames[0][0], mask, feats, 0, 0.0, arrival_s=0.0, box=box))  # the server listens now
         client = Client(publisher.web_url)
         feature = t.FEATURES["range_nfft_eps0"]
         client.subscribe([t.RANGE, t.FOREGROUND, t.CALIBRATION, t.NOSE, feature, t.FEATURE_BOX])
         client.read(0.5)  # the subscriptions are in
         for frame, _ in frames[1:]:
-            publisher(FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0))
+            publisher(FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0, box=box))
         got = client.read(10, until=lambda got: len(got.get(t.NOSE, [])) == 2)
         meta = next(c for c in client.channels.values() if c["topic"] == t.RANGE)["metadata"]
         client.close()

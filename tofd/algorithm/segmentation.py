@@ -208,6 +208,11 @@ def upsampled_box(coarse: np.ndarray, shape: tuple[int, int], stride: int
     return (box[0], box[1]), coarse[index[0][:, None], index[1][None, :]]
 
 
+def foreground_box(mask: np.ndarray) -> tuple[slice, slice]:
+    """(rows, cols) slices of a bool mask's bounding box; empty slices (0:0) for an empty mask."""
+    return bounding_box(mask) if mask.any() else (slice(0, 0), slice(0, 0))
+
+
 def bounding_box(mask: np.ndarray, margin_px: int = 0, align_px: int = 1) -> tuple[slice, slice]:
     """(rows, cols) slices of a mask's bounding box grown by margin_px, corners on an align_px grid, clipped to the
     image. The mask must have a pixel set."""

@@ -73,7 +73,7 @@ from tofd.service.viewer.encoding import (
     png,
     scaled_u16,
 )
-from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
+from tofd.service.viewer.pixels import cloud_pixels, corner_origin, shown_box, track_box_px
 
 log = logging.getLogger(__name__)
 
@@ -216,10 +216,10 @@ class FoxglovePublisher:
                 timestamp=stamp, parent_frame_id=t.WORLD_FRAME, child_frame_id=t.CAMERA_FRAME,
                 translation=Vector3(x=0, y=0, z=0),
                 rotation=Quaternion(**dict(zip("xyzw", t.OPTICAL_IN_WORLD, strict=True)))), log_time=ns)
-        box = foreground_box(r.mask)
+        box = shown_box(r.box)
         self._log_features(r, box, stamp, ns)
         if self.cloud.has_sinks():
-            self.cloud.log(self._foreground(r, box, stamp), log_time=ns)
+            self.cloud.log(self._foreground(r, stamp), log_time=ns)
         if self.images[t.MASK].has_sinks():
             self.images[t.MASK].log(_png(stamp, r.mask), log_time=ns)  # black and white, 1 bit a pixel
         if self.calibration.has_sinks():
@@ -237,7 +237,7 @@ class FoxglovePublisher:
             self.track.log(self._track(r, stamp), log_time=ns)
 
     def _log_features(self, r: FrameResult, box: tuple[slice, slice], stamp: Timestamp, ns: int) -> None:
-        """The subscribed feature maps over the foreground's `box` (pixels.foreground_box), then the box's place and
+        """The subscribed feature maps over `box` (pixels.shown_box of the foreground's), then the box's place and
         each map's top value (FEATURE_BOX)."""
         wanted = {name: channel for name, channel in self.features.items() if channel.has_sinks()}
         if not wanted and not self.feature_box.has_sinks():
@@ -274,10 +274,9 @@ class FoxglovePublisher:
         elif isinstance(self.range, RawImageChannel):
             self.range.log(_image(stamp, np.ascontiguousarray(r.frame.range_m), "32FC1"), log_time=ns)
 
-    def _foreground(self, r: FrameResult, box: tuple[slice, slice], stamp: Timestamp) -> PointCloud:
-        """The foreground's points in CAMERA_FRAME with their NFFT eps0 (pixels.cloud_pixels of the mask, whose
-        foreground_box is `box`)."""
-        at = cloud_pixels(r.mask, box=box)
+    def _foreground(self, r: FrameResult, stamp: Timestamp) -> PointCloud:
+        """The foreground's points in CAMERA_FRAME with their NFFT eps0 (pixels.cloud_pixels of the mask)."""
+        at = cloud_pixels(r.mask, box=r.box)
         points = np.empty(at.size, CLOUD_DTYPE)
         xyz = np.take(self._rays, at, axis=0) * np.take(r.frame.range_m.reshape(-1), at)[:, None]
         for axis, name in enumerate("xyz"):

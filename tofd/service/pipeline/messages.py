@@ -30,6 +30,7 @@ class FeatureReply(TypedDict):
     iterations and relative residual, and the detection (absent without a detector)."""
 
     timings_ms: dict[str, float]
+    box: list[int]  # the mask's foreground_box as [row start, row stop, col start, col stop] (results.box_list)
     nfft_iterations: int
     nfft_residual: float
     detection: NotRequired[DetectionMessage]

@@ -27,6 +27,7 @@ class FrameResult:
     nfft_iterations: int
     nfft_residual: float
     arrival_s: float  # time.monotonic() when the capture thread received the frame
+    box: tuple[slice, slice]  # (rows, cols): the mask's segmentation.foreground_box (0:0 if empty); maps NaN outside
     timings_ms: dict[str, float] = field(default_factory=dict)  # keys from stats.TIMED_STAGES
     detection: Any = None  # tofd.algorithm.detector.Detection, or None without a detector model
     track: TrackState | None = None  # the nose track after this frame, or None without a detector model
@@ -42,6 +43,17 @@ def flat_dict(obj: Any) -> dict[str, Any]:
     """A dataclass whose fields are plain values (numbers, strings, None, tuples of numbers) as a dict of them:
     dataclasses.asdict without its recursive copies, several times as fast (the viewer's wire, every frame)."""
     return {f.name: getattr(obj, f.name) for f in fields(obj)}
+
+
+def box_list(box: tuple[slice, slice]) -> list[int]:
+    """A (rows, cols) box as JSON-ready [row start, row stop, col start, col stop]."""
+    rows, cols = box
+    return [rows.start, rows.stop, cols.start, cols.stop]
+
+
+def box_from(v: list[int]) -> tuple[slice, slice]:
+    """The (rows, cols) box of box_list."""
+    return slice(v[0], v[1]), slice(v[2], v[3])
 
 
 def track_dict(state: TrackState | None) -> dict | None:

@@ -10,12 +10,12 @@ import numpy as np
 from tofd.algorithm.detector import Alternative, Detection, NoseDetector, NoseModel
 from tofd.algorithm.extract import FeatureExtractor
 from tofd.algorithm.names import FAMILIES, VARIANTS, VIEWED_FAMILIES, families_for, family_maps
-from tofd.algorithm.segmentation import bounding_box
+from tofd.algorithm.segmentation import foreground_box
 from tofd.config import Config
 from tofd.drivers.frame import Frame
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.pipeline.messages import DetectionMessage, FeatureReply
-from tofd.service.pipeline.results import FrameResult
+from tofd.service.pipeline.results import FrameResult, box_from, box_list
 
 
 def pipeline_families(cfg: Config, detect: bool) -> tuple[str, ...]:
@@ -41,20 +41,15 @@ class FeatureStage:
         """Read range_m/amplitude from `slot`, write mask and feature maps into it; timings in ms."""
         ff = self._extractor(slot["range_m"], slot["amplitude"], out=slot)  # the maps are written into the slot
         slot["mask"][...] = ff.mask
-        timings = ff.timings_ms
-        reply = FeatureReply(timings_ms=timings, nfft_iterations=int(ff.nfft_iterations),
+        timings, box = ff.timings_ms, foreground_box(ff.mask)
+        reply = FeatureReply(timings_ms=timings, box=box_list(box), nfft_iterations=int(ff.nfft_iterations),
                              nfft_residual=float(ff.nfft_residual))
         if self._detector is not None:
             t0 = time.perf_counter()
-            det = self._detector.detect_maps(ff.maps, slot["range_m"], ff.rotation[2], mask_box(ff.mask))
+            det = self._detector.detect_maps(ff.maps, slot["range_m"], ff.rotation[2], box)
             timings["detection"] = (time.perf_counter() - t0) * 1e3
             reply["detection"] = detection_dict(det)
         return reply
-
-
-def mask_box(mask: np.ndarray) -> tuple[slice, slice]:
-    """The (rows, cols) bounding box of a bool mask (empty slices for an empty mask): the maps are NaN outside it."""
-    return bounding_box(mask) if mask.any() else (slice(0, 0), slice(0, 0))
 
 
 def detection_dict(det: Detection) -> DetectionMessage:
@@ -76,6 +71,7 @@ def frame_result(seq: int, frame: Frame, views: dict[str, np.ndarray], reply: Fe
     return FrameResult(
         seq=seq, frame=frame, mask=views["mask"].copy(), features={name: views[name].copy() for name in maps},
         nfft_iterations=reply["nfft_iterations"], nfft_residual=reply["nfft_residual"], arrival_s=arrival_s,
+        box=box_from(reply["box"]),
         gap_before=gap_before, detection=detection_from(reply.get("detection")),
         timings_ms={**(timings_ms or {}), **reply["timings_ms"]})
 

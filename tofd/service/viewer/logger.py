@@ -60,7 +60,7 @@ from tofd.service.viewer.encoding import (
     scaled_u16,
     z_depth_m,
 )
-from tofd.service.viewer.pixels import cloud_pixels, corner_origin, foreground_box, track_box_px
+from tofd.service.viewer.pixels import cloud_pixels, corner_origin, shown_box, track_box_px
 from tofd.service.viewer.wire import OWN_TIMINGS
 
 POINT_COLOUR_MAP = FAMILY_TABLE["range_nfft"].map_name("eps0")  # the foreground's 3-D points take its view's colours
@@ -218,7 +218,7 @@ class RerunLogger:
             self.rec.log(bp.EVENTS, rr.TextLog(f"{r.gap_before} before frame {frame.frame_counter}",
                                                level=rr.TextLogLevel.WARN))
         self._add_planes(r, row)
-        box = foreground_box(r.mask)
+        box = shown_box(r.box)
         shown.corners.append((box[1].start, box[0].start))
         shown.crops.setdefault(bp.MASK, []).append(r.mask[box].astype(np.uint8))  # a copy: the slot is written again
         for name, path in bp.FEATURES.items():  # eccentricities are >= 0; NaN outside the foreground
@@ -226,7 +226,7 @@ class RerunLogger:
             shown.crops.setdefault(path, []).append(levels)
             shown.feature_meters.setdefault(path, []).append(FEATURE_LEVELS / top if top > 0 else 1.0)
         if self.point_cloud:
-            at = cloud_pixels(r.mask, box=box)  # np.take of a flat index: far faster than a 2-D mask or fancy index
+            at = cloud_pixels(r.mask, box=r.box)  # np.take of a flat index: far faster than a 2-D mask or fancy index
             ranges = np.take(frame.range_m.reshape(-1), at)
             rows, cols = np.divmod(at, frame.range_m.shape[1])
             levels = shown.crops[bp.FEATURES[POINT_COLOUR_MAP]][-1]  # each point's colour in that map's view

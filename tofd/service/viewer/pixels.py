@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tofd.algorithm.segmentation import foreground_box
 from tofd.algorithm.tracking import TrackState
 from tofd.drivers.intrinsics import Intrinsics
 from tofd.service.pipeline.results import track_px
@@ -37,12 +38,11 @@ def track_box_px(track: TrackState | None, intrinsics: Intrinsics) -> tuple[np.n
     return corner_origin(px), TRACK_BOX_M / 2 * intrinsics.fx / track.nose_xyz_m[2]
 
 
-def foreground_box(mask: np.ndarray) -> tuple[slice, slice]:
-    """Rows and columns of the (H, W) mask's bounding box; the top-left pixel when the mask is empty."""
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
-    if not rows.size:
-        return slice(0, 1), slice(0, 1)
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
+def shown_box(box: tuple[slice, slice]) -> tuple[slice, slice]:
+    """The (rows, cols) a view crops the mask and the feature maps to: the foreground's box (FrameResult.box), or the
+    top-left pixel when the foreground is empty (a viewer's image has at least one pixel)."""
+    rows, cols = box
+    return box if rows.stop > rows.start and cols.stop > cols.start else (slice(0, 1), slice(0, 1))
 
 
 CLOUD_POINTS = 6000
@@ -52,7 +52,7 @@ CLOUD_POINTS = 6000
 def cloud_pixels(mask: np.ndarray, most: int = CLOUD_POINTS, box: tuple[slice, slice] | None = None) -> np.ndarray:
     """Flat indices of the (H, W) mask's pixels on the grid of every k-th row and column (k >= 1 the least that
     keeps at most `most` of them), in row-major order: every pixel while the foreground is small, else an even
-    subsample of it. `box`: the mask's foreground_box, if known (only it is searched)."""
+    subsample of it. `box`: the mask's segmentation.foreground_box, if known (only it is searched)."""
     rows, cols = foreground_box(mask) if box is None else box
     step = 1
     while True:

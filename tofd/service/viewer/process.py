@@ -22,6 +22,7 @@ import json
 import logging
 import multiprocessing as mp
 import os
+import select
 import threading
 import time
 from collections.abc import Callable
@@ -152,9 +153,11 @@ def viewer_main(open_backend: OpenBackend, cfg_table: dict, sink: str, batch_fra
                 log.warning("viewer: %s not logged: %s: %s", what, type(exc).__name__, exc)
             return False
 
+    incoming = select.poll()  # made once: Connection.poll builds a selector at every call
+    incoming.register(frames.fileno(), select.POLLIN)
     while True:
         try:
-            if not frames.poll(IDLE_FLUSH_S):
+            if not incoming.poll(IDLE_FLUSH_S * 1e3):
                 if not failed:
                     logging_step("batch", target.flush)
                 output_failed()
