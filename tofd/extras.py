@@ -16,6 +16,8 @@ MODULE_EXTRAS: dict[str, str | None] = {
     "waitress": "service",
     "av": "service",
     "foxglove": "service",
+    "isal": "service",
+    "msgpack": "service",
     "dask": "batch",
     "distributed": "batch",
     "pyarrow": "batch",

@@ -4,6 +4,7 @@ wire format and its Rerun entities (read back from a real .rrd), and /metrics of
 from __future__ import annotations
 
 import json
+import math
 import time
 import urllib.request
 
@@ -125,6 +126,20 @@ def test_wire_format_carries_the_track():
     finally:
         ring.close()
     assert track_from(None) is None
+
+
+def test_wire_format_carries_numbers_exactly_infinities_and_nan_included():
+    """A frame without foreground scores inf; a residual can be NaN; times keep every bit."""
+    ring = SlotRing.create(1, INTRINSICS.shape, wire.PLANES)
+    try:
+        r = result(7, Detection(None, None, math.inf, False), None)
+        r.nfft_residual, r.arrival_s, r.timings_ms = math.nan, 12345.678901234567, {"fft": 0.1 + 0.2}
+        back = wire.read(wire.write(r, 0, ring.views(0)), ring, INTRINSICS)
+        assert back.detection.score == math.inf and math.isnan(back.nfft_residual)
+        assert back.arrival_s == r.arrival_s and back.timings_ms == r.timings_ms and back.box == r.box
+        assert back.frame.host_monotonic_s == r.frame.host_monotonic_s
+    finally:
+        ring.close()
 
 
 def test_wire_format_carries_the_feature_maps_over_the_foreground_box_only():

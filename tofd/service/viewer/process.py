@@ -11,7 +11,7 @@ the child to flush and exit and SIGKILLs it at the deadline: nothing in the pare
 the pipe never fills (at most `queue_frames` small headers are in it). This module imports no viewer SDK: the
 child loads only its backend's.
 
-Protocol: parent -> child, one JSON header per frame (wire.py) or b"close"; child -> parent, one JSON
+Protocol: parent -> child, one header per frame (wire.py) or b"close"; child -> parent, one JSON
 ViewerStatus once at start (ready, with the web viewer's address, or error), one if the backend's output file
 stops being written (failed) and one at the end (closed).
 """
