@@ -191,7 +191,7 @@ class RerunConfig:
     web_port: int = 9090  # HTTP port of the web viewer ("web" sink)
     memory_limit: str = "500MB"  # viewer child's memory budget (oldest data is dropped beyond it)
     point_cloud: bool = True  # log the foreground as a 3-D point cloud coloured by NFFT eps0
-    batch_frames: int = 15  # frames sent to Rerun together in replay and to .rrd files; live viewers get each at once
+    batch_frames: int = 30  # frames sent to Rerun together in replay and to .rrd files; live viewers get each at once
     analytics: bool = False  # let the Rerun SDK/viewer send anonymous usage data (off: tofd sets CI=1 for them)
     rotate_mb: float = 2000.0  # live "save": start a new numbered .rrd segment at this size, MB (0: one file)
     rotate_s: float = 0.0  # "save": ... or after this many seconds (0: no time limit)
