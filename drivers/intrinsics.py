@@ -132,6 +132,15 @@ class Intrinsics:
             return np.stack([self.fx * x + self.cx, self.fy * y + self.cy], axis=-1)
         return np.stack([self.fx * points[..., 0] / z + self.cx, self.fy * points[..., 1] / z + self.cy], axis=-1)
 
+    def project_point(self, xyz: tuple[float, float, float]) -> tuple[float, float]:
+        """The pixel (u, v) of one camera-frame point in metres: project() of it, in plain floats for a pinhole
+        lens (arrays cost more than the arithmetic for a point a frame)."""
+        if not self.is_pinhole:
+            u, v = self.project(np.asarray(xyz))
+            return float(u), float(v)
+        x, y, z = xyz
+        return self.fx * x / z + self.cx, self.fy * y / z + self.cy
+
     def coefficients(self) -> dict[str, float]:
         """The distortion coefficients by name (k1, k2, p1, p2, ...; empty for "none")."""
         return dict(zip(COEFFICIENT_NAMES[self.distortion_model], self.distortion, strict=True))

@@ -77,6 +77,14 @@ def test_project_applies_the_distortion_like_opencv_and_inverts_the_rays(name):
     np.testing.assert_allclose(i.project(i.pixel_rays(3.25, 7.5)), uv[0], atol=1e-8)  # scalars too
 
 
+@pytest.mark.parametrize("lens", [Intrinsics(), *LENSES.values()], ids=["pinhole", *LENSES])
+def test_project_point_is_project_of_one_point(lens):
+    for xyz in [(0.012, -0.034, 0.41), (-0.3, 0.2, 1.7)]:
+        u, v = lens.project_point(xyz)
+        assert isinstance(u, float) and isinstance(v, float)
+        np.testing.assert_allclose((u, v), lens.project(np.array(xyz)), rtol=0, atol=1e-9)
+
+
 def test_radial_range_from_z_depth_goes_along_the_lens_rays():
     z = np.full(K4A_LIKE.shape, 1.5)
     radial = K4A_LIKE.radial_from_z(z)

@@ -79,8 +79,7 @@ def track_px(state: TrackState | None, intrinsics: Intrinsics) -> tuple[float, f
     """The image pixel (u, v) of a confirmed track's nose, or None (no track, tentative, or behind the camera)."""
     if state is None or not state.reported or state.nose_xyz_m is None or not state.nose_xyz_m[2] > 0:
         return None
-    u, v = intrinsics.project(np.asarray(state.nose_xyz_m))
-    return float(u), float(v)
+    return intrinsics.project_point(state.nose_xyz_m)
 
 
 def track_record(state: TrackState | None, intrinsics: Intrinsics) -> dict | None:

@@ -29,13 +29,14 @@ TRACK_BOX_M = 0.03
 """Metres: side of the box drawn about the nose track in the image, at the track's depth (a nose's size)."""
 
 
-def track_box_px(track: TrackState | None, intrinsics: Intrinsics) -> tuple[np.ndarray, float] | None:
-    """The confirmed track's box in a viewer's pixels: its centre (2,) with the origin at the top-left pixel's
+def track_box_px(track: TrackState | None, intrinsics: Intrinsics) -> tuple[tuple[float, float], float] | None:
+    """The confirmed track's box in a viewer's pixels: its centre (u, v) with the origin at the top-left pixel's
     corner, and its half side in pixels; None while no track is reported."""
     px = track_px(track, intrinsics)
     if px is None or track is None or track.nose_xyz_m is None:
         return None
-    return corner_origin(px), TRACK_BOX_M / 2 * intrinsics.fx / track.nose_xyz_m[2]
+    half = TRACK_BOX_M / 2 * intrinsics.fx / track.nose_xyz_m[2]
+    return (px[0] + CENTRE_TO_CORNER_PX, px[1] + CENTRE_TO_CORNER_PX), half
 
 
 def shown_box(box: tuple[slice, slice]) -> tuple[slice, slice]:
