@@ -18,6 +18,7 @@ from tofd.service.foxglove.spec import parse_foxglove_spec
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.encoding import (
+    AMPLITUDE_SAMPLE_STEP,
     amplitude_u8,
     code_unit_m,
     in_units,
@@ -82,6 +83,9 @@ def test_one_pass_scaling_rounds_and_saturates_as_numpy_does():
     assert np.array_equal(scaled_u16(plane, factor), reference(plane * factor, 65535))
     small = plane / np.float32(200)
     assert np.array_equal(scaled_u8(small, 0.5), reference(small * np.float32(0.5), 255))
+    for factor in (0.37, 1 / 3, 2.9):  # rounded from the float32 product, as the reference
+        assert np.array_equal(scaled_u8(small, factor), reference(small * np.float32(factor), 255))
+    assert not scaled_u8(np.float32([[np.inf, -np.inf, np.nan, -1e9]]), 1.0).any()
     assert scaled_u8(small, 1.0).dtype == np.uint8 and scaled_u16(plane, 1.0).dtype == np.uint16
     assert not scaled_u16(np.float32([[np.inf, -np.inf]]), 1.0).any()
     frame, z_mm = millimetre_frame(3)
@@ -121,6 +125,9 @@ def test_the_amplitude_for_viewing_is_within_half_a_level_of_its_recorded_scale(
     levels, scale = amplitude_u8(amplitude)
     assert levels.dtype == np.uint8 and levels.shape == K4A.shape
     assert scale == pytest.approx(np.percentile(amplitude[amplitude > 0], 99.5) / 255, rel=0.02)
+    sample = amplitude[::AMPLITUDE_SAMPLE_STEP, ::AMPLITUDE_SAMPLE_STEP]
+    positive = np.sort(sample[sample > 0])  # the nearest rank of the sampled positive amplitudes, exactly
+    assert scale == float(positive[round(0.995 * (positive.size - 1))]) / 255
     shown = levels * scale
     below = np.nan_to_num(amplitude) <= 255 * scale
     assert np.all(np.abs(shown[below] - np.fmax(np.nan_to_num(amplitude[below]), 0)) <= scale / 2 + 1e-3 * scale)
@@ -129,6 +136,7 @@ def test_the_amplitude_for_viewing_is_within_half_a_level_of_its_recorded_scale(
     decoded = unpng(jpeg(levels)).astype(np.float64)
     assert np.sqrt(np.mean((decoded - levels) ** 2)) < 4  # white noise: JPEG's worst case
     assert amplitude_u8(np.full((4, 4), np.nan, np.float32))[1] == 1.0  # nothing positive: scale 1
+    assert amplitude_u8(np.float32([[-2.0, 0.0], [np.nan, 0.0]]))[1] == 1.0
 
 
 @pytest.mark.parametrize("fill, region", [(0.01, np.s_[:, :]), (0.3, np.s_[:, :]), (1.0, np.s_[:, :]),
