@@ -110,8 +110,8 @@ def test_depth_image_under_the_pinhole_projects_a_plane_to_its_true_3d_points(tm
     rec = rr.RecordingStream("tofd-test")
     path = tmp_path / "plane.rrd"
     rec.save(str(path))
-    RerunLogger(rec, intr, point_cloud=False)(FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0,
-                                                                 box=foreground_box(mask)))
+    result = FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0, box=foreground_box(mask))
+    RerunLogger(rec, intr, point_cloud=False)(result)
     rec.flush()
     rec.disconnect()
     tables = read_entities(str(path))
@@ -190,8 +190,8 @@ def _log_one(tmp_path, frame, mask):
     rec = rr.RecordingStream("tofd-test")
     path = tmp_path / "one.rrd"
     rec.save(str(path))
-    RerunLogger(rec, frame.intrinsics)(FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0,
-                                                                 box=foreground_box(mask)))
+    result = FrameResult(0, frame, mask, feats, 0, 0.0, arrival_s=0.0, box=foreground_box(mask))
+    RerunLogger(rec, frame.intrinsics)(result)
     rec.flush()
     rec.disconnect()
     return read_entities(str(path))
