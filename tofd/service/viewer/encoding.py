@@ -76,8 +76,8 @@ def scaled_u16(plane: np.ndarray, factor: float | np.ndarray) -> np.ndarray:
 
 
 def scaled_u8(plane: np.ndarray, factor: float) -> np.ndarray:
-    """(H, W) uint8 of the float32 `plane` times `factor`, rounded as scaled_u16, 0 where that is NaN, infinite or
-    negative, 255 above."""
+    """(H, W) uint8 of the float32 `plane` times `factor` (their float32 product rounded to the nearest integer, ties
+    to even), 0 where that is NaN, infinite or negative, 255 above."""
     return _levels(np.fmax(plane, np.float32(0)), factor)  # fmax drops NaN
 
 
