@@ -59,9 +59,8 @@ from tofd.drivers.recording.replay import ReplaySource
 from tofd.process_setup import prepare_service_process
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline, maps_read
-from tofd.service.pipeline.stats import TIMED_STAGES
 from tofd.service.viewer import blueprint as bp
-from tofd.service.viewer.logger import frames_per_send
+from tofd.service.viewer.logger import LATENCY, frames_per_send
 from tofd.service.viewer.process import ViewerProcess
 from tofd.service.viewer.targets import file_footer
 
@@ -138,9 +137,8 @@ def read_latencies_ms(rrd: str) -> list[float]:
     for chunk in RrdReader(str(rrd)).stream().to_chunks():
         if chunk.entity_path == bp.TIMINGS and not chunk.is_static:
             batch = chunk.to_record_batch()
-            at = TIMED_STAGES.index("latency")
-            rows += zip(batch.column("frame").to_pylist(), (v[at] for v in batch.column("Scalars:scalars").to_pylist()),
-                        strict=True)
+            rows += zip(batch.column("frame").to_pylist(),
+                        (v[LATENCY] for v in batch.column("Scalars:scalars").to_pylist()), strict=True)
     return [ms for _, ms in sorted(rows)]
 
 

@@ -56,7 +56,6 @@ from tofd.process_setup import prepare_service_process
 from tofd.service.foxglove.publisher import FoxglovePublisher
 from tofd.service.model import load_service_model
 from tofd.service.pipeline import Pipeline, maps_read
-from tofd.service.pipeline.stats import TIMED_STAGES
 from tofd.service.viewer import blueprint as bp
 from tofd.service.viewer.encoding import (
     amplitude_u8,
@@ -67,7 +66,7 @@ from tofd.service.viewer.encoding import (
     z_depth_m,
 )
 from tofd.service.viewer.encoding import png as tofd_png
-from tofd.service.viewer.logger import frames_per_send
+from tofd.service.viewer.logger import LATENCY, LOGGING, frames_per_send
 from tofd.service.viewer.process import ViewerProcess, hand_off_frames
 from tofd.service.viewer.targets import file_footer
 from tofd_testing.foxglove_client import MESSAGE_DATA, connect, refused_channel
@@ -212,9 +211,8 @@ def rrd_views(path: Path, frames: int) -> dict:
         per_entity[chunk.entity_path] = per_entity.get(chunk.entity_path, 0) + (0 if chunk.is_static else batch.nbytes)
         if not chunk.is_static and chunk.entity_path == bp.TIMINGS:
             timings = batch.column("Scalars:scalars").to_pylist()
-            own_ms += [row[TIMED_STAGES.index("logging")] for row in timings]
-            latency.update(zip(batch.column("frame").to_pylist(),
-                               (row[TIMED_STAGES.index("latency")] for row in timings), strict=True))
+            own_ms += [row[LOGGING] for row in timings]
+            latency.update(zip(batch.column("frame").to_pylist(), (row[LATENCY] for row in timings), strict=True))
     alone = path.with_suffix(".view.rrd")
 
     def written_alone(content: str) -> int:
