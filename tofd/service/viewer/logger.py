@@ -60,7 +60,7 @@ from tofd.service.viewer.encoding import (
     scaled_u16,
     z_depth_m,
 )
-from tofd.service.viewer.pixels import cloud_pixels, corner_origin, shown_box, track_box_px
+from tofd.service.viewer.pixels import cloud_grid, corner_origin, shown_box, track_box_px
 from tofd.service.viewer.wire import OWN_TIMINGS
 
 POINT_COLOUR_MAP = FAMILY_TABLE["range_nfft"].map_name("eps0")  # the foreground's 3-D points take its view's colours
@@ -226,9 +226,9 @@ class RerunLogger:
             shown.crops.setdefault(path, []).append(levels)
             shown.feature_meters.setdefault(path, []).append(FEATURE_LEVELS / top if top > 0 else 1.0)
         if self.point_cloud:
-            at = cloud_pixels(r.mask, box=r.box)  # np.take of a flat index: far faster than a 2-D mask or fancy index
+            rows, cols = cloud_grid(r.mask, box=r.box)
+            at = rows * frame.range_m.shape[1] + cols  # np.take of a flat index: far faster than a 2-D fancy index
             ranges = np.take(frame.range_m.reshape(-1), at)
-            rows, cols = np.divmod(at, frame.range_m.shape[1])
             levels = shown.crops[bp.FEATURES[POINT_COLOUR_MAP]][-1]  # each point's colour in that map's view
             shown.add(bp.FOREGROUND, row, positions=np.take(self._rays.reshape(-1, 3), at, axis=0) * ranges[:, None],
                       colors=np.take(viridis_rgba(), levels[rows - box[0].start, cols - box[1].start]))

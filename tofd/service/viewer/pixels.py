@@ -51,7 +51,14 @@ CLOUD_POINTS = 6000
 
 
 def cloud_pixels(mask: np.ndarray, most: int = CLOUD_POINTS, box: tuple[slice, slice] | None = None) -> np.ndarray:
-    """Flat indices of the (H, W) mask's pixels on the grid of every k-th row and column (k >= 1 the least that
+    """Flat indices (row * W + column) of cloud_grid's pixels."""
+    rows, cols = cloud_grid(mask, most, box)
+    return rows * mask.shape[1] + cols
+
+
+def cloud_grid(mask: np.ndarray, most: int = CLOUD_POINTS, box: tuple[slice, slice] | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of the (H, W) mask's pixels on the grid of every k-th row and column (k >= 1 the least that
     keeps at most `most` of them), in row-major order: every pixel while the foreground is small, else an even
     subsample of it. `box`: the mask's segmentation.foreground_box, if known (only it is searched)."""
     rows, cols = foreground_box(mask) if box is None else box
@@ -63,4 +70,4 @@ def cloud_pixels(mask: np.ndarray, most: int = CLOUD_POINTS, box: tuple[slice, s
             break
         step += 1
     at_row, at_col = np.nonzero(on_grid)
-    return (at_row * step + first_row) * mask.shape[1] + at_col * step + first_col
+    return at_row * step + first_row, at_col * step + first_col
