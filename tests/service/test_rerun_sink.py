@@ -242,8 +242,8 @@ def test_millimetre_depth_is_stored_as_the_sources_integers_and_lines_up_with_th
 
 
 def test_depth_that_is_not_whole_units_of_its_source_goes_as_float_metres(tmp_path):
-    """A source claiming millimetres whose ranges are not whole millimetres of z-depth (as the SR3000's radial
-    codes are not): the depth goes as float32 metres, the exact z-depth of the range."""
+    """A source claiming millimetres whose ranges are not whole millimetres of z-depth: the depth goes as float32
+    metres, the exact z-depth of the range."""
     import numpy as np
 
     from tofd.drivers.frame import Frame, SensorInfo
@@ -258,3 +258,35 @@ def test_depth_that_is_not_whole_units_of_its_source_goes_as_float_metres(tmp_pa
     depth_m, stored = depth_at(tables, 0)
     assert stored.dtype == np.float32
     np.testing.assert_array_equal(stored, radial * intr.unit_rays().astype(np.float32)[..., 2])
+
+
+def test_sr3000_depth_is_z_in_its_range_code_within_half_a_code(tmp_path):
+    """The SR3000 measures radial range in whole codes (c / (2 f) / 65535): its z-depth goes as raw uint16 in that
+    code (meter: codes per metre), every pixel within half a code of the exact z-depth, and back-projected through
+    the Pinhole onto the camera's own 3-D points as closely; no return (0xFFFF: NaN) is 0."""
+    import numpy as np
+
+    from tofd.drivers import sr3000
+    from tofd.drivers.frame import Frame, Registers
+    from tofd.drivers.intrinsics import Intrinsics
+    from tofd_testing.rrd_helpers import depth_at, image_at, static_value
+
+    intr, registers = Intrinsics(), Registers()
+    raw = np.random.default_rng(3).integers(3000, 60000, intr.shape).astype(np.uint16)
+    radial = sr3000.raw_to_range_m(raw, sr3000.mod_freq_khz(registers.mod_freq_index))
+    radial[:5, :7] = np.nan
+    frame = Frame(radial, np.ones(intr.shape, np.float32), frame_counter=0, timestamp_us=0, host_monotonic_s=0.0,
+                  host_wall_s=0.0, intrinsics=intr, registers=registers)
+    tables = _log_one(tmp_path, frame, np.zeros(intr.shape, bool))
+    code = sr3000.non_ambiguity_range_m(sr3000.mod_freq_khz(registers.mod_freq_index)) / 65535
+    assert static_value(tables, bp.RANGE, "DepthImage:meter") == pytest.approx(1 / code, rel=1e-6)
+    depth_m, stored = depth_at(tables, 0)
+    assert stored.dtype == np.uint16 and stored.shape == intr.shape
+    assert image_at(tables[bp.RANGE][1], "DepthImage", 0).dtype == np.uint16  # raw, not a PNG
+    rays = intr.unit_rays()
+    z_m = np.nan_to_num(radial.astype(np.float64) * rays[..., 2])
+    error = np.abs(depth_m - z_m)
+    assert 0.3 * code < error.max() <= 0.52 * code  # rounded to codes (and float32 round-off at up to 6e4 codes)
+    assert not stored[:5, :7].any() and stored[5:, 7:].all()
+    points = depth_m[..., None] * rays / rays[..., 2:]  # the 3-D view's back-projection of a z-depth
+    np.testing.assert_allclose(points[5:, 7:], (radial[..., None] * rays)[5:, 7:], rtol=0, atol=code)

@@ -65,12 +65,11 @@ from tofd.service.foxglove.spec import listen_port
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer.encoding import (
     amplitude_u8,
-    code_unit_m,
     exact_z_units,
     feature_u8,
-    in_units,
     jpeg,
     png,
+    radial_code_unit,
     scaled_u16,
 )
 from tofd.service.viewer.pixels import cloud_pixels, corner_origin, shown_box, track_box_px
@@ -257,10 +256,10 @@ class FoxglovePublisher:
         in them (z-depth in SensorInfo's unit: millimetre cameras; radial range codes: the SR3000), its depth
         kind and unit in the channel's metadata; else float32 radial range in metres (RawImage 32FC1)."""
         frame = r.frame
-        exact, code = exact_z_units(frame, self._ray_z), code_unit_m(frame)
+        exact, code = exact_z_units(frame, self._ray_z), radial_code_unit(frame)
         if exact is not None:
             kind, (unit, self._range_factor) = "z", exact
-        elif code is not None and in_units(np.fmax(frame.range_m, np.float32(0)), code)[1]:
+        elif code is not None:
             kind, unit, self._range_factor = "radial", code, 1.0 / code
         else:
             self.range = RawImageChannel(t.RANGE, context=self.context, metadata=t.range_metadata("radial", 1.0))

@@ -1,15 +1,17 @@
-"""How the viewers (Rerun, Foxglove) carry a frame's planes: depth exact in its source's unit, amplitude for viewing.
+"""How the viewers (Rerun, Foxglove) carry a frame's planes: depth in its source's unit, amplitude for viewing.
 
 A camera that measures z-depth in whole units (millimetres: Azure Kinect, RealSense, Orbbec; SensorInfo's
-depth_unit_m) is shown as uint16 z-depth in that unit, which is lossless; a source whose z-depth is not a whole
-number of its unit at every pixel (the SR3000 measures radial range; rendered or float sources) is shown as
-float32 metres. PNG is what both viewers decode: written here with rows Sub-filtered (one filter, the one that
-suits a smooth surface) and deflated by ISA-L (python-isal), about three times faster than libpng with zlib's
-fastest level at the same size on noisy depth (bench_viewers' encodings); the container is PNG's four fixed chunks.
+depth_unit_m) is shown as uint16 z-depth in that unit, which is lossless. The SR3000 measures radial range in whole
+codes (c / (2 f_mod) / 65535, 0.11 mm at 20 MHz); its z-depth (range times the ray's z) is shown as uint16 in that
+code, rounded: within half a code, the sensor's own resolution (Foxglove, whose viewer has no depth projection,
+gets the radial codes themselves). A source with no unit (rendered or float frames) is shown as float32 metres.
+PNG is what both viewers decode: written here with rows Sub-filtered (one filter, the one that suits a smooth
+surface) and deflated by ISA-L (python-isal), about three times faster than libpng with zlib's fastest level at the
+same size on noisy depth (bench_viewers' encodings); the container is PNG's four fixed chunks.
 The amplitude is for looking at: 8 bits scaled so a robust top (AMPLITUDE_PERCENTILE) is the brightest level, the
 scale (sensor units per level) sent beside it, as a JPEG; a lossless 16-bit amplitude would cost about as much as
 the depth for noise the eye does not see (tofd's own recordings keep it exactly). A feature map's crop is for
-looking at too: 8 bits, its largest value the brightest level (that value sent beside it), as a PNG.
+looking at too: 8 bits, its largest value the brightest level (that value sent beside it).
 """
 
 from __future__ import annotations
@@ -65,14 +67,13 @@ def z_depth_m(range_m: np.ndarray, ray_z: np.ndarray, out: np.ndarray | None = N
     return np.multiply(depth, ray_z, out=depth)
 
 
-def scaled_u16(plane: np.ndarray, factor: float | np.ndarray) -> np.ndarray:
+def scaled_u16(plane: np.ndarray, factor: float | np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """(H, W) uint16 of the float32 `plane` times `factor` (a number, or (H, W) float32 per pixel), rounded to the
-    nearest integer (ties to even), 0 where that is NaN, infinite or negative, 65535 above: one pass, OpenCV's
-    saturating multiply (numpy takes five passes for the same)."""
-    if isinstance(factor, np.ndarray):
-        return cv2.multiply(plane, factor, dtype=cv2.CV_16U)
-    out: np.ndarray = cv2.multiply(plane, (float(factor),), dtype=cv2.CV_16U)  # type: ignore[call-overload]  # stubs lack Scalar
-    return out
+    nearest integer (ties to even), 0 where that is NaN, infinite or negative, 65535 above, written to `out` (a
+    C-contiguous (H, W) uint16) if given: one pass, OpenCV's saturating multiply (numpy takes five passes)."""
+    scale = factor if isinstance(factor, np.ndarray) else (float(factor),)
+    product: np.ndarray = cv2.multiply(plane, scale, dst=out, dtype=cv2.CV_16U)  # type: ignore[arg-type]  # stubs lack Scalar
+    return product
 
 
 def scaled_u8(plane: np.ndarray, factor: float) -> np.ndarray:
@@ -107,11 +108,32 @@ def units_per_range_m(ray_z: np.ndarray, unit_m: float) -> np.ndarray:
 def exact_z_units(frame: Frame, ray_z: np.ndarray) -> tuple[float, np.ndarray] | None:
     """The source's unit (metres) and the (H, W) factor from radial range to z-depth in it (units_per_range_m) when
     the frame's z-depth is a whole number of that unit at every pixel (in_units); None when the source gives no
-    unit or its z-depth is not whole in it (the viewers then show float metres). Decided at a run's first frame."""
+    unit or its z-depth is not whole in it."""
     unit = source_unit_m(frame)
     if unit is None or not in_units(z_depth_m(frame.range_m, ray_z), unit)[1]:
         return None
     return unit, units_per_range_m(ray_z, unit)
+
+
+def radial_code_unit(frame: Frame) -> float | None:
+    """The SR3000's code unit (code_unit_m) when the frame's radial ranges are whole codes of it, as its driver
+    delivers them; else None."""
+    code = code_unit_m(frame)
+    if code is None or not in_units(np.fmax(frame.range_m, np.float32(0)), code)[1]:
+        return None
+    return code
+
+
+def z_units(frame: Frame, ray_z: np.ndarray) -> tuple[float, np.ndarray] | None:
+    """The unit (metres) a viewer's uint16 z-depth is in and the (H, W) factor from radial range to z-depth in it
+    (units_per_range_m): the source's own where its z-depth is whole in it (exact_z_units), else the SR3000's code
+    where its ranges are whole codes (radial_code_unit; z-depth rounded to a code); None: float32 metres. Decided
+    at a run's first frame."""
+    exact = exact_z_units(frame, ray_z)
+    if exact is not None:
+        return exact
+    code = radial_code_unit(frame)
+    return None if code is None else (code, units_per_range_m(ray_z, code))
 
 
 def amplitude_u16(amplitude: np.ndarray) -> np.ndarray:

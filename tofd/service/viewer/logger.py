@@ -1,13 +1,13 @@
 """Logs FrameResults to a Rerun RecordingStream (entity tree in blueprint.py); runs on the sink thread.
 
 Per frame: z-depth under the Pinhole (what Rerun's depth images mean, so the 3-D projection is right; the camera's
-radial range is it over each ray's z) as a 16-bit PNG in the source's unit where that is exact, else float32 metres
-(tofd.service.viewer.encoding), amplitude for viewing as an 8-bit JPEG (its scale, sensor units per level, a
-time series beside it: encoding.amplitude_u8), the mask and four feature maps cropped to the foreground's
-bounding box (they are 0 outside it) with the translation that puts each crop where it lies in the image, as raw
-8-bit images (Rerun's chunk compression shrinks them; its viewer plays encoded images as a video stream, whose size
-must not change): the maps as depth images whose meter (levels per unit) gives their values back
-(encoding.feature_u8); the foreground cloud (at most pixels.CLOUD_POINTS points, an even
+radial range is it over each ray's z) as uint16 in the source's unit where it has one, else float32 metres
+(tofd.service.viewer.encoding.z_units), a PNG when larger than RAW_DEPTH_PIXELS; amplitude for viewing as an 8-bit
+JPEG (its scale, sensor units per level, a time series beside it: encoding.amplitude_u8); the mask and four feature
+maps cropped to the foreground's bounding box (they are 0 outside it) with the translation that puts each crop
+where it lies in the image, as raw 8-bit images (Rerun's chunk compression shrinks them; its viewer plays encoded
+images as a video stream, whose size must not change): the maps as depth images whose meter (levels per unit)
+gives their values back (encoding.feature_u8); the foreground cloud (at most pixels.CLOUD_POINTS points, an even
 subsample of a large foreground), the detected nose in 2-D and 3-D, beside it the confirmed nose track (a box of
 pixels.TRACK_BOX_M about its pixel, labelled with its confidence, and its 3-D point) and the track's confidence,
 the stage timings (one entity, a series per stage in TIMED_STAGES' order: one send for all).
@@ -53,12 +53,12 @@ from tofd.service.viewer.encoding import (
     JPEG_MEDIA_TYPE,
     PNG_MEDIA_TYPE,
     amplitude_u8,
-    exact_z_units,
     feature_u8,
     jpeg,
     png,
     scaled_u16,
     z_depth_m,
+    z_units,
 )
 from tofd.service.viewer.pixels import cloud_grid, corner_origin, shown_box, track_box_px
 from tofd.service.viewer.wire import OWN_TIMINGS
@@ -69,6 +69,10 @@ TRACK_COLOR = (0, 200, 255)
 MAX_BATCH_AGE_S = 0.5  # a batch is sent once its first frame waited this long, however few frames it holds
 SERIES_FRAMES = 15  # the time series (stage timings, track confidence) go out at least this many frames at once
 LOGGING, LATENCY = (TIMED_STAGES.index(stage) for stage in OWN_TIMINGS)  # the timings this process measures
+RAW_DEPTH_PIXELS = 320 * 240
+"""A uint16 depth of at most this many pixels goes raw (Rerun's LZ4 chunk compression packs it): its PNG's deflate
+would cost the viewer more CPU than the file writer spends on the bytes it saves; a larger one (640x576) goes as
+a PNG, without which the .rrd would hold about twice the bytes."""
 
 
 def frames_per_send(cfg: RerunConfig, policy: str) -> int:
@@ -176,11 +180,11 @@ class RerunLogger:
         self.intrinsics = intrinsics
         self._rays = intrinsics.unit_rays().astype(np.float32)
         self._ray_z = np.ascontiguousarray(self._rays[..., 2])  # z-depth = radial range * cos(angle to the axis)
-        self._images: dict[str, ImageEntity] = {}  # raw full-frame planes: the depth, when it goes as float metres
+        self._images: dict[str, ImageEntity] = {}  # raw full-frame planes: the depth, unless it goes as PNG
         self._crop_format = image_format(height=1, width=1, color_model=None, dtype=np.uint8)  # sized: image_formats
         # encoded planes: archetype; the depth's joins at the first frame if its unit is exact
         self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage}
-        self._units_per_range: np.ndarray | None = None  # (H, W) radial metres -> depth units, when it goes as PNG
+        self._units_per_range: np.ndarray | None = None  # (H, W) radial metres -> depth units, when it goes as uint16
         self._depth_chosen = False
         self._shape = intrinsics.shape
         self._formats: dict[str, pa.StructArray] = {}  # raw images' format, as arrow: Rerun's conversion is slow
@@ -241,13 +245,15 @@ class RerunLogger:
             self._send_shown()
 
     def _add_planes(self, r: FrameResult, row: int) -> None:
-        """The frame's depth (z-depth: PNG in the source's unit or float32 metres) and amplitude (8-bit JPEG and its
-        scale)."""
+        """The frame's depth (z-depth: uint16 in the source's unit, raw or PNG, or float32 metres) and amplitude
+        (8-bit JPEG and its scale)."""
         shown = self._shown
         if not self._depth_chosen:
             self._choose_depth(r)
         if self._units_per_range is None:
             z_depth_m(r.frame.range_m, self._ray_z, out=shown.images[bp.RANGE][row])
+        elif bp.RANGE in self._images:
+            scaled_u16(r.frame.range_m, self._units_per_range, out=shown.images[bp.RANGE][row])
         else:
             shown.encoded.setdefault(bp.RANGE, []).append(png(scaled_u16(r.frame.range_m, self._units_per_range)))
         amplitude, scale = amplitude_u8(r.frame.amplitude)
@@ -255,20 +261,24 @@ class RerunLogger:
         shown.add(bp.AMPLITUDE_SCALE, row, scalars=[scale])  # with its image, not with the lagging series
 
     def _choose_depth(self, r: FrameResult) -> None:
-        """At the first frame: the depth goes as a 16-bit PNG in the source's unit when the frame's z-depth is
-        exactly that (encoding.exact_z_units), else as float32 metres; its static style (metre, colour map)."""
-        exact = exact_z_units(r.frame, self._ray_z)
-        if exact is not None:
-            unit, self._units_per_range = exact
+        """At the first frame: the depth goes as uint16 in the source's unit where it has one (encoding.z_units),
+        raw up to RAW_DEPTH_PIXELS, else as a PNG, and as float32 metres where it has none; its static style (metre,
+        colour map)."""
+        units = z_units(r.frame, self._ray_z)
+        unit = 1.0
+        if units is not None:
+            unit, self._units_per_range = units
+        height, width = self._shape
+        style: rr.AsComponents
+        if units is not None and height * width > RAW_DEPTH_PIXELS:
             self._encoded[bp.RANGE] = rr.EncodedDepthImage
-            style: rr.AsComponents = rr.EncodedDepthImage.from_fields(media_type=PNG_MEDIA_TYPE, meter=1.0 / unit,
-                                                                     colormap="turbo")
+            style = rr.EncodedDepthImage.from_fields(media_type=PNG_MEDIA_TYPE, meter=1.0 / unit, colormap="turbo")
         else:
-            self._images[bp.RANGE] = ImageEntity(rr.DepthImage, np.float32)
-            height, width = self._shape
-            self._formats[bp.RANGE] = image_format(height=height, width=width, color_model=None, dtype=np.float32)
-            self._shown.images[bp.RANGE] = np.empty((self.batch_frames, *self._shape), np.float32)
-            style = rr.DepthImage.from_fields(meter=1.0, colormap="turbo")
+            dtype: type = np.float32 if units is None else np.uint16
+            self._images[bp.RANGE] = ImageEntity(rr.DepthImage, dtype)
+            self._formats[bp.RANGE] = image_format(height=height, width=width, color_model=None, dtype=dtype)
+            self._shown.images[bp.RANGE] = np.empty((self.batch_frames, *self._shape), dtype)
+            style = rr.DepthImage.from_fields(meter=1.0 / unit, colormap="turbo")
         self.rec.log(bp.RANGE, style, static=True)
         self._depth_chosen = True
 
