@@ -5,6 +5,7 @@ import signal
 import threading
 import time
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -277,3 +278,22 @@ def test_detection_in_the_workers_equals_the_detector_on_the_frame(tmp_path):
     tracker = NoseTracker()  # the pipeline tracks the detections in frame order
     for r in sink.results:
         assert r.track == tracker.update(r.detection, r.frame.timestamp_us / 1e6)
+
+
+def test_the_supervisor_returns_when_the_pipeline_ends_not_at_its_next_tick(monkeypatch):
+    """supervise() waits on the pipeline itself: a run's time (hence the fps in its summary) ends when the last frame
+    is through, not at the supervisor's next quarter-second tick, which would round a short replay's time up."""
+    from tofd.service import supervise as supervise_module
+    from tofd.service.signals import StopSignals
+
+    def no_sleep(seconds: float) -> None:
+        raise AssertionError(f"the supervisor slept {seconds} s instead of waiting on the pipeline")
+
+    pipeline = Pipeline(CFG, "lossless", writers=(Collect(),))
+    pipeline.start(RenderedSource(3, n_distinct=2))
+    monkeypatch.setattr(supervise_module, "time", SimpleNamespace(monotonic=time.monotonic, sleep=no_sleep))
+    assert pipeline.running
+    with StopSignals() as stop:
+        supervise_module.supervise(pipeline, stop, None)
+    assert not pipeline.running  # it returned because the pipeline ended
+    assert pipeline.close()["frames_out"] == 3

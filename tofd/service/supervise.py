@@ -16,15 +16,14 @@ log = logging.getLogger(__name__)
 
 
 def supervise(pipeline: Pipeline, stop: StopSignals, progress: Progress | None) -> None:
-    """Return when the pipeline ended or a stop signal came (then capture is stopped; draining is the
-    caller's); log a status line for each SIGUSR1. The watchdog is pinged only while the pipeline has not
-    failed; a camera that is away (reconnecting) is no reason for systemd to restart us: /healthz reports that
-    to monitoring instead."""
+    """Return as soon as the pipeline ended (the run's time, hence its fps, ends there), or when a stop signal
+    came (then capture is stopped; draining is the caller's); log a status line for each SIGUSR1. The watchdog is
+    pinged only while the pipeline has not failed; a camera that is away (reconnecting) is no reason for systemd to
+    restart us: /healthz reports that to monitoring instead."""
     watchdog = watchdog_interval_s()
     tick = min(0.25, watchdog or 0.25)
     last_ping, status_requests = 0.0, 0
-    while pipeline.running:
-        time.sleep(tick)
+    while not pipeline.wait(tick):  # a sleep of `tick` would round a short run's time up to the next tick
         if stop.status_requests != status_requests:  # SIGUSR1
             status_requests = stop.status_requests
             log.info("status: %s", status_text(pipeline.snapshot()))
