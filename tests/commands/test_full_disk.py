@@ -116,3 +116,21 @@ def test_an_export_onto_a_full_disk_leaves_the_earlier_complete_outputs_intact(s
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # nothing replaced, nothing left behind
     with np.load(out / "emulated_face_035_070.npz") as npz:
         assert npz["range_m"].shape[0] == 3
+
+
+def test_a_replay_onto_a_nearly_full_disk_is_refused_at_once_naming_the_rrd(small_disk):
+    """A disk with a few kB free: Rerun's file writer cannot write the recording's first bytes and its save() would
+    wait for it for ever (the viewer process then "did not start in 30 s"); the replay is refused before it starts,
+    naming the .rrd and the full disk, and leaves nothing behind."""
+    out = small_disk / "out"
+    out.mkdir()
+    _fill(small_disk)
+    filler = small_disk / "filler"
+    os.truncate(filler, filler.stat().st_size - (16 << 10))  # 16 kB free
+    proc = tofd("replay", CLIP, "--out", out)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 1 and "Traceback" not in err, err
+    last = err.strip().splitlines()[-1]
+    assert f"output {out / 'emulated_face_035_070.rrd'} failed: No space left on device" in last, err
+    assert "did not start" not in err
+    assert list(out.iterdir()) == []

@@ -16,6 +16,7 @@ from tofd.config import Config
 from tofd.outputs import temp_path
 from tofd.service.pipeline.results import FrameResult
 from tofd.service.viewer.logger import RerunLogger
+from tofd.service.viewer.process import ViewerError
 from tofd.service.viewer.rotation import FileRotation
 from tofd.service.viewer.targets import QUIET_NO_FOOTER, RerunTarget
 
@@ -30,8 +31,11 @@ FILE_SINK_LOG = "re_log_encoding::rrd=off,re_sdk::recording_stream=off"
 def rerun_output(cfg: Config, sink: str, footer: bool) -> tuple[Path | None, Path | None, Config]:
     """A "save" sink's .rrd (None for other sinks), the temp file it grows in until the viewer process finishes
     it (None where numbered segments of a live file, rotation.py, are written under their own names), and the
-    config the viewer process gets (writing the temp file)."""
+    config the viewer process gets (writing the temp file). Raises ViewerError where the output's disk is full
+    (check_room)."""
     output = Path(cfg.rerun.path) if sink == "save" else None
+    if output is not None:
+        check_room(output)
     writing = None if output is None or FileRotation.wanted(cfg.rerun, sink, footer) else temp_path(output)
     if writing is not None:
         cfg = replace(cfg, rerun=replace(cfg.rerun, path=str(writing)))
@@ -101,6 +105,14 @@ class RerunBackend:
         return None
 
 
+def check_room(path: Path) -> None:
+    """Raise ViewerError (naming `path`) when the disk it goes to has less than FULL_DISK_BYTES free: Rerun's save()
+    waits forever for a file writer that could not write the stream's first bytes, so a full disk is refused
+    before the viewer process starts."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    free = shutil.disk_usage(path.parent).free
+    if free < FULL_DISK_BYTES:
+        raise ViewerError(f"output {path} failed: {os.strerror(errno.ENOSPC)} ({free // 1024} kB free)")
 
 
 def file_problem(path: str) -> str:
