@@ -3,8 +3,9 @@
 A camera that measures z-depth in whole units (millimetres: Azure Kinect, RealSense, Orbbec; SensorInfo's
 depth_unit_m) is shown as uint16 z-depth in that unit, which is lossless. The SR3000 measures radial range in whole
 codes (c / (2 f_mod) / 65535, 0.11 mm at 20 MHz); its z-depth (range times the ray's z) is shown as uint16 in that
-code, rounded: within half a code, the sensor's own resolution (Foxglove, whose viewer has no depth projection,
-gets the radial codes themselves). A source with no unit (rendered or float frames) is shown as float32 metres.
+code, rounded: within half a code, the sensor's own resolution (Rerun; Foxglove gets the radial codes
+themselves, its channel's metadata saying so). A source with no unit (rendered or float frames) is shown as float32
+metres.
 PNG is what both viewers decode: written here with rows Sub-filtered (one filter, the one that suits a smooth
 surface) and deflated by ISA-L (python-isal), about three times faster than libpng with zlib's fastest level at the
 same size on noisy depth (bench_viewers' encodings); the container is PNG's four fixed chunks.
