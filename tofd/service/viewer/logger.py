@@ -70,9 +70,9 @@ MAX_BATCH_AGE_S = 0.5  # a batch is sent once its first frame waited this long, 
 SERIES_FRAMES = 15  # the time series (stage timings, track confidence) go out at least this many frames at once
 LOGGING, LATENCY = (TIMED_STAGES.index(stage) for stage in OWN_TIMINGS)  # the timings this process measures
 RAW_DEPTH_PIXELS = 320 * 240
-"""A uint16 depth of at most this many pixels goes raw (Rerun's LZ4 chunk compression packs it): its PNG's deflate
-would cost the viewer more CPU than the file writer spends on the bytes it saves; a larger one (640x576) goes as
-a PNG, without which the .rrd would hold about twice the bytes."""
+"""A uint16 depth of at most this many pixels goes raw: its PNG's deflate would cost the viewer more CPU than
+Rerun's file writer spends on the bytes it saves; a larger one (640x576) goes as a PNG, as raw it would take 1.5 to
+2 times the bytes (Rerun's LZ4 chunk compression does not shrink noisy depth)."""
 
 
 def frames_per_send(cfg: RerunConfig, policy: str) -> int:
@@ -182,7 +182,7 @@ class RerunLogger:
         self._ray_z = np.ascontiguousarray(self._rays[..., 2])  # z-depth = radial range * cos(angle to the axis)
         self._images: dict[str, ImageEntity] = {}  # raw full-frame planes: the depth, unless it goes as PNG
         self._crop_format = image_format(height=1, width=1, color_model=None, dtype=np.uint8)  # sized: image_formats
-        # encoded planes: archetype; the depth's joins at the first frame if its unit is exact
+        # encoded planes: archetype; the depth's joins at the first frame if it goes as PNG
         self._encoded: dict[str, type] = {bp.AMPLITUDE: rr.EncodedImage}
         self._units_per_range: np.ndarray | None = None  # (H, W) radial metres -> depth units, when it goes as uint16
         self._depth_chosen = False
